@@ -36,8 +36,13 @@ def _check_order(order: str) -> tuple[int, int, int]:
     return tuple(_AXIS_INDEX[a] for a in order.lower())  # type: ignore[return-value]
 
 
-def safe_norm(x: Float[Array, "*batch n"], keepdims: bool = False) -> Float[Array, "*batch"]:
-    """Euclidean norm over the last axis whose gradient is 0 (not NaN) at the zero vector."""
+def safe_norm(
+    x: Float[Array, "*batch n"], keepdims: bool = False
+) -> Float[Array, "*batch"] | Float[Array, "*batch 1"]:
+    """Euclidean norm over the last axis whose gradient is 0 (not NaN) at the zero vector.
+
+    With ``keepdims=True`` the reduced axis is kept with size 1 (shape ``(*batch, 1)``).
+    """
     sq = jnp.sum(x * x, axis=-1, keepdims=keepdims)
     nonzero = sq > _TINY * _TINY
     return jnp.where(nonzero, jnp.sqrt(jnp.where(nonzero, sq, 1.0)), 0.0)

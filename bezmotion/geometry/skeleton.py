@@ -49,11 +49,13 @@ class Skeleton:
       names: unique joint names, in the same order.
       offsets: ``(joints, 3)`` rest translation of each joint in its parent's frame (cm).
         The root's entry is its rest position (usually overridden by animated root motion).
+        Leading batch axes ``(..., joints, 3)`` are allowed so that a batch of skeletons
+        sharing one topology can be stacked and ``vmap``-ped over.
     """
 
     parents: tuple[int, ...] = dataclasses.field(metadata=dict(static=True))
     names: tuple[str, ...] = dataclasses.field(metadata=dict(static=True))
-    offsets: Float[Array, "joints 3"]
+    offsets: Float[Array, "*batch joints 3"]
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "parents", tuple(int(p) for p in self.parents))
@@ -61,8 +63,8 @@ class Skeleton:
         _validate_topology(self.parents, self.names)
         # Leaves may be tracers or placeholders inside JAX transformations: only check real shapes.
         shape = getattr(self.offsets, "shape", None)
-        if shape is not None and tuple(shape) != (len(self.parents), 3):
-            raise ValueError(f"offsets must have shape ({len(self.parents)}, 3), got {tuple(shape)}")
+        if shape is not None and (len(shape) < 2 or tuple(shape[-2:]) != (len(self.parents), 3)):
+            raise ValueError(f"offsets must have shape (..., {len(self.parents)}, 3), got {tuple(shape)}")
 
     @classmethod
     def from_parents(cls, parents: Sequence[int], names: Sequence[str], offsets) -> "Skeleton":
