@@ -1,0 +1,84 @@
+"""Window-level preprocessing shared by the corpora: sliding windows, XZ-centering,
+facing normalisation at a key frame, and foot contacts.
+
+All functions are pure and batch-polymorphic over leading ``*batch`` axes; positions
+are in centimetres with +Y up.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+from bezmotion.geometry.rotations import quat_between, quat_conjugate, quat_mul, quat_rotate
+
+
+def sliding_window_starts(num_frames: int, window: int, offset: int) -> np.ndarray:
+    """Start frames of the LaFAN1 sliding windows over a clip of ``num_frames`` frames.
+
+    Windows start at 0, ``offset``, ``2·offset``, … while ``start + window < num_frames``
+    — strictly: a window that would end exactly on the last frame is dropped, as the
+    official LaFAN1 extractor does.
+    """
+    if window <= 0 or offset <= 0:
+        raise ValueError(f"window and offset must be positive, got window={window}, offset={offset}")
+    last = num_frames - window  # exclusive upper bound for the start
+    return np.arange(0, max(last, 0), offset, dtype=np.int64)
+
+
+def center_xz(root_pos: Float[Array, "*batch frames 3"]) -> Float[Array, "*batch frames 3"]:
+    """Subtract the window-mean root X and Z (height untouched)."""
+    mean = jnp.mean(root_pos, axis=-2, keepdims=True)
+    return root_pos - mean * jnp.asarray([1.0, 0.0, 1.0], root_pos.dtype)
+
+
+def facing_rotation(
+    root_quat: Float[Array, "*batch 4"], forward_axis: tuple[float, float, float] = (0.0, 1.0, 0.0)
+) -> Float[Array, "*batch 4"]:
+    """The rotation about +Y that takes +X onto the root's horizontal facing direction.
+
+    The facing direction is the root's local ``forward_axis`` (LaFAN1: +Y of the hips)
+    rotated into the world, with its height component removed.
+    """
+    axis = jnp.asarray(forward_axis, root_quat.dtype)
+    forward = quat_rotate(root_quat, jnp.broadcast_to(axis, root_quat.shape[:-1] + (3,)))
+    forward = forward * jnp.asarray([1.0, 0.0, 1.0], root_quat.dtype)
+    x_axis = jnp.broadcast_to(jnp.asarray([1.0, 0.0, 0.0], root_quat.dtype), forward.shape)
+    return quat_between(x_axis, forward)
+
+
+def face_forward_at_frame(
+    quat_local: Float[Array, "*batch frames joints 4"],
+    root_pos: Float[Array, "*batch frames 3"],
+    frame: int,
+    forward_axis: tuple[float, float, float] = (0.0, 1.0, 0.0),
+) -> tuple[Float[Array, "*batch frames joints 4"], Float[Array, "*batch frames 3"]]:
+    """Rotate a window about +Y so the root faces +X at ``frame`` (LaFAN1: frame 9).
+
+    The LaFAN1 protocol applies ``yrot⁻¹`` to every global rotation and position and
+    converts back to local. Left-multiplying all global rotations by one rotation leaves
+    every non-root local rotation unchanged (``conj(y·g_p)·(y·g_c) = conj(g_p)·g_c``),
+    so only the root's rotation and position change; computing it this way is exact
+    and skips a full FK/IK round trip.
+    """
+    yrot_inv = quat_conjugate(facing_rotation(quat_local[..., frame, 0, :], forward_axis))
+    root_quat = quat_mul(yrot_inv[..., None, :], quat_local[..., :, 0, :])
+    quat_local = quat_local.at[..., :, 0, :].set(root_quat)
+    root_pos = quat_rotate(yrot_inv[..., None, :], root_pos)
+    return quat_local, root_pos
+
+
+def foot_contacts(
+    pos_global: Float[Array, "*batch frames joints 3"],
+    joints: tuple[int, ...],
+    threshold: float = 0.02,
+) -> Bool[Array, "*batch frames contact_joints"]:
+    """Contact labels: a joint is in contact when its squared per-frame displacement is
+    below ``threshold`` (cm²). The last frame repeats the one before it (LaFAN1 rule).
+    """
+    idx = np.asarray(joints)
+    p = pos_global[..., idx, :]
+    step_sq = jnp.sum((p[..., 1:, :, :] - p[..., :-1, :, :]) ** 2, axis=-1)
+    contact = step_sq < threshold
+    return jnp.concatenate([contact, contact[..., -1:, :]], axis=-2)
