@@ -15,7 +15,6 @@ import dataclasses
 import functools
 import os
 from collections.abc import Callable, Sequence
-from typing import Literal
 
 import jax
 import jax.numpy as jnp
@@ -37,7 +36,7 @@ from bezmotion.models.baselines import interpolation, zero_velocity
 
 TRANSITION_LENGTHS: tuple[int, ...] = (5, 15, 30, 45)
 TEST_WINDOW, TEST_OFFSET = 65, 40
-MetricVariant = Literal["official", "delta"]
+METRIC_VARIANTS: tuple[str, ...] = ("official", "delta")
 InBetweener = Callable[..., tuple[jax.Array, jax.Array]]
 
 
@@ -93,7 +92,7 @@ def evaluate_transitions(
     inbetween: InBetweener,
     lengths: Sequence[int] = TRANSITION_LENGTHS,
     *,
-    variant: MetricVariant = "official",
+    variant: str = "official",
 ) -> dict[str, dict[str, float]]:
     """L2Q, L2P and NPSS of ``inbetween`` for each transition length.
 
@@ -107,7 +106,7 @@ def evaluate_transitions(
     Returns:
       ``{"l2q": {"5": …}, "l2p": {…}, "npss": {…}}`` as Python floats.
     """
-    if variant not in ("official", "delta"):
+    if variant not in METRIC_VARIANTS:
         raise ValueError(f"unknown metric variant {variant!r}; expected 'official' or 'delta'")
     w = bench.windows
     window_frames = w.quat_local.shape[1]
@@ -139,7 +138,7 @@ def evaluate_transitions(
 
 
 def evaluate_baselines(
-    bench: Lafan1Benchmark, lengths: Sequence[int] = TRANSITION_LENGTHS, *, variant: MetricVariant = "official"
+    bench: Lafan1Benchmark, lengths: Sequence[int] = TRANSITION_LENGTHS, *, variant: str = "official"
 ) -> dict:
     """Both baselines on the benchmark, in the experiment's JSON layout."""
     return {

@@ -20,6 +20,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from bezmotion._io import atomic_write_text
@@ -387,7 +388,10 @@ def parse_bvh(text: str, source: str = "<string>", *, fix_continuity: bool = Tru
         quat_local = _continuity_fixed(quat_local)
 
     try:
-        skeleton = Skeleton(tuple(parents), tuple(names), offsets_np)
+        # A float64 jax array satisfies the Skeleton's jaxtyping annotation (checked at
+        # runtime in the tests) without rounding the offsets to float32.
+        with jax.enable_x64(True):
+            skeleton = Skeleton(tuple(parents), tuple(names), jnp.asarray(offsets_np))
     except ValueError as e:
         raise ValueError(f"{source}: {e}") from None
     return BvhMotion(skeleton, quat_local, pos_local, tuple(channels), frame_time, tuple(end_sites))
@@ -420,18 +424,31 @@ def _dfs_order(parents: Sequence[int]) -> list[int]:
     return order
 
 
-def _format_row(values: Sequence[float], precision: int) -> str:
+def _format_row(values: Sequence[float] | np.ndarray, precision: int) -> str:
     return " ".join(f"{v:.{precision}f}" for v in values)
 
 
+def _check_finite(motion: BvhMotion) -> None:
+    """Refuse NaN/inf up front: the NaN-safe Euler conversion would quietly turn them into 0°."""
+    for field in ("quat_local", "pos_local"):
+        bad = ~np.isfinite(getattr(motion, field))
+        if bad.any():
+            frame, joint = (int(i) for i in np.argwhere(bad)[0][:2])
+            raise ValueError(
+                f"cannot write non-finite {field} at frame {frame}, joint {joint} ({motion.skeleton.names[joint]!r})"
+            )
+
+
 def format_bvh(motion: BvhMotion, *, precision: int = 6) -> str:
-    """BVH text of ``motion``; angles in degrees, ``precision`` decimals everywhere.
+    """BVH text of ``motion``; angles in degrees, ``precision`` decimals everywhere but the
+    frame time, which is written exactly (shortest round-trip repr).
 
     Joints are written depth first; for a skeleton stored in another order the file's
     joint order (and that of a re-read motion) is the depth-first one.
     """
     if not (isinstance(precision, int) and 0 <= precision <= 15):
         raise ValueError(f"precision must be an integer in [0, 15], got {precision!r}")
+    _check_finite(motion)
     skel = motion.skeleton
     offsets = np.asarray(skel.offsets, np.float64)
     order = _dfs_order(skel.parents)
@@ -460,7 +477,7 @@ def format_bvh(motion: BvhMotion, *, precision: int = 6) -> str:
 
     write_joint(0, 0)
     frames = motion.num_frames
-    out.write(f"MOTION\nFrames: {frames}\nFrame Time: {motion.frame_time:.{max(precision, 6)}f}\n")
+    out.write(f"MOTION\nFrames: {frames}\nFrame Time: {float(motion.frame_time)!r}\n")  # shortest exact repr
 
     # Build the (frames, channels) table column by column in file order.
     columns: list[np.ndarray] = []

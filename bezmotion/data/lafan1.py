@@ -16,7 +16,7 @@ import dataclasses
 import functools
 import os
 import zipfile
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import jax
@@ -95,7 +95,7 @@ def _split_file_name(name: str) -> tuple[str, int]:
     return seq, int(subject[7:])
 
 
-def _bvh_sources(source: Path) -> list[tuple[str, callable]]:
+def _bvh_sources(source: Path) -> list[tuple[str, Callable[[], str]]]:
     """(file name, text loader) for every ``.bvh`` in a zip or directory, sorted by name."""
     if source.is_dir():
         files = sorted(source.glob("*.bvh"))

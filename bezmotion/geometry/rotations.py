@@ -118,10 +118,10 @@ def quat_fix_continuity(q: Float[Array, "*batch 4"], axis: int = -3) -> Float[Ar
     return jnp.moveaxis(q * sign[..., None], 0, axis)
 
 
-def quat_from_axis_angle(axis: Float[Array, "*#batch 3"], angle: Float[Array, "*#batch"]) -> Float[Array, "*batch 4"]:
+def quat_from_axis_angle(axis: Float[ArrayLike, "*#batch 3"], angle: Float[ArrayLike, "*#batch"]) -> Float[Array, "*batch 4"]:
     """Quaternion rotating by ``angle`` radians about the (normalised) ``axis``."""
     half = 0.5 * jnp.asarray(angle)[..., None]
-    return jnp.concatenate([jnp.cos(half), jnp.sin(half) * normalize(axis)], axis=-1)
+    return jnp.concatenate([jnp.cos(half), jnp.sin(half) * normalize(jnp.asarray(axis, half.dtype))], axis=-1)
 
 
 def quat_between(u: Float[Array, "*#batch 3"], v: Float[Array, "*#batch 3"]) -> Float[Array, "*batch 4"]:
@@ -138,7 +138,9 @@ def quat_between(u: Float[Array, "*#batch 3"], v: Float[Array, "*#batch 3"]) -> 
     least = jnp.argmin(jnp.abs(u), axis=-1)
     basis = jnp.eye(3, dtype=u.dtype)[least]
     perp = normalize(jnp.cross(u, basis))
-    opposite = w < 1e-7
+    # 1 + dot of exactly opposite unit vectors is only zero up to rounding (float32 gives
+    # ~1.2e-7 = eps), so the threshold must scale with the dtype's precision.
+    opposite = w < max(1e-7, 16.0 * float(jnp.finfo(w.dtype).eps))
     q = jnp.where(opposite, jnp.concatenate([jnp.zeros_like(w), perp], axis=-1), jnp.concatenate([w, xyz], axis=-1))
     return quat_normalize(q)
 

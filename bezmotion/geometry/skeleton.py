@@ -55,7 +55,7 @@ class Skeleton:
 
     parents: tuple[int, ...] = dataclasses.field(metadata=dict(static=True))
     names: tuple[str, ...] = dataclasses.field(metadata=dict(static=True))
-    offsets: Float[Array, "*batch joints 3"]
+    offsets: Float[Array | np.ndarray, "*batch joints 3"]
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "parents", tuple(int(p) for p in self.parents))
