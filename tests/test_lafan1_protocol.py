@@ -24,7 +24,7 @@ from bezmotion.evaluation import (
     interpolation_inbetweener,
     lafan1_benchmark,
 )
-from bezmotion.geometry import Skeleton, quat_from_euler, quat_rotate
+from bezmotion.geometry import Skeleton, quat_between, quat_from_euler, quat_rotate
 
 
 def synthetic_clip(num_frames: int, seed: int) -> tuple[Skeleton, np.ndarray, np.ndarray]:
@@ -184,3 +184,25 @@ def test_benchmark_runner_on_synthetic_corpus(synthetic_zip, tmp_path, monkeypat
         evaluate_transitions(bench, interpolation_inbetweener, lengths=(60,))
     with pytest.raises(ValueError, match="in-betweener returned shapes"):
         evaluate_transitions(bench, lambda q, r, tq, tr, n: (q, r), lengths=(5,))
+
+
+@pytest.mark.parametrize("deviation", [0.0, 3.7e-4, -1e-6])
+def test_facing_rotation_near_minus_x_stays_a_yaw(deviation):
+    """Regression: three LaFAN1 training windows face within 0.02° of −X at frame 9; a
+    generic opposite-vector fallback turned them upside down and skewed x_std."""
+    with jax.enable_x64(True):
+        facing = jnp.asarray([-1.0, 0.0, deviation])
+        # A root rotation whose +Y axis points along `facing`: rotate +Y onto it.
+        root = quat_between(jnp.asarray([0.0, 1.0, 0.0]), facing)
+        yaw = facing_rotation(root)
+        np.testing.assert_allclose(np.asarray(yaw)[[1, 3]], 0.0, atol=1e-15)
+        turned = np.asarray(quat_rotate(yaw, jnp.asarray([1.0, 0.0, 0.0])))
+    np.testing.assert_allclose(turned, np.asarray(facing) / np.linalg.norm(facing), atol=1e-12)
+
+
+def test_quat_between_nearly_opposite_is_exact():
+    with jax.enable_x64(True):
+        u = jnp.asarray([1.0, 0.0, 0.0])
+        v = jnp.asarray([-1.0, 0.0, 3.7e-4])
+        q = quat_between(u, v)
+        np.testing.assert_allclose(quat_rotate(q, u), v / jnp.linalg.norm(v), atol=1e-12)

@@ -11,7 +11,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from bezmotion.geometry.rotations import quat_between, quat_conjugate, quat_mul, quat_rotate
+from bezmotion.geometry.rotations import quat_conjugate, quat_mul, quat_rotate
 
 
 def sliding_window_starts(num_frames: int, window: int, offset: int) -> np.ndarray:
@@ -39,13 +39,21 @@ def facing_rotation(
     """The rotation about +Y that takes +X onto the root's horizontal facing direction.
 
     The facing direction is the root's local ``forward_axis`` (LaFAN1: +Y of the hips)
-    rotated into the world, with its height component removed.
+    rotated into the world, with its height component removed. The yaw is built
+    directly from its angle θ = atan2(−f_z, f_x), which equals the shortest-arc rotation
+    from +X onto the facing direction (w = cos θ/2 ≥ 0) and stays a pure yaw even when
+    the facing direction is (nearly) −X, where a generic "rotation between two vectors"
+    has to pick an arbitrary axis.
     """
     axis = jnp.asarray(forward_axis, root_quat.dtype)
     forward = quat_rotate(root_quat, jnp.broadcast_to(axis, root_quat.shape[:-1] + (3,)))
-    forward = forward * jnp.asarray([1.0, 0.0, 1.0], root_quat.dtype)
-    x_axis = jnp.broadcast_to(jnp.asarray([1.0, 0.0, 0.0], root_quat.dtype), forward.shape)
-    return quat_between(x_axis, forward)
+    fx, fz = forward[..., 0], forward[..., 2]
+    # Double where: a facing direction straight up or down has no yaw; use 0, not NaN gradients.
+    flat = (fx * fx + fz * fz) < 1e-24
+    theta = jnp.where(flat, 0.0, jnp.arctan2(-jnp.where(flat, 0.0, fz), jnp.where(flat, 1.0, fx)))
+    half = 0.5 * theta
+    zero = jnp.zeros_like(half)
+    return jnp.stack([jnp.cos(half), zero, jnp.sin(half), zero], axis=-1)
 
 
 def face_forward_at_frame(
