@@ -20,7 +20,6 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from bezmotion._io import atomic_write_text
@@ -388,10 +387,7 @@ def parse_bvh(text: str, source: str = "<string>", *, fix_continuity: bool = Tru
         quat_local = _continuity_fixed(quat_local)
 
     try:
-        # A float64 jax array satisfies the Skeleton's jaxtyping annotation (checked at
-        # runtime in the tests) without rounding the offsets to float32.
-        with jax.enable_x64(True):
-            skeleton = Skeleton(tuple(parents), tuple(names), jnp.asarray(offsets_np))
+        skeleton = Skeleton(tuple(parents), tuple(names), offsets_np)
     except ValueError as e:
         raise ValueError(f"{source}: {e}") from None
     return BvhMotion(skeleton, quat_local, pos_local, tuple(channels), frame_time, tuple(end_sites))
