@@ -234,30 +234,28 @@ def _parse_hierarchy(reader: _Reader):
     return names, parents, offsets, channels, end_sites
 
 
+def _header_value(reader: _Reader, label: str, what: str, convert):
+    """The value of the next line, which must read ``<label>: <value>``."""
+    joined = " ".join(reader.next_tokens())
+    expected = f"expected '{label}: <{what}>', got {joined!r}"
+    if not joined.lower().startswith(label.lower() + ":"):
+        raise reader.error(expected)
+    try:
+        return convert(joined.split(":", 1)[1])
+    except ValueError:
+        raise reader.error(expected) from None
+
+
 def _parse_motion_header(reader: _Reader) -> tuple[int, float]:
     t = reader.next_tokens()
     if t[0].upper() == "ROOT":
         raise reader.error("more than one ROOT is not supported")
     if t[0].upper() != "MOTION":
         raise reader.error(f"expected 'MOTION' after the hierarchy, got {' '.join(t)!r}")
-    t = reader.next_tokens()
-    joined = " ".join(t)
-    if not joined.lower().startswith("frames:"):
-        raise reader.error(f"expected 'Frames: <count>', got {joined!r}")
-    try:
-        frames = int(joined.split(":", 1)[1])
-    except ValueError:
-        raise reader.error(f"expected 'Frames: <count>', got {joined!r}") from None
+    frames = _header_value(reader, "Frames", "count", int)
     if frames < 0:
         raise reader.error(f"negative frame count {frames}")
-    t = reader.next_tokens()
-    joined = " ".join(t)
-    if not joined.lower().startswith("frame time:"):
-        raise reader.error(f"expected 'Frame Time: <seconds>', got {joined!r}")
-    try:
-        frame_time = float(joined.split(":", 1)[1])
-    except ValueError:
-        raise reader.error(f"expected 'Frame Time: <seconds>', got {joined!r}") from None
+    frame_time = _header_value(reader, "Frame Time", "seconds", float)
     if not (np.isfinite(frame_time) and frame_time > 0):
         raise reader.error(f"Frame Time must be positive, got {frame_time}")
     return frames, frame_time
