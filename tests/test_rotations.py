@@ -118,27 +118,33 @@ def test_quat_rotate_matches_matrix_and_sandwich_product(rng):
     np.testing.assert_allclose(rotated, np_quat_rotate(q, v), atol=1e-5)
 
 
-def test_quat_from_axis_angle_and_between(rng):
+def test_quat_from_axis_angle_matches_numpy():
     axis = np.array([0.0, 0.6, 0.8])
     q = R.quat_from_axis_angle(jnp.asarray(axis * 5.0, jnp.float32), jnp.asarray(1.1, jnp.float32))
     np.testing.assert_allclose(q, np_quat_from_axis_angle(axis, 1.1), atol=1e-6)
-    u, v = rng.normal(size=(30, 3)), rng.normal(size=(30, 3))
-    u[0], v[0] = [1.0, 2.0, 3.0], [-2.0, -4.0, -6.0]  # opposite directions
-    u[1], v[1] = [1.0, 2.0, 3.0], [0.5, 1.0, 1.5]  # parallel
+
+
+def test_quat_between_rotates_u_onto_v(rng):
+    """Generic, parallel and exactly opposite directions (float32 rounding at the opposite case)."""
+    u, v = rng.normal(size=(N, 3)), rng.normal(size=(N, 3))
+    u[0], v[0] = [1.0, 2.0, 3.0], [-2.0, -4.0, -6.0]  # opposite
+    u[1], v[1] = [1.0, 0.0, 0.0], [-3.0, 0.0, 0.0]  # opposite, along a basis axis
+    u[2], v[2] = [1.0, 2.0, 3.0], [0.5, 1.0, 1.5]  # parallel
     q = R.quat_between(jnp.asarray(u, jnp.float32), jnp.asarray(v, jnp.float32))
-    unit = lambda x: x / np.linalg.norm(x, axis=-1, keepdims=True)  # noqa: E731
-    np.testing.assert_allclose(np_quat_rotate(q, unit(u)), unit(v), atol=1e-5)
-    np.testing.assert_allclose(q[1], [1.0, 0.0, 0.0, 0.0], atol=1e-6)
+    u_unit = u / np.linalg.norm(u, axis=-1, keepdims=True)
+    v_unit = v / np.linalg.norm(v, axis=-1, keepdims=True)
+    np.testing.assert_allclose(np_quat_rotate(q, u_unit), v_unit, atol=1e-5)
+    np.testing.assert_allclose(q[2], [1.0, 0.0, 0.0, 0.0], atol=1e-6)
+    np.testing.assert_allclose(q[:2, 0], 0.0, atol=1e-6)  # rotations by π
 
 
 @pytest.mark.parametrize("axis", [-3, 0, 1])
 def test_quat_fix_continuity_matches_sequential_loop(rng, axis):
     """Closed-form sign fix == the sequential loop (frame t flipped when dot(fixed t-1, q_t) < 0)."""
     frames, joints = 25, 3
-    # A smooth motion, randomly sign-flipped per frame and joint.
-    q = np_quat_mul(random_quat_np(rng, (1, joints)), np_quat_from_axis_angle(
-        np.array([0.0, 0.0, 1.0]), np.linspace(0.0, 2.0, frames)[:, None] * rng.uniform(0.5, 2.0, joints)
-    ))
+    # A smooth motion (spinning about z at a different speed per joint), randomly sign-flipped.
+    spin = np.linspace(0.0, 2.0, frames)[:, None] * rng.uniform(0.5, 2.0, joints)
+    q = np_quat_mul(random_quat_np(rng, (1, joints)), np_quat_from_axis_angle(np.array([0.0, 0.0, 1.0]), spin))
     q = q * rng.choice([-1.0, 1.0], size=(frames, joints, 1))
     expected = np_fix_continuity(q)  # time on axis 0
     layout = {-3: (0, 1, 2), 0: (0, 1, 2), 1: (1, 0, 2)}[axis]
@@ -178,7 +184,7 @@ def test_rot6d_is_first_two_columns_and_round_trips(rng):
 
 def test_matrix_from_rot6d_orthonormalises(rng):
     """Any generic 6D vector maps to a proper rotation whose first column is the normalised a1."""
-    r6 = jnp.asarray(rng.normal(size=(50, 6)), jnp.float32)
+    r6 = jnp.asarray(rng.normal(size=(N, 6)), jnp.float32)
     m = np.asarray(R.matrix_from_rot6d(r6), np.float64)
     np.testing.assert_allclose(np.swapaxes(m, -1, -2) @ m, np.broadcast_to(np.eye(3), m.shape), atol=1e-5)
     np.testing.assert_allclose(np.linalg.det(m), 1.0, atol=1e-5)
