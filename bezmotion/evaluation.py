@@ -18,7 +18,6 @@ from collections.abc import Callable, Sequence
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 
 from bezmotion.data.lafan1 import (
     N_PAST,
