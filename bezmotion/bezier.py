@@ -1,0 +1,372 @@
+"""Piecewise cubic Bézier motion curves with symmetric (C1) tangents (BMM §3.2, §4.1).
+
+A curve over a window of ``num_frames`` frames has a control point every ``stride``
+frames — frames ``0, s, 2s, …`` — plus one on the last frame when ``num_frames - 1`` is
+not a multiple of ``s`` (so a 31-frame window has 6 control points at stride 6, and 9 at
+stride 4, the last segment 2 frames long). Control point ``k`` carries a position
+``ctrl_pos[k]`` and a tangent ``ctrl_tangent[k]``; segment ``k`` (frames ``f_k … f_{k+1}``,
+length ``d_k``) is the cubic Bézier with the four points
+
+    P_k,   P_k + a_k·T_k,   P_{k+1} − a_k·T_{k+1},   P_{k+1},      a_k = d_k / s,
+
+so the handles on either side of a control point are mirror images (symmetric tangents)
+and the velocity ``3·T_k / s`` (units per frame) is continuous across every control point
+(C1, also across a shorter last segment). For the usual full-stride segments ``a_k = 1``
+and ``T_k`` is simply the handle offset an animation tool stores.
+
+Everything here is pure and batch-polymorphic: curves are ``(*batch, controls, dim)``
+arrays and evaluation is linear in them, ``x(f) = Σ_k w_pos[f, k]·P_k + w_tan[f, k]·T_k``
+(:func:`basis`). Fitting (:func:`fit_curves`) is a least-squares problem solved with
+optimistix. Orientations between control points are slerped (:func:`interpolate_rotations`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import lineax as lx
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
+
+from bezmotion.geometry.rotations import quat_from_rot6d, rot6d_from_quat, slerp
+
+DEFAULT_STRIDE = 6  # frames between control points (BMM appendix A.2)
+
+
+@dataclasses.dataclass(frozen=True)
+class BezierLayout:
+    """Where the control points of a window sit in time (static, hashable: a jit argument).
+
+    Attributes:
+      num_frames: window length in frames (≥ 2).
+      stride: frames between consecutive control points (≥ 1).
+    """
+
+    num_frames: int
+    stride: int = DEFAULT_STRIDE
+
+    def __post_init__(self):
+        for name in ("num_frames", "stride"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+                raise ValueError(f"BezierLayout.{name} must be an integer, got {value!r}")
+        if self.num_frames < 2:
+            raise ValueError(f"BezierLayout needs at least 2 frames, got num_frames={self.num_frames}")
+        if self.stride < 1:
+            raise ValueError(f"BezierLayout.stride must be ≥ 1, got {self.stride}")
+
+    @property
+    def control_frames(self) -> np.ndarray:
+        """``(controls,)`` int frame index of every control point, 0 first, the last frame last."""
+        last = self.num_frames - 1
+        frames = np.arange(0, last + 1, self.stride)
+        return frames if frames[-1] == last else np.append(frames, last)
+
+    @property
+    def num_controls(self) -> int:
+        return len(self.control_frames)
+
+    @property
+    def num_segments(self) -> int:
+        return self.num_controls - 1
+
+    @property
+    def segment_lengths(self) -> np.ndarray:
+        """``(segments,)`` frames spanned by each segment (all ``stride`` except maybe the last)."""
+        return np.diff(self.control_frames)
+
+    def frames(self) -> np.ndarray:
+        """``(num_frames,)`` the integer frame times ``0 … num_frames − 1`` as float64."""
+        return np.arange(self.num_frames, dtype=np.float64)
+
+    @classmethod
+    def from_controls(cls, num_controls: int, stride: int = DEFAULT_STRIDE) -> BezierLayout:
+        """The layout of ``num_controls`` control points ``stride`` frames apart."""
+        if num_controls < 2:
+            raise ValueError(f"a curve needs at least 2 control points, got {num_controls}")
+        return cls((num_controls - 1) * stride + 1, stride)
+
+
+def bernstein(t: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch 4"]:
+    """The four cubic Bernstein polynomials ``C(3,i)·(1−t)^(3−i)·t^i`` at ``t`` (Eq. 3)."""
+    t = jnp.asarray(t)
+    u = 1.0 - t
+    return jnp.stack([u * u * u, 3.0 * u * u * t, 3.0 * u * t * t, t * t * t], axis=-1)
+
+
+def locate(
+    layout: BezierLayout, frames: Float[ArrayLike, "*shape"]
+) -> tuple[Int[Array, "*shape"], Float[Array, "*shape"]]:
+    """Segment index and local parameter ``t ∈ [0, 1]`` of each (fractional) frame time.
+
+    Frames outside ``[0, num_frames − 1]`` extrapolate the first or last segment's cubic
+    (``t`` outside ``[0, 1]``); the last frame belongs to the last segment at ``t = 1``.
+    """
+    frames = jnp.asarray(frames)
+    if not jnp.issubdtype(frames.dtype, jnp.floating):
+        frames = frames.astype(jnp.result_type(float))
+    segment = jnp.clip(jnp.floor(frames / layout.stride).astype(jnp.int32), 0, layout.num_segments - 1)
+    starts = jnp.asarray(layout.control_frames[:-1], frames.dtype)
+    lengths = jnp.asarray(layout.segment_lengths, frames.dtype)
+    t = (frames - starts[segment]) / lengths[segment]
+    return segment, t
+
+
+def basis(
+    layout: BezierLayout, frames: Float[ArrayLike, "frames"] | None = None
+) -> tuple[Float[Array, "frames controls"], Float[Array, "frames controls"]]:
+    """Weights of the control positions and tangents at each frame time.
+
+    ``evaluate(...)[f] = w_pos[f] @ ctrl_pos + w_tan[f] @ ctrl_tangent``. At most two
+    control points have non-zero weight at any frame.
+
+    Args:
+      layout: the control-point layout.
+      frames: ``(frames,)`` frame times (may be fractional); default every integer frame.
+    Returns:
+      ``(w_pos, w_tan)``, each ``(frames, controls)``.
+    """
+    frames = layout.frames() if frames is None else frames
+    segment, t = locate(layout, frames)
+    b = bernstein(t)
+    scale = jnp.asarray(layout.segment_lengths / layout.stride, t.dtype)[segment]
+    first = jax.nn.one_hot(segment, layout.num_controls, dtype=t.dtype)
+    second = jax.nn.one_hot(segment + 1, layout.num_controls, dtype=t.dtype)
+    w_pos = (b[:, 0] + b[:, 1])[:, None] * first + (b[:, 2] + b[:, 3])[:, None] * second
+    w_tan = (scale * b[:, 1])[:, None] * first - (scale * b[:, 2])[:, None] * second
+    return w_pos, w_tan
+
+
+def _check_controls(layout: BezierLayout, *arrays: Array) -> None:
+    for a in arrays:
+        if a.ndim < 2 or a.shape[-2] != layout.num_controls:
+            raise ValueError(
+                f"expected (..., {layout.num_controls}, dim) control arrays for {layout}, got shape {a.shape}"
+            )
+
+
+def evaluate(
+    layout: BezierLayout,
+    ctrl_pos: Float[Array, "*batch controls dim"],
+    ctrl_tangent: Float[Array, "*batch controls dim"],
+    frames: Float[ArrayLike, "frames"] | None = None,
+) -> Float[Array, "*batch frames dim"]:
+    """Evaluate curves at frame times (Bernstein form, Eq. 3).
+
+    Args:
+      layout: the control-point layout.
+      ctrl_pos, ctrl_tangent: ``(*batch, controls, dim)`` control positions and tangents
+        (same units, e.g. cm).
+      frames: ``(frames,)`` frame times, fractional allowed; default every integer frame.
+    Returns:
+      ``(*batch, frames, dim)`` points on the curves.
+    """
+    ctrl_pos, ctrl_tangent = jnp.asarray(ctrl_pos), jnp.asarray(ctrl_tangent)
+    _check_controls(layout, ctrl_pos, ctrl_tangent)
+    w_pos, w_tan = basis(layout, frames)
+    dtype = jnp.result_type(ctrl_pos, ctrl_tangent)
+    return jnp.einsum("fk,...kd->...fd", w_pos.astype(dtype), ctrl_pos) + jnp.einsum(
+        "fk,...kd->...fd", w_tan.astype(dtype), ctrl_tangent
+    )
+
+
+def to_segments(
+    layout: BezierLayout,
+    ctrl_pos: Float[Array, "*batch controls dim"],
+    ctrl_tangent: Float[Array, "*batch controls dim"],
+) -> Float[Array, "*batch segments 4 dim"]:
+    """The explicit 4-point form of every segment, as animation tools store it.
+
+    Segment ``k`` is ``(P_k, P_k + a_k T_k, P_{k+1} − a_k T_{k+1}, P_{k+1})``, ``a_k = d_k/s``.
+    """
+    ctrl_pos, ctrl_tangent = jnp.asarray(ctrl_pos), jnp.asarray(ctrl_tangent)
+    _check_controls(layout, ctrl_pos, ctrl_tangent)
+    scale = jnp.asarray(layout.segment_lengths / layout.stride, ctrl_tangent.dtype)[:, None]
+    start, end = ctrl_pos[..., :-1, :], ctrl_pos[..., 1:, :]
+    out_handle = start + scale * ctrl_tangent[..., :-1, :]
+    in_handle = end - scale * ctrl_tangent[..., 1:, :]
+    return jnp.stack([start, out_handle, in_handle, end], axis=-2)
+
+
+def from_segments(
+    layout: BezierLayout, segments: Float[Array, "*batch segments 4 dim"]
+) -> tuple[Float[Array, "*batch controls dim"], Float[Array, "*batch controls dim"]]:
+    """Control positions and tangents from the 4-point form (inverse of :func:`to_segments`).
+
+    Segments written by another tool need not be joined or symmetric; shared end points
+    and the two handles of each interior control point are averaged, which is the
+    symmetric, C1 curve nearest to them. Exact inverse for curves from :func:`to_segments`.
+    """
+    segments = jnp.asarray(segments)
+    if segments.ndim < 3 or segments.shape[-3:-1] != (layout.num_segments, 4):
+        raise ValueError(f"expected (..., {layout.num_segments}, 4, dim) segments for {layout}, got {segments.shape}")
+    inv_scale = jnp.asarray(layout.stride / layout.segment_lengths, segments.dtype)[:, None]
+    starts, ends = segments[..., :, 0, :], segments[..., :, 3, :]
+    out_tangent = (segments[..., :, 1, :] - starts) * inv_scale  # tangents of controls 0 … K−2
+    in_tangent = (ends - segments[..., :, 2, :]) * inv_scale  # tangents of controls 1 … K−1
+
+    def merge(leading, trailing):  # leading: defined for controls 0…K−2, trailing for 1…K−1
+        middle = 0.5 * (leading[..., 1:, :] + trailing[..., :-1, :])
+        return jnp.concatenate([leading[..., :1, :], middle, trailing[..., -1:, :]], axis=-2)
+
+    return merge(starts, ends), merge(out_tangent, in_tangent)
+
+
+def finite_difference_tangents(
+    layout: BezierLayout, points: Float[Array, "*batch frames dim"]
+) -> Float[Array, "*batch controls dim"]:
+    """Tangents whose velocity ``3T/s`` matches the central finite difference of ``points``
+    at each control frame (one-sided at the window ends) — the fit's starting point."""
+    velocity = jnp.gradient(points, axis=-2)  # units per frame
+    return velocity[..., layout.control_frames, :] * (layout.stride / 3.0)
+
+
+class FitResult(NamedTuple):
+    """Fitted curves and how well they fit.
+
+    Attributes:
+      ctrl_pos, ctrl_tangent: ``(*batch, controls, dim)`` the curves.
+      rms_error: ``(*batch,)`` root-mean-square distance between the curve and the data
+        over the window's frames (data units, e.g. cm).
+      max_error: ``(*batch,)`` largest such distance.
+      result: ``(*batch,)`` optimistix result code of each solve
+        (``result == optx.RESULTS.successful``).
+      num_steps: ``(*batch,)`` Gauss-Newton steps taken.
+    """
+
+    ctrl_pos: Float[Array, "*batch controls dim"]
+    ctrl_tangent: Float[Array, "*batch controls dim"]
+    rms_error: Float[Array, "*batch"]
+    max_error: Float[Array, "*batch"]
+    result: optx.RESULTS
+    num_steps: Int[Array, "*batch"]
+
+    @property
+    def succeeded(self) -> Bool[Array, "*batch"]:
+        return self.result == optx.RESULTS.successful
+
+
+@functools.partial(jax.jit, static_argnames=("layout", "pin_positions", "rtol", "atol", "max_steps"))
+def fit_curves(
+    layout: BezierLayout,
+    points: Float[Array, "*batch frames dim"],
+    *,
+    pin_positions: bool = True,
+    rtol: float = 1e-5,
+    atol: float = 1e-5,
+    max_steps: int = 8,
+) -> FitResult:
+    """Least-squares fit of Bézier curves to dense trajectories (optimistix Gauss-Newton).
+
+    Minimises ``Σ_f ‖x(f) − points[f]‖²`` over the window's integer frames. Two variants:
+
+    - ``pin_positions=True`` (default): control positions are the data at the control
+      frames and only tangents are fitted. The curve passes exactly through the mocap at
+      every control frame, so a handle taken from the data *is* a control point: ground
+      truth, conditions and the overwrite at sampling time all agree, and handles are hit
+      with zero error. It costs a little dense accuracy between control points (MEASURE).
+    - ``pin_positions=False``: positions and tangents are both free — the lowest dense
+      error, but the curve misses the data at its own control frames (MEASURE), so data
+      handles would not lie on the ground-truth curves.
+
+    The problem is linear, so Gauss-Newton lands on the minimiser in its first step and
+    confirms convergence in the second. Where the data do not determine a tangent
+    (stride 1 — every frame is a control point — or stride 2, or a 1-frame last segment)
+    the linear solve is the minimum-norm correction from the finite-difference tangents
+    (SVD), so those tangents stay at their natural, finite-difference values instead of
+    being arbitrary. The three coordinates of a curve are independent problems and are
+    solved separately, which keeps every Jacobian at ``frames × (2·controls)``.
+
+    Args:
+      layout: the control-point layout; ``points`` must have ``layout.num_frames`` frames.
+      points: ``(*batch, frames, dim)`` dense trajectories (e.g. cm).
+      pin_positions: pin control positions to the data (see above).
+      rtol, atol: Gauss-Newton convergence tolerances (relative/absolute, on the step).
+      max_steps: Gauss-Newton step budget.
+    Returns:
+      a :class:`FitResult`, batched like ``points``.
+    """
+    if points.ndim < 2 or points.shape[-2] != layout.num_frames:
+        raise ValueError(f"expected (..., {layout.num_frames}, dim) points for {layout}, got shape {points.shape}")
+    batch_shape, dim = points.shape[:-2], points.shape[-1]
+    # One scalar curve per (batch element, coordinate): (n, frames, 1).
+    scalar = jnp.moveaxis(points, -1, -2).reshape(-1, layout.num_frames, 1)
+    w_pos, w_tan = (w.astype(points.dtype) for w in basis(layout))
+    solver = optx.GaussNewton(rtol=rtol, atol=atol, linear_solver=lx.SVD())
+    ctrl = layout.control_frames
+
+    def solve_one(x):
+        pinned_pos = x[ctrl]
+        y0 = finite_difference_tangents(layout, x) if pin_positions else (pinned_pos, finite_difference_tangents(layout, x))
+
+        def residual(y, x):
+            pos, tangent = (pinned_pos, y) if pin_positions else y
+            return w_pos @ pos + w_tan @ tangent - x
+
+        sol = optx.least_squares(residual, solver, y0, args=x, max_steps=max_steps, throw=False)
+        pos, tangent = (pinned_pos, sol.value) if pin_positions else sol.value
+        return pos, tangent, sol.result, sol.stats["num_steps"]
+
+    pos, tangent, result, num_steps = jax.vmap(solve_one)(scalar)
+
+    def unflatten(a):  # (n, controls, 1) -> (*batch, controls, dim)
+        return jnp.moveaxis(a.reshape(*batch_shape, dim, layout.num_controls), -1, -2)
+
+    ctrl_pos, ctrl_tangent = unflatten(pos), unflatten(tangent)
+    error = jnp.linalg.norm(evaluate(layout, ctrl_pos, ctrl_tangent) - points, axis=-1)
+    # A curve's solve succeeded only if all its coordinates' solves did; report the worst.
+    result = jax.tree.map(lambda r: jnp.max(r.reshape(*batch_shape, dim), axis=-1), result)
+    num_steps = jnp.max(num_steps.reshape(*batch_shape, dim), axis=-1)
+    return FitResult(
+        ctrl_pos=ctrl_pos,
+        ctrl_tangent=ctrl_tangent,
+        rms_error=jnp.sqrt(jnp.mean(error**2, axis=-1)),
+        max_error=jnp.max(error, axis=-1),
+        result=result,
+        num_steps=num_steps,
+    )
+
+
+def interpolate_rotations(
+    layout: BezierLayout,
+    ctrl_quat: Float[Array, "*batch controls 4"],
+    frames: Float[ArrayLike, "frames"] | None = None,
+) -> Float[Array, "*batch frames 4"]:
+    """Orientations between control points by slerp (BMM §4.3), linear in frame time.
+
+    Args:
+      ctrl_quat: ``(*batch, controls, 4)`` unit quaternions (w, x, y, z) at the control points.
+      frames: ``(frames,)`` frame times; default every integer frame.
+    Returns:
+      ``(*batch, frames, 4)`` unit quaternions.
+    """
+    ctrl_quat = jnp.asarray(ctrl_quat)
+    _check_controls(layout, ctrl_quat)
+    segment, t = locate(layout, layout.frames() if frames is None else frames)
+    q0 = jnp.take(ctrl_quat, segment, axis=-2)
+    q1 = jnp.take(ctrl_quat, segment + 1, axis=-2)
+    return slerp(q0, q1, jnp.clip(t, 0.0, 1.0).astype(ctrl_quat.dtype))
+
+
+def reconstruct_dense(
+    layout: BezierLayout,
+    ctrl_pos: Float[Array, "*batch controls joints 3"],
+    ctrl_tangent: Float[Array, "*batch controls joints 3"],
+    ctrl_rot6d: Float[Array, "*batch controls joints 6"],
+    frames: Float[ArrayLike, "frames"] | None = None,
+) -> tuple[Float[Array, "*batch frames joints 3"], Float[Array, "*batch frames joints 6"]]:
+    """Dense joint trajectories from curves: Bézier positions and slerped orientations.
+
+    Control arrays are laid out like the BMM frame tokens, ``(controls, joints, ·)``.
+
+    Returns:
+      ``(positions (*batch, frames, joints, 3), rot6d (*batch, frames, joints, 6))``.
+    """
+    pos = evaluate(layout, jnp.moveaxis(ctrl_pos, -2, -3), jnp.moveaxis(ctrl_tangent, -2, -3), frames)
+    quat = interpolate_rotations(layout, jnp.moveaxis(quat_from_rot6d(ctrl_rot6d), -2, -3), frames)
+    return jnp.moveaxis(pos, -3, -2), jnp.moveaxis(rot6d_from_quat(quat), -3, -2)
