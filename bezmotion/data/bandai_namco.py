@@ -210,11 +210,17 @@ def load_bandai_namco(
     """
     source = check_source(source, "Bandai-Namco")
     selected = None if clip_ids is None else sorted({int(i) for i in clip_ids})
-    key = fingerprint(*_fingerprint_inputs(source), corpus="bandai-namco", version=_FORMAT_VERSION, clip_ids=selected)
+    key = source_fingerprint(source, corpus="bandai-namco", version=_FORMAT_VERSION, clip_ids=selected)
     arrays = cached_arrays(
         "bandai-namco", key, lambda: _parse_corpus(source, selected, progress=progress), use_cache=use_cache
     )
     return _corpus_from_arrays(arrays)
+
+
+def source_fingerprint(source: str | os.PathLike, **params) -> str:
+    """Cache key of a Bandai-Namco source (the archive, or the motion and label files of a
+    folder) together with ``params``; see :func:`bezmotion.data.cache.fingerprint`."""
+    return fingerprint(*_fingerprint_inputs(check_source(source, "Bandai-Namco")), **params)
 
 
 def _fingerprint_inputs(source: Path) -> list[Path]:
