@@ -9,10 +9,16 @@ from jaxtyping import install_import_hook
 
 install_import_hook("bezmotion", "beartype.beartype")
 
+import zipfile  # noqa: E402
+
 import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 
+from bezmotion.data import lafan1  # noqa: E402  (after the hook, so it is type-checked)
+from bezmotion.data.bvh import BvhMotion, write_bvh  # noqa: E402
+from bezmotion.geometry import Skeleton, quat_from_euler  # noqa: E402
 from helpers import SHARED_DATA, requires_shared  # noqa: E402,F401  (re-exported for test modules)
 
 
@@ -27,3 +33,43 @@ def x64():
     """Run the test body with 64-bit JAX arrays enabled (for finite-difference checks)."""
     with jax.enable_x64(True):
         yield
+
+
+# ------------------------------------------------------------ synthetic LaFAN1-layout corpus
+
+
+def synthetic_clip(num_frames: int, seed: int) -> tuple[Skeleton, np.ndarray, np.ndarray]:
+    """A smooth random motion on a LaFAN1-shaped skeleton (made-up offsets)."""
+    rng = np.random.default_rng(seed)
+    offsets = rng.normal(scale=10.0, size=(22, 3))
+    skeleton = Skeleton(lafan1.PARENTS, lafan1.JOINT_NAMES, offsets)
+    t = np.arange(num_frames)[:, None, None] / 30.0
+    freq, phase = rng.uniform(0.2, 1.5, size=(1, 22, 3)), rng.uniform(0, 2 * np.pi, size=(1, 22, 3))
+    angles = 0.8 * np.sin(2 * np.pi * freq * t + phase)
+    angles[:, 0, 0] += np.linspace(0, 3.0, num_frames)  # the root turns around
+    with jax.enable_x64(True):
+        quat = np.asarray(quat_from_euler(jnp.asarray(angles), "zyx"))
+    root = np.stack([100 * np.sin(t[:, 0, 0]), 90 + 5 * np.cos(3 * t[:, 0, 0]), 50 * t[:, 0, 0]], axis=-1)
+    return skeleton, quat, root
+
+
+#: ``(file stem, frames)`` of the synthetic corpus, in the order they are generated (seed = position).
+SYNTHETIC_LAFAN1_FILES = (("walk1_subject1", 230), ("run2_subject2", 150), ("dance1_subject5", 300))
+
+
+@pytest.fixture(scope="session")
+def synthetic_zip(tmp_path_factory) -> str:
+    """A zip in the official LaFAN1 layout: subjects 1, 2 (train) and 5 (test).
+
+    Our own skeleton offsets and motion (:func:`synthetic_clip`), never LaFAN1 data. Treat it
+    as read-only: it is shared by the whole session.
+    """
+    folder = tmp_path_factory.mktemp("lafan1")
+    archive = folder / "lafan1.zip"
+    with zipfile.ZipFile(archive, "w") as zf:
+        for seed, (name, frames) in enumerate(SYNTHETIC_LAFAN1_FILES):
+            skeleton, quat, root = synthetic_clip(frames, seed)
+            path = folder / f"{name}.bvh"
+            write_bvh(path, BvhMotion.from_skeleton(skeleton, quat, root, rotation_order="zyx"), precision=6)
+            zf.write(path, arcname=path.name)
+    return str(archive)

@@ -1,8 +1,9 @@
 """LaFAN1 corpus loading, official windowing and the benchmark runner.
 
-Runs without ../shared on a synthetic corpus in the LaFAN1 layout (our own skeleton
-offsets and motion — never LaFAN1 data, which is NoDerivatives); the real-data numbers
-are checked against an independent NumPy reference in test_lafan1_reference.py.
+Runs without ../shared on a synthetic corpus in the LaFAN1 layout (the ``synthetic_zip``
+fixture in conftest: our own skeleton offsets and motion — never LaFAN1 data, which is
+NoDerivatives); the real-data numbers are checked against an independent NumPy reference
+in test_lafan1_reference.py.
 """
 
 from __future__ import annotations
@@ -25,35 +26,6 @@ from bezmotion.evaluation import (
     lafan1_benchmark,
 )
 from bezmotion.geometry import Skeleton, quat_between, quat_from_euler, quat_rotate
-
-
-def synthetic_clip(num_frames: int, seed: int) -> tuple[Skeleton, np.ndarray, np.ndarray]:
-    """A smooth random motion on a LaFAN1-shaped skeleton (made-up offsets)."""
-    rng = np.random.default_rng(seed)
-    offsets = rng.normal(scale=10.0, size=(22, 3))
-    skeleton = Skeleton(lafan1.PARENTS, lafan1.JOINT_NAMES, offsets)
-    t = np.arange(num_frames)[:, None, None] / 30.0
-    freq, phase = rng.uniform(0.2, 1.5, size=(1, 22, 3)), rng.uniform(0, 2 * np.pi, size=(1, 22, 3))
-    angles = 0.8 * np.sin(2 * np.pi * freq * t + phase)
-    angles[:, 0, 0] += np.linspace(0, 3.0, num_frames)  # the root turns around
-    with jax.enable_x64(True):
-        quat = np.asarray(quat_from_euler(jnp.asarray(angles), "zyx"))
-    root = np.stack([100 * np.sin(t[:, 0, 0]), 90 + 5 * np.cos(3 * t[:, 0, 0]), 50 * t[:, 0, 0]], axis=-1)
-    return skeleton, quat, root
-
-
-@pytest.fixture(scope="module")
-def synthetic_zip(tmp_path_factory) -> str:
-    """A zip in the official layout: subjects 1, 2 (train) and 5 (test)."""
-    folder = tmp_path_factory.mktemp("lafan1")
-    archive = folder / "lafan1.zip"
-    with zipfile.ZipFile(archive, "w") as zf:
-        for seed, (name, frames) in enumerate([("walk1_subject1", 230), ("run2_subject2", 150), ("dance1_subject5", 300)]):
-            skeleton, quat, root = synthetic_clip(frames, seed)
-            path = folder / f"{name}.bvh"
-            write_bvh(path, BvhMotion.from_skeleton(skeleton, quat, root, rotation_order="zyx"), precision=6)
-            zf.write(path, arcname=path.name)
-    return str(archive)
 
 
 def test_sliding_windows_are_strict():
