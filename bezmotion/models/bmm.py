@@ -1,0 +1,250 @@
+"""The Bézier Motion Model denoiser (BMM §4.2, Figure 3, Appendix C): an MDM-style
+transformer encoder over Bézier control points with one token per sparse condition.
+
+Tokens, for one motion with ``K`` control points of ``J = 6`` joints:
+
+- one **noise-level token**: a row of the sinusoidal table at the diffusion timestep
+  ``t`` → Linear → SiLU → Linear (MDM);
+- ``K`` **frame tokens** ``x_t^i = [P_j, T_j, O_j | j ∈ J_sub]`` (normalised, 12 numbers
+  per joint) → one Linear encoder;
+- ``S`` **condition tokens**, one per constrained (joint, control point): the target
+  position (normalised like ``P``) → its own Linear, plus a learned joint-ID embedding
+  (the paper's linear layer on a one-hot joint vector).
+
+Frame and condition tokens get the sinusoidal encoding of the frame they represent
+(control point ``k`` represents frame ``k · stride``); the noise token, which represents
+no frame, gets none. Absent condition slots are masked out of attention as keys, so any
+number of conditions, none to all ``K·J``, runs in one compiled shape. The encoder is
+MDM's: post-LayerNorm layers with GELU feed-forward and dropout. The frame tokens'
+outputs are decoded to x̂₀ (x₀-prediction) and two foot-contact logits per control point.
+
+The model is written for one motion; ``jax.vmap`` it over a batch. It is a flax NNX
+module used functionally: :func:`init_denoiser` returns ``(graphdef, params)`` and
+:func:`apply_denoiser` merges them inside whatever ``jax.jit`` calls it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import nnx
+from jaxtyping import Array, Bool, Float, Int
+
+from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
+
+FEATURES_PER_JOINT = 12  # position (3), tangent (3), ortho6D orientation (6)
+NUM_CONTACTS = 2  # left foot, right foot
+
+
+@dataclasses.dataclass(frozen=True)
+class BMMConfig:
+    """Sizes of the denoiser (paper, Table 4: width 512, feed-forward 1024, 4 heads, 8 layers).
+
+    Attributes:
+      num_controls: control points per motion (31 frames at stride 6 → 6).
+      stride: frames between control points (for the positional encoding).
+      num_joints: characteristic joints (6).
+      width, ff_width, num_heads, num_layers: transformer sizes.
+      dropout: dropout rate in attention and feed-forward (MDM: 0.1).
+      num_timesteps: diffusion steps ``T`` (for the noise-level table; 1000).
+    """
+
+    num_controls: int = 6
+    stride: int = 6
+    num_joints: int = len(CHARACTERISTIC_JOINTS)
+    width: int = 512
+    ff_width: int = 1024
+    num_heads: int = 4
+    num_layers: int = 8
+    dropout: float = 0.1
+    num_timesteps: int = 1000
+
+    def __post_init__(self):
+        for name in ("num_controls", "stride", "num_joints", "width", "ff_width", "num_heads", "num_layers", "num_timesteps"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"BMMConfig.{name} must be a positive integer, got {value!r}")
+        if self.num_controls < 2:
+            raise ValueError(f"BMMConfig.num_controls must be ≥ 2, got {self.num_controls}")
+        if self.width % self.num_heads or self.width % 2:
+            raise ValueError(f"BMMConfig.width ({self.width}) must be even and divisible by num_heads ({self.num_heads})")
+        if not 0.0 <= self.dropout < 1.0:
+            raise ValueError(f"BMMConfig.dropout must be in [0, 1), got {self.dropout}")
+
+    @property
+    def frame_features(self) -> int:
+        return self.num_joints * FEATURES_PER_JOINT
+
+    @property
+    def num_frames(self) -> int:
+        return (self.num_controls - 1) * self.stride + 1
+
+    @property
+    def max_conditions(self) -> int:
+        return self.num_controls * self.num_joints
+
+    @classmethod
+    def paper(cls, **overrides) -> BMMConfig:
+        """The paper's size (≈17 M parameters)."""
+        return cls(**overrides)
+
+    @classmethod
+    def cpu(cls, **overrides) -> BMMConfig:
+        """A size that trains within one session on a 2-core CPU."""
+        return cls(**{"width": 256, "ff_width": 512, "num_heads": 4, "num_layers": 4, **overrides})
+
+
+class Conditions(NamedTuple):
+    """Sparse position conditions as token slots (one motion; add a leading axis to batch).
+
+    Attributes:
+      position: ``(slots, 3)`` target positions in the aligned frame (cm).
+      joint: ``(slots,)`` characteristic-joint index (0…5).
+      control: ``(slots,)`` control-point index (0…K−1).
+      valid: ``(slots,)`` which slots hold a condition; the others are padding.
+    """
+
+    position: Float[Array, "*batch slots 3"]
+    joint: Int[Array, "*batch slots"]
+    control: Int[Array, "*batch slots"]
+    valid: Bool[Array, "*batch slots"]
+
+    @classmethod
+    def from_grid(
+        cls, mask: Bool[Array, "*batch controls joints"], position: Float[Array, "*batch controls joints 3"]
+    ) -> Conditions:
+        """All ``controls × joints`` slots, valid where ``mask`` (the training layout)."""
+        *batch, k, j = mask.shape
+        control, joint = np.meshgrid(np.arange(k), np.arange(j), indexing="ij")
+        shape = (*batch, k * j)
+        return cls(
+            position=position.reshape(*batch, k * j, 3),
+            joint=jnp.broadcast_to(jnp.asarray(joint.reshape(-1), jnp.int32), shape),
+            control=jnp.broadcast_to(jnp.asarray(control.reshape(-1), jnp.int32), shape),
+            valid=mask.reshape(shape),
+        )
+
+    def to_grid(self, num_controls: int, num_joints: int) -> tuple[Bool[Array, "controls joints"], Float[Array, "controls joints 3"]]:
+        """``(mask, position)`` on the control × joint grid (one motion; later slots win)."""
+        mask = jnp.zeros((num_controls, num_joints), bool).at[self.control, self.joint].max(self.valid)
+        # Invalid slots scatter out of bounds and are dropped, so they never overwrite a valid one.
+        control = jnp.where(self.valid, self.control, num_controls)
+        position = jnp.zeros((num_controls, num_joints, 3), self.position.dtype)
+        position = position.at[control, self.joint].set(self.position, mode="drop")
+        return mask, position
+
+
+def sinusoidal_encoding(position: Float[Array, "*shape"], width: int, max_period: float = 10000.0) -> Float[Array, "*shape width"]:
+    """Transformer sinusoidal encoding of (possibly fractional) positions, ``[sin | cos]`` halves."""
+    half = width // 2
+    freqs = jnp.exp(-math.log(max_period) * jnp.arange(half, dtype=jnp.float32) / half)
+    angles = jnp.asarray(position, jnp.float32)[..., None] * freqs
+    return jnp.concatenate([jnp.sin(angles), jnp.cos(angles)], axis=-1)
+
+
+class _EncoderLayer(nnx.Module):
+    """Post-LayerNorm transformer encoder layer (PyTorch ``TransformerEncoderLayer``, as MDM)."""
+
+    def __init__(self, config: BMMConfig, *, rngs: nnx.Rngs):
+        w = config.width
+        self.attention = nnx.MultiHeadAttention(
+            config.num_heads, w, dropout_rate=config.dropout, broadcast_dropout=False, decode=False,
+            keep_rngs=False, rngs=rngs,  # dropout keys are passed per call: no RNG state in the params
+        )
+        self.norm1 = nnx.LayerNorm(w, rngs=rngs)
+        self.linear1 = nnx.Linear(w, config.ff_width, rngs=rngs)
+        self.linear2 = nnx.Linear(config.ff_width, w, rngs=rngs)
+        self.norm2 = nnx.LayerNorm(w, rngs=rngs)
+        self.dropout = nnx.Dropout(config.dropout)
+
+    def __call__(self, x, mask, key):
+        deterministic = key is None
+        keys = [None] * 4 if deterministic else list(jax.random.split(key, 4))
+        attended = self.attention(
+            x, mask=mask, deterministic=deterministic, rngs=None if deterministic else nnx.Rngs(dropout=keys[0])
+        )
+        x = self.norm1(x + self.dropout(attended, deterministic=deterministic, rngs=keys[1]))
+        hidden = self.dropout(jax.nn.gelu(self.linear1(x)), deterministic=deterministic, rngs=keys[2])
+        return self.norm2(x + self.dropout(self.linear2(hidden), deterministic=deterministic, rngs=keys[3]))
+
+
+class BMMDenoiser(nnx.Module):
+    """x₀-predicting denoiser over Bézier control points (one motion)."""
+
+    def __init__(self, config: BMMConfig, *, rngs: nnx.Rngs):
+        self.config = config
+        w = config.width
+        self.frame_encoder = nnx.Linear(config.frame_features, w, rngs=rngs)
+        self.condition_encoder = nnx.Linear(3, w, rngs=rngs)
+        self.joint_embedding = nnx.Embed(config.num_joints, w, rngs=rngs)
+        self.time_linear1 = nnx.Linear(w, w, rngs=rngs)
+        self.time_linear2 = nnx.Linear(w, w, rngs=rngs)
+        self.layers = nnx.List([_EncoderLayer(config, rngs=rngs) for _ in range(config.num_layers)])
+        self.decoder = nnx.Linear(w, config.frame_features + NUM_CONTACTS, rngs=rngs)
+
+    def __call__(
+        self,
+        x_t: Float[Array, "controls features"],
+        t: Int[Array, ""],
+        conditions: Conditions,
+        *,
+        key: Array | None = None,
+    ) -> tuple[Float[Array, "controls features"], Float[Array, "controls 2"]]:
+        """Predict normalised x₀ and foot-contact logits.
+
+        Args:
+          x_t: ``(controls, 6·12)`` the noisy normalised frame tokens.
+          t: the diffusion timestep (original numbering, 0…T−1).
+          conditions: condition slots with positions already normalised (see
+            :class:`~bezmotion.models.bmm_data.FeatureStats`).
+          key: dropout key; ``None`` runs deterministically (evaluation, sampling).
+        Returns:
+          ``(x̂₀ (controls, features), contact logits (controls, 2))``.
+        """
+        cfg = self.config
+        w = cfg.width
+        frames = jnp.arange(cfg.num_controls, dtype=jnp.float32) * cfg.stride
+        time_token = self.time_linear2(jax.nn.silu(self.time_linear1(sinusoidal_encoding(t, w))))
+        frame_tokens = self.frame_encoder(x_t) + sinusoidal_encoding(frames, w)
+        cond_frames = conditions.control.astype(jnp.float32) * cfg.stride
+        cond_tokens = (
+            self.condition_encoder(conditions.position)
+            + self.joint_embedding(conditions.joint)
+            + sinusoidal_encoding(cond_frames, w)
+        )
+        tokens = jnp.concatenate([time_token[None], frame_tokens, cond_tokens], axis=0)
+        valid = jnp.concatenate([jnp.ones(1 + cfg.num_controls, bool), conditions.valid])
+        mask = valid[None, None, :]  # (heads, queries, keys), broadcast
+        keys = [None] * cfg.num_layers if key is None else list(jax.random.split(key, cfg.num_layers))
+        for layer, layer_key in zip(self.layers, keys):
+            tokens = layer(tokens, mask, layer_key)
+        out = self.decoder(tokens[1 : 1 + cfg.num_controls])
+        return out[:, : cfg.frame_features], out[:, cfg.frame_features :]
+
+
+def init_denoiser(config: BMMConfig, *, key: Array) -> tuple[nnx.GraphDef, nnx.State]:
+    """Build a denoiser and split it into ``(graphdef, params)`` for functional use."""
+    model = BMMDenoiser(config, rngs=nnx.Rngs(params=key))
+    return nnx.split(model)
+
+
+def apply_denoiser(
+    graphdef: nnx.GraphDef,
+    params: nnx.State,
+    x_t: Float[Array, "controls features"],
+    t: Int[Array, ""],
+    conditions: Conditions,
+    *,
+    key: Array | None = None,
+) -> tuple[Float[Array, "controls features"], Float[Array, "controls 2"]]:
+    """Pure call of the denoiser on one motion (see :meth:`BMMDenoiser.__call__`)."""
+    return nnx.merge(graphdef, params)(x_t, t, conditions, key=key)
+
+
+def count_parameters(params: nnx.State) -> int:
+    return int(sum(np.prod(x.shape) for x in jax.tree.leaves(params)))
