@@ -1,0 +1,85 @@
+"""Checkpoints of training-state pytrees with orbax: atomic, self-describing, resumable.
+
+Each checkpoint is a numbered orbax step folder (written under a temporary name and
+renamed when complete, so an interrupted save never leaves a readable half checkpoint)
+plus ``config.json`` beside them describing what was trained. Typed JAX PRNG keys are
+stored as their raw key data and re-wrapped on restore.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import orbax.checkpoint as ocp
+
+from bezmotion._io import atomic_write_text
+
+CONFIG_FILE = "config.json"
+
+
+def _is_key(x: Any) -> bool:
+    return isinstance(x, jax.Array | jax.ShapeDtypeStruct) and jnp.issubdtype(x.dtype, jax.dtypes.prng_key)
+
+
+def _keys_to_data(tree: Any) -> Any:
+    return jax.tree.map(lambda x: jax.random.key_data(x) if _is_key(x) else x, tree)
+
+
+def _abstract_without_keys(tree: Any) -> Any:
+    """The abstract (shape/dtype) tree orbax restores into, typed keys as raw data."""
+    return jax.tree.map(
+        lambda x: jax.ShapeDtypeStruct(jax.random.key_data(x).shape, jnp.uint32) if _is_key(x) else ocp.utils.to_shape_dtype_struct(x),
+        tree,
+    )
+
+
+def _data_to_keys(restored: Any, like: Any) -> Any:
+    return jax.tree.map(lambda r, x: jax.random.wrap_key_data(r, impl=jax.random.key_impl(x)) if _is_key(x) else r, restored, like)
+
+
+class CheckpointStore:
+    """Numbered checkpoints of one training run in ``directory``.
+
+    Args:
+      directory: the run's folder (created if missing).
+      max_to_keep: how many of the most recent checkpoints to keep.
+    """
+
+    def __init__(self, directory: str | os.PathLike, *, max_to_keep: int = 3):
+        self.directory = Path(directory).absolute()
+        self._manager = ocp.CheckpointManager(
+            self.directory,
+            options=ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=True, enable_async_checkpointing=False),
+        )
+
+    def latest_step(self) -> int | None:
+        return self._manager.latest_step()
+
+    def save(self, step: int, state: Any, config: dict[str, Any] | None = None) -> None:
+        """Write ``state`` as checkpoint ``step`` (synchronously) and ``config`` as JSON."""
+        if config is not None:
+            atomic_write_text(self.directory / CONFIG_FILE, json.dumps(config, indent=2, sort_keys=True, default=str) + "\n")
+        if self._manager.latest_step() == step:
+            return  # already saved at this step (e.g. periodic save, then the final one)
+        self._manager.save(step, args=ocp.args.StandardSave(_keys_to_data(state)), force=True)
+        self._manager.wait_until_finished()
+
+    def restore(self, like: Any, step: int | None = None) -> Any:
+        """Restore checkpoint ``step`` (default: the latest) into the structure of ``like``."""
+        step = self._manager.latest_step() if step is None else step
+        if step is None:
+            raise FileNotFoundError(f"no checkpoint in {self.directory}")
+        restored = self._manager.restore(step, args=ocp.args.StandardRestore(_abstract_without_keys(like)))
+        return _data_to_keys(restored, like)
+
+    def config(self) -> dict[str, Any] | None:
+        path = self.directory / CONFIG_FILE
+        return json.loads(path.read_text()) if path.exists() else None
+
+    def close(self) -> None:
+        self._manager.close()

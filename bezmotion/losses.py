@@ -1,0 +1,88 @@
+"""Training losses of the Bézier Motion Model (BMM §4.2, Appendix C.2, Table 5).
+
+All terms are mean squared errors ("L2 loss" in the paper, as in MDM) on one motion;
+geometric terms are computed in metres so their weights mean what they meant for the
+paper's (metre-scaled) data. The per-motion total is weighted by Min-SNR-γ
+(:func:`min_snr_weight`) in the training step.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
+
+from bezmotion.bezier import BezierLayout, evaluate
+from bezmotion.data.characteristic import FEET
+
+CM_PER_M = 100.0
+
+
+@dataclasses.dataclass(frozen=True)
+class LossWeights:
+    """Relative weights of the loss terms (paper, Table 5)."""
+
+    position: float = 1.0  # L_b: control-point positions
+    tangent: float = 5.0  # L_t: control-point tangents
+    orientation: float = 1.0  # L_o: control-point 6D orientations
+    velocity: float = 10.0  # L_v: finite-difference velocities of the evaluated curves
+    dense_position: float = 1.0  # L_p: evaluated curves against the mocap
+    condition: float = 5.0  # L_c: control positions at the conditioned slots
+    contact: float = 0.01  # L_gc: foot-contact labels at control points
+    skate: float = 10.0  # L_skate: foot velocity where contact is predicted
+
+    def total(self, terms: dict[str, Array]) -> Array:
+        return sum(getattr(self, name) * value for name, value in terms.items())
+
+
+def dense_velocity(positions: Float[Array, "*batch frames joints 3"]) -> Float[Array, "*batch frames_minus_1 joints 3"]:
+    """``v^i = P^i − P^{i−1}`` (Eq. 12), per frame."""
+    return positions[..., 1:, :, :] - positions[..., :-1, :, :]
+
+
+def bmm_loss_terms(
+    layout: BezierLayout,
+    pred_pos: Float[Array, "controls joints 3"],
+    pred_tangent: Float[Array, "controls joints 3"],
+    pred_rot6d: Float[Array, "controls joints 6"],
+    contact_logits: Float[Array, "controls 2"],
+    target_pos: Float[Array, "controls joints 3"],
+    target_tangent: Float[Array, "controls joints 3"],
+    target_rot6d: Float[Array, "controls joints 6"],
+    target_contacts: Bool[Array, "controls 2"],
+    dense_target: Float[Array, "frames joints 3"],
+    condition_mask: Bool[Array, "controls joints"],
+) -> dict[str, Float[Array, ""]]:
+    """Unweighted loss terms for one motion (positions and tangents in cm in, metres inside).
+
+    Returns:
+      ``{"position", "tangent", "orientation", "velocity", "dense_position", "condition",
+      "contact", "skate"}`` scalars (:class:`LossWeights` names).
+    """
+    to_m = 1.0 / CM_PER_M
+    pred_dense = jnp.moveaxis(evaluate(layout, jnp.moveaxis(pred_pos, 1, 0), jnp.moveaxis(pred_tangent, 1, 0)), 0, 1)
+    pred_vel = dense_velocity(pred_dense) * to_m
+    contact = jax.nn.sigmoid(contact_logits)
+    # Velocity at each control frame towards the next frame (the last control looks back).
+    vel_frames = jnp.minimum(jnp.asarray(layout.control_frames), layout.num_frames - 2)
+    feet_vel = pred_vel[vel_frames][:, jnp.asarray(FEET)]  # (controls, 2, 3)
+    cond = condition_mask[..., None].astype(pred_pos.dtype)
+    pos_err = ((pred_pos - target_pos) * to_m) ** 2
+    return {
+        "position": jnp.mean(pos_err),
+        "tangent": jnp.mean(((pred_tangent - target_tangent) * to_m) ** 2),
+        "orientation": jnp.mean((pred_rot6d - target_rot6d) ** 2),
+        "velocity": jnp.mean((pred_vel - dense_velocity(dense_target) * to_m) ** 2),
+        "dense_position": jnp.mean(((pred_dense - dense_target) * to_m) ** 2),
+        "condition": jnp.sum(cond * pos_err) / jnp.maximum(3.0 * jnp.sum(cond), 1.0),
+        "contact": jnp.mean((contact - target_contacts.astype(contact.dtype)) ** 2),
+        "skate": jnp.mean((contact[..., None] * feet_vel) ** 2),
+    }
+
+
+def min_snr_weight(snr: Float[Array, "*batch"], gamma: float | None) -> Float[Array, "*batch"]:
+    """Min-SNR-γ loss weight for x₀-prediction (Hang et al. 2023): ``min(SNR_t, γ)``;
+    ``gamma=None`` weights every timestep equally (plain MDM)."""
+    return jnp.ones_like(snr) if gamma is None else jnp.minimum(snr, gamma)
