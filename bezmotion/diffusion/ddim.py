@@ -14,6 +14,7 @@ overwrites the final sample, which makes the known entries exact.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -32,7 +33,8 @@ def ddim_sample(
     *,
     steps: int,
     overwrite: Callable[[Array], Array] | None = None,
-) -> Float[Array, "*shape"]:
+    has_aux: bool = False,
+) -> Float[Array, "*shape"] | tuple[Float[Array, "*shape"], Any]:
     """Run deterministic DDIM from ``x_T`` (pure noise) to a sample.
 
     Args:
@@ -42,20 +44,27 @@ def ddim_sample(
       steps: number of denoising steps (static; e.g. 10 → t = 900, 800, …, 0).
       overwrite: ``x̂₀ -> x̂₀`` with the known entries replaced (``None``: no inpainting);
         applied to every x̂₀ and to the final sample.
+      has_aux: ``denoise`` returns ``(x̂₀, aux)`` (e.g. contact logits); the last step's
+        ``aux`` is returned too.
     Returns:
-      the sample, shaped like ``x_T``.
+      the sample, shaped like ``x_T`` (and the final ``aux`` with ``has_aux``).
     """
     kept = respaced_timesteps(schedule.num_timesteps, steps)
     alpha_bar = schedule.alpha_bar[kept]
     alpha_bar_prev = jnp.concatenate([jnp.ones((1,), alpha_bar.dtype), alpha_bar[:-1]])
     fix = (lambda x: x) if overwrite is None else overwrite
+    model = denoise if has_aux else (lambda x, t: (denoise(x, t), ()))
 
-    def step(x, inputs):
+    def step(carry, inputs):
+        x, _ = carry
         t, a, a_prev = inputs
-        x0 = fix(denoise(x, t))
+        x0, aux = model(x, t)
+        x0 = fix(x0)
         eps = (x - jnp.sqrt(a) * x0) / jnp.sqrt(1.0 - a)
-        return (jnp.sqrt(a_prev) * x0 + jnp.sqrt(1.0 - a_prev) * eps).astype(x.dtype), None
+        return ((jnp.sqrt(a_prev) * x0 + jnp.sqrt(1.0 - a_prev) * eps).astype(x.dtype), aux), None
 
     timesteps = jnp.asarray(kept, jnp.int32)
-    x, _ = jax.lax.scan(step, x_T, (timesteps[::-1], alpha_bar[::-1], alpha_bar_prev[::-1]))
-    return fix(x)
+    aux_shape = jax.eval_shape(model, x_T, timesteps[0])[1]
+    aux0 = jax.tree.map(lambda s: jnp.zeros(s.shape, s.dtype), aux_shape)
+    (x, aux), _ = jax.lax.scan(step, (x_T, aux0), (timesteps[::-1], alpha_bar[::-1], alpha_bar_prev[::-1]))
+    return (fix(x), aux) if has_aux else fix(x)

@@ -131,7 +131,7 @@ class Conditions(NamedTuple):
 
     def to_grid(self, num_controls: int, num_joints: int) -> tuple[Bool[Array, "controls joints"], Float[Array, "controls joints 3"]]:
         """``(mask, position)`` on the control × joint grid (one motion; later slots win)."""
-        mask = jnp.zeros((num_controls, num_joints), bool).at[self.control, self.joint].max(self.valid)
+        mask = jnp.zeros((num_controls, num_joints), jnp.int32).at[self.control, self.joint].max(self.valid.astype(jnp.int32)) > 0
         # Invalid slots scatter out of bounds and are dropped, so they never overwrite a valid one.
         control = jnp.where(self.valid, self.control, num_controls)
         position = jnp.zeros((num_controls, num_joints, 3), self.position.dtype)
