@@ -1,14 +1,17 @@
-"""In-betweening metrics of the LaFAN1 benchmark: L2Q, L2P and NPSS.
+"""In-betweening metrics.
 
-Definitions follow the official Ubisoft La Forge evaluator (``../shared/REFERENCE.md``
-§1). Call them on float64 arrays (inside ``jax.enable_x64(True)``) to reproduce the
-published numbers; in float32 they agree to about 1e-6.
+- The LaFAN1 benchmark's L2Q, L2P and NPSS. Definitions follow the official Ubisoft La
+  Forge evaluator (``../shared/REFERENCE.md`` §1). Call them on float64 arrays (inside
+  ``jax.enable_x64(True)``) to reproduce the published numbers; in float32 they agree to
+  about 1e-6.
+- BMM's curve metrics: handles error, foot-skating ratio, contact accuracy, mean
+  position error (BMM §5.1 and appendix B).
 """
 
 from __future__ import annotations
 
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float, Int
 
 from bezmotion.geometry.rotations import quat_fix_continuity
 
@@ -65,3 +68,66 @@ def align_to_context(
     """
     seq = jnp.concatenate([quat_global_last_context[:, None], quat_global], axis=1)
     return quat_fix_continuity(seq, axis=1)[:, 1:]
+
+
+# ------------------------------------------------------------------ Bézier-curve metrics (BMM)
+
+
+def handles_error(
+    ctrl_pos: Float[Array, "*batch controls joints 3"],
+    handle_control: Int[Array, "*batch handles"],
+    handle_joint: Int[Array, "*batch handles"],
+    handle_position: Float[Array, "*batch handles 3"],
+    handle_valid: Bool[Array, "*batch handles"],
+) -> Float[Array, ""]:
+    """Mean distance (cm) between each valid handle and the curve at its frame (BMM §5.1).
+
+    A curve passes through its control point at that control's frame, so the curve's
+    position there is ``ctrl_pos[control, joint]``. Pass only intermediate handles: the
+    paper excludes the first and last frames.
+    """
+    picked = jnp.take_along_axis(
+        jnp.take_along_axis(ctrl_pos, handle_control[..., None, None, None], axis=-3)[..., 0, :, :],
+        handle_joint[..., None, None],
+        axis=-2,
+    )[..., 0, :]
+    error = jnp.linalg.norm(picked - handle_position, axis=-1)
+    valid = handle_valid.astype(error.dtype)
+    return jnp.sum(valid * error) / jnp.maximum(jnp.sum(valid), 1.0)
+
+
+def foot_skating_ratio(
+    feet_pos: Float[Array, "*batch frames 2 3"],
+    fps: float,
+    *,
+    floor_height: float = 0.0,
+    height_threshold: float = 5.0,
+    speed_threshold: float = 7.5,
+) -> Float[Array, ""]:
+    """Fraction of frames on which the feet skate (BMM appendix B, after Zhang et al. 2021).
+
+    A frame (each pair of consecutive frames) skates when *both* feet are within
+    ``height_threshold`` cm of the floor and *both* move horizontally faster than
+    ``speed_threshold`` cm/s. ``feet_pos`` are the left and right foot joints (cm, +Y up);
+    heights are measured from ``floor_height`` — for ankle joints, the ankle's height with
+    the foot flat on the ground, so that the test is on the heel as the paper states.
+    """
+    height = feet_pos[..., 1:, :, 1] - floor_height
+    step = feet_pos[..., 1:, :, :] - feet_pos[..., :-1, :, :]
+    speed = jnp.sqrt(step[..., 0] ** 2 + step[..., 2] ** 2) * fps
+    skating = jnp.all((height < height_threshold) & (speed > speed_threshold), axis=-1)
+    return jnp.mean(skating.astype(feet_pos.dtype))
+
+
+def contact_accuracy(
+    contact_prob: Float[Array, "*batch controls 2"], contact_true: Bool[Array, "*batch controls 2"]
+) -> Float[Array, ""]:
+    """Fraction of foot-contact labels predicted right (probability thresholded at 0.5)."""
+    return jnp.mean(((contact_prob > 0.5) == contact_true).astype(contact_prob.dtype))
+
+
+def mean_position_error(
+    pred: Float[Array, "*batch frames joints 3"], true: Float[Array, "*batch frames joints 3"]
+) -> Float[Array, ""]:
+    """Mean per-joint position error (cm) over all batch entries, frames and joints."""
+    return jnp.mean(jnp.linalg.norm(pred - true, axis=-1))
