@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 
 from bezmotion.data import lafan1
-from bezmotion.data.bvh import BvhMotion, write_bvh
 from bezmotion.data.windows import facing_rotation, sliding_window_starts
 from bezmotion.evaluation import (
     evaluate_baselines,
@@ -25,7 +24,7 @@ from bezmotion.evaluation import (
     interpolation_inbetweener,
     lafan1_benchmark,
 )
-from bezmotion.geometry import Skeleton, quat_between, quat_from_euler, quat_rotate
+from bezmotion.geometry import quat_between, quat_rotate
 
 
 def test_sliding_windows_are_strict():

@@ -126,6 +126,6 @@ def contact_labels(
 
     The last frame repeats the label before it.
     """
-    if fps <= 0 or speed_threshold <= 0:
+    if not (fps > 0 and speed_threshold > 0):  # also rejects NaN
         raise ValueError(f"fps and speed_threshold must be positive, got fps={fps}, speed_threshold={speed_threshold}")
     return foot_contacts(positions, FEET, threshold=(speed_threshold / fps) ** 2)

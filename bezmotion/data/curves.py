@@ -67,6 +67,12 @@ class MotionClips:
     fps: float
 
     def __post_init__(self):
+        if len(self.joint_names) != len(self.parents):
+            raise ValueError(f"MotionClips: {len(self.joint_names)} joint names for {len(self.parents)} joints")
+        if not (np.isfinite(self.fps) and self.fps > 0):
+            raise ValueError(f"MotionClips.fps must be positive, got {self.fps}")
+        if self.quat_local.ndim != 3:
+            raise ValueError(f"MotionClips.quat_local must be (frames, joints, 4), got {self.quat_local.shape}")
         frames, joints = self.quat_local.shape[:2]
         if self.quat_local.shape != (frames, len(self.parents), 4) or self.pos_local.shape != (frames, joints, 3):
             raise ValueError(
@@ -74,7 +80,7 @@ class MotionClips:
                 f"(frames, {len(self.parents)}, 4) and (frames, {len(self.parents)}, 3)"
             )
         starts = np.asarray(self.starts)
-        if starts.ndim != 1 or starts[0] != 0 or starts[-1] != frames or np.any(np.diff(starts) < 0):
+        if starts.ndim != 1 or starts.size == 0 or starts[0] != 0 or starts[-1] != frames or np.any(np.diff(starts) < 0):
             raise ValueError(f"MotionClips.starts must rise from 0 to {frames}, got {starts}")
 
     @property
@@ -92,9 +98,9 @@ class MotionClips:
         return clip_index, start_frame
 
     @classmethod
-    def from_lafan1(cls, corpus: _lafan1.Lafan1Corpus, files: Sequence[int]) -> MotionClips:
+    def from_lafan1(cls, corpus: _lafan1.Lafan1Corpus, files: Sequence[int] | np.ndarray) -> MotionClips:
         """The given LaFAN1 files (raw, no benchmark preprocessing)."""
-        files = list(files)
+        files = [int(f) for f in files]
         quat, pos = [], []
         for f in files:
             q, root = corpus.clip(f)
@@ -109,11 +115,17 @@ class MotionClips:
         )  # fmt: skip
 
     @classmethod
-    def from_bandai_namco(cls, corpus: _bandai_namco.BandaiNamcoCorpus, clips: Sequence[int]) -> MotionClips:
-        """The given Bandai-Namco clips."""
+    def from_bandai_namco(
+        cls, corpus: _bandai_namco.BandaiNamcoCorpus, clips: Sequence[int] | np.ndarray
+    ) -> MotionClips:
+        """The given Bandai-Namco clips (indices into the corpus)."""
+        clips = [int(i) for i in clips]
         spans = [(int(corpus.starts[i]), int(corpus.starts[i + 1])) for i in clips]
         frames = np.concatenate([np.arange(s, e) for s, e in spans]) if spans else np.zeros(0, np.int64)
-        fps = 1.0 / float(corpus.frame_times[0]) if len(corpus.frame_times) else float(_bandai_namco.FPS)
+        frame_times = np.unique(corpus.frame_times[clips]) if clips else np.asarray([1.0 / _bandai_namco.FPS])
+        if len(frame_times) > 1:
+            raise ValueError(f"the selected Bandai-Namco clips mix frame times {frame_times.tolist()}")
+        fps = 1.0 / float(frame_times[0])
         return cls(
             corpus.parents, corpus.joint_names, corpus.quat_local[frames], corpus.pos_local[frames],
             np.concatenate([[0], np.cumsum([e - s for s, e in spans])]).astype(np.int64), round(fps, 6),
