@@ -86,11 +86,10 @@ def handles_error(
     position there is ``ctrl_pos[control, joint]``. Pass only intermediate handles: the
     paper excludes the first and last frames.
     """
-    picked = jnp.take_along_axis(
-        jnp.take_along_axis(ctrl_pos, handle_control[..., None, None, None], axis=-3)[..., 0, :, :],
-        handle_joint[..., None, None],
-        axis=-2,
-    )[..., 0, :]
+    k, j = ctrl_pos.shape[-3:-1]
+    flat = ctrl_pos.reshape(*ctrl_pos.shape[:-3], k * j, 3)
+    slot = jnp.clip(handle_control, 0, k - 1) * j + jnp.clip(handle_joint, 0, j - 1)
+    picked = jnp.take_along_axis(flat, slot[..., None], axis=-2)
     error = jnp.linalg.norm(picked - handle_position, axis=-1)
     valid = handle_valid.astype(error.dtype)
     return jnp.sum(valid * error) / jnp.maximum(jnp.sum(valid), 1.0)

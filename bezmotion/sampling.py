@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import os
 from typing import NamedTuple
 
 import jax
@@ -20,10 +21,11 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
+from bezmotion.checkpoint import CheckpointStore
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.diffusion.ddim import ddim_sample
 from bezmotion.diffusion.schedule import cosine_schedule
-from bezmotion.models.bmm import BMMConfig, Conditions
+from bezmotion.models.bmm import BMMConfig, Conditions, init_denoiser
 from bezmotion.models.bmm_data import FeatureStats, from_tokens, split_features, to_tokens
 
 
@@ -217,3 +219,25 @@ def sample_curves(
     one = functools.partial(_sample_one, model, steps=steps, guidance=guidance, overwrite=overwrite)
     out = jax.vmap(one)(flat(start), flat(end), jax.tree.map(flat, handles), keys)
     return jax.tree.map(lambda x: x.reshape(*batch, *x.shape[1:]), out)
+
+
+def save_model(directory: str | os.PathLike, model: BezierMotionModel) -> None:
+    """Write a trained BMM (parameters, statistics, config) to ``directory``, atomically."""
+    store = CheckpointStore(directory, max_to_keep=1)
+    store.save(0, {"params": model.params, "stats": model.stats}, {"model": dataclasses.asdict(model.config)})
+    store.close()
+
+
+def load_model(directory: str | os.PathLike) -> BezierMotionModel:
+    """Read a BMM written by :func:`save_model` (its config says how to rebuild it)."""
+    store = CheckpointStore(directory, max_to_keep=1)
+    saved = store.config()
+    if saved is None or "model" not in saved or store.latest_step() is None:
+        raise FileNotFoundError(f"{directory}: not a saved BMM (config.json and a checkpoint expected)")
+    config = BMMConfig(**saved["model"])
+    graphdef, params = init_denoiser(config, key=jax.random.key(0))
+    j = config.num_joints
+    like = {"params": params, "stats": FeatureStats(jnp.zeros((j, 12)), jnp.ones((j, 12)))}
+    restored = store.restore(like)
+    store.close()
+    return BezierMotionModel(restored["params"], restored["stats"], graphdef, config)

@@ -1,0 +1,179 @@
+"""Evaluating Bézier curves before IK: the BMM paper's Table 1/3/6 protocol on curve datasets.
+
+Every evaluation window gets the in-betweening conditions — all six joints at the first
+and last control point — plus 1 to 4 intermediate handles drawn like the training
+conditions (BMM §5.2) from a fixed key, so every method sees the same handles. Handles
+are the ground-truth control positions (in distribution) or those plus uniform noise of
+±16 cm per axis (out of distribution, §5.1; start and end stay exact). Metrics:
+
+- handles error (cm): intermediate handles only, as the paper measures it;
+- dense position error (cm) of the six joints' evaluated curves against the mocap;
+- foot-skating ratio of the evaluated curves' feet (see :func:`~bezmotion.metrics.foot_skating_ratio`);
+- contact accuracy of predicted contacts at control points (learned models only).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array
+
+from bezmotion.bezier import BezierLayout, evaluate
+from bezmotion.data.characteristic import FEET
+from bezmotion.data.curves import CurveDataset
+from bezmotion.metrics import contact_accuracy, foot_skating_ratio, handles_error, mean_position_error
+from bezmotion.models.baselines import handle_interpolation
+from bezmotion.models.bmm_data import MAX_INTERMEDIATE_HANDLES
+from bezmotion.sampling import Handles, SampledCurves
+
+OOD_NOISE_CM = 16.0  # BMM §5.1: uniform noise of ±16 cm per axis on the handles
+
+
+class EvalSet(NamedTuple):
+    """Conditions and ground truth of the evaluation windows (all arrays batched by window).
+
+    Attributes:
+      start, end: ``(windows, 6, 3)`` joint positions at the first and last frame (cm).
+      handles: in-distribution intermediate handles (``(windows, 4)`` slots with validity).
+      handles_ood: the same handles with uniform ±16 cm noise.
+      ctrl_contacts: ``(windows, controls, 2)`` ground-truth contacts at control points.
+      dense_pos: ``(windows, frames, 6, 3)`` the mocap.
+    """
+
+    start: Array
+    end: Array
+    handles: Handles
+    handles_ood: Handles
+    ctrl_contacts: Array
+    dense_pos: Array
+
+
+def make_eval_set(
+    dataset: CurveDataset,
+    *,
+    key: Array,
+    num_windows: int | None = None,
+    max_handles: int = MAX_INTERMEDIATE_HANDLES,
+    ood_noise: float = OOD_NOISE_CM,
+) -> EvalSet:
+    """Draw the evaluation conditions (deterministic given ``key``).
+
+    Args:
+      dataset: the evaluation curves (e.g. LaFAN1 subject 5).
+      key: PRNG key for the window subset, the handles and the OOD noise.
+      num_windows: evaluate a random subset of this many windows (``None``: all).
+      max_handles: intermediate handles per window are 1…max_handles.
+    """
+    n_total, k, j = dataset.ctrl_pos.shape[:3]
+    if max_handles < 1 or max_handles > (k - 2) * j:
+        raise ValueError(f"max_handles must be in 1…{(k - 2) * j}, got {max_handles}")
+    subset_key, count_key, slot_key, noise_key = jax.random.split(key, 4)
+    if num_windows is not None and num_windows < n_total:
+        rows = np.sort(np.asarray(jax.random.choice(subset_key, n_total, (num_windows,), replace=False)))
+    else:
+        rows = np.arange(n_total)
+    n = len(rows)
+    ctrl_pos = jnp.asarray(dataset.ctrl_pos[rows])
+    counts = jax.random.randint(count_key, (n,), 1, max_handles + 1)
+    # Distinct intermediate (control, joint) slots: the first ``count`` of a random order.
+    order = jnp.argsort(jax.random.uniform(slot_key, (n, (k - 2) * j)), axis=-1)[:, :max_handles]
+    control = (order // j + 1).astype(jnp.int32)
+    joint = (order % j).astype(jnp.int32)
+    valid = jnp.arange(max_handles)[None, :] < counts[:, None]
+    position = ctrl_pos[jnp.arange(n)[:, None], control, joint]
+    noise = jax.random.uniform(noise_key, position.shape, minval=-ood_noise, maxval=ood_noise)
+    handles = Handles(joint, control, position, valid)
+    return EvalSet(
+        start=ctrl_pos[:, 0],
+        end=ctrl_pos[:, -1],
+        handles=handles,
+        handles_ood=handles._replace(position=position + noise),
+        ctrl_contacts=jnp.asarray(dataset.ctrl_contacts[rows]),
+        dense_pos=jnp.asarray(dataset.dense_pos[rows]),
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class CurveMetricsConfig:
+    """Fixed settings of the curve metrics.
+
+    Attributes:
+      layout: the curves' layout (31 frames, stride 6).
+      fps: frame rate of the data.
+      floor_height: ankle height with the foot flat (cm), see :func:`floor_height_from`.
+    """
+
+    layout: BezierLayout
+    fps: float
+    floor_height: float
+
+
+def floor_height_from(dataset: CurveDataset, percentile: float = 5.0) -> float:
+    """The ankle height of a foot flat on the floor: a low percentile of all ankle heights."""
+    return float(np.percentile(dataset.dense_pos[:, :, list(FEET), 1], percentile))
+
+
+def dense_positions(layout: BezierLayout, ctrl_pos: Array, ctrl_tangent: Array) -> Array:
+    """``(…, controls, 6, 3)`` curves → ``(…, frames, 6, 3)`` positions."""
+    return jnp.moveaxis(evaluate(layout, jnp.moveaxis(ctrl_pos, -2, -3), jnp.moveaxis(ctrl_tangent, -2, -3)), -3, -2)
+
+
+def curve_metrics(
+    config: CurveMetricsConfig, curves: SampledCurves, eval_set: EvalSet, handles: Handles
+) -> dict[str, float]:
+    """Handles error against ``handles`` plus dense error, skating and contacts."""
+    dense = dense_positions(config.layout, curves.ctrl_pos, curves.ctrl_tangent)
+    feet = dense[..., list(FEET), :]
+    return {
+        "handles_error_cm": float(handles_error(curves.ctrl_pos, handles.control, handles.joint, handles.position, handles.valid)),
+        "dense_error_cm": float(mean_position_error(dense, eval_set.dense_pos)),
+        "foot_skating_ratio": float(foot_skating_ratio(feet, config.fps, floor_height=config.floor_height)),
+        "contact_accuracy": float(contact_accuracy(curves.contacts, eval_set.ctrl_contacts)),
+    }
+
+
+def reference_curves(eval_set: EvalSet, handles: Handles, num_controls: int) -> SampledCurves:
+    """The non-learned reference (:func:`~bezmotion.models.baselines.handle_interpolation`)
+    for every window; no orientations, contacts all 0.5 (unknown)."""
+    n, j = eval_set.start.shape[:2]
+
+    def one(start, end, h):
+        mask = jnp.zeros((num_controls, j), bool).at[0].set(True).at[-1].set(True)
+        target = jnp.zeros((num_controls, j, 3), start.dtype).at[0].set(start).at[-1].set(end)
+        control = jnp.where(h.valid, h.control, num_controls)  # invalid slots drop out of range
+        mask = mask.at[control, h.joint].set(True, mode="drop")
+        target = target.at[control, h.joint].set(h.position, mode="drop")
+        return handle_interpolation(mask, target)
+
+    pos, tangent = jax.jit(jax.vmap(one))(eval_set.start, eval_set.end, handles)
+    return SampledCurves(pos, tangent, jnp.zeros((*pos.shape[:-1], 6)), jnp.full((n, num_controls, 2), 0.5))
+
+
+def ground_truth_metrics(config: CurveMetricsConfig, eval_set: EvalSet) -> dict[str, float]:
+    """The mocap's own foot-skating ratio (the paper's "GT" row)."""
+    feet = eval_set.dense_pos[..., list(FEET), :]
+    return {"foot_skating_ratio": float(foot_skating_ratio(feet, config.fps, floor_height=config.floor_height))}
+
+
+def sample_in_chunks(
+    sample: Callable[[Array, Array, Handles, Array], SampledCurves],
+    eval_set: EvalSet,
+    handles: Handles,
+    *,
+    key: Array,
+    chunk: int = 256,
+) -> SampledCurves:
+    """Run ``sample(start, end, handles, key)`` over the windows ``chunk`` at a time (the
+    last chunk padded so one compilation serves all)."""
+    n = eval_set.start.shape[0]
+    parts = []
+    for i, lo in enumerate(range(0, n, chunk)):
+        idx = np.arange(lo, lo + chunk) % n
+        out = sample(eval_set.start[idx], eval_set.end[idx], jax.tree.map(lambda a: a[idx], handles), jax.random.fold_in(key, i))
+        parts.append(jax.tree.map(lambda a: np.asarray(a)[: min(chunk, n - lo)], out))
+    return jax.tree.map(lambda *xs: jnp.asarray(np.concatenate(xs)), *parts)
