@@ -15,6 +15,7 @@ are the ground-truth control positions (in distribution) or those plus uniform n
 from __future__ import annotations
 
 import dataclasses
+import functools
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -28,7 +29,7 @@ from bezmotion.data.characteristic import FEET
 from bezmotion.data.curves import CurveDataset
 from bezmotion.metrics import contact_accuracy, foot_skating_ratio, handles_error, mean_position_error
 from bezmotion.models.baselines import handle_interpolation
-from bezmotion.models.bmm_data import MAX_INTERMEDIATE_HANDLES
+from bezmotion.models.bmm_data import MAX_INTERMEDIATE_HANDLES, draw_intermediate_slots
 from bezmotion.sampling import Handles, SampledCurves
 
 OOD_NOISE_CM = 16.0  # BMM §5.1: uniform noise of ±16 cm per axis on the handles
@@ -72,19 +73,15 @@ def make_eval_set(
     n_total, k, j = dataset.ctrl_pos.shape[:3]
     if max_handles < 1 or max_handles > (k - 2) * j:
         raise ValueError(f"max_handles must be in 1…{(k - 2) * j}, got {max_handles}")
-    subset_key, count_key, slot_key, noise_key = jax.random.split(key, 4)
+    subset_key, slot_key, noise_key = jax.random.split(key, 3)
     if num_windows is not None and num_windows < n_total:
         rows = np.sort(np.asarray(jax.random.choice(subset_key, n_total, (num_windows,), replace=False)))
     else:
         rows = np.arange(n_total)
     n = len(rows)
     ctrl_pos = jnp.asarray(dataset.ctrl_pos[rows])
-    counts = jax.random.randint(count_key, (n,), 1, max_handles + 1)
-    # Distinct intermediate (control, joint) slots: the first ``count`` of a random order.
-    order = jnp.argsort(jax.random.uniform(slot_key, (n, (k - 2) * j)), axis=-1)[:, :max_handles]
-    control = (order // j + 1).astype(jnp.int32)
-    joint = (order % j).astype(jnp.int32)
-    valid = jnp.arange(max_handles)[None, :] < counts[:, None]
+    draw = functools.partial(draw_intermediate_slots, num_controls=k, num_joints=j, max_handles=max_handles, min_handles=1)
+    control, joint, valid = jax.vmap(lambda key: draw(key))(jax.random.split(slot_key, n))
     position = ctrl_pos[jnp.arange(n)[:, None], control, joint]
     noise = jax.random.uniform(noise_key, position.shape, minval=-ood_noise, maxval=ood_noise)
     handles = Handles(joint, control, position, valid)
@@ -171,6 +168,7 @@ def sample_in_chunks(
     """Run ``sample(start, end, handles, key)`` over the windows ``chunk`` at a time (the
     last chunk padded so one compilation serves all)."""
     n = eval_set.start.shape[0]
+    chunk = min(chunk, n)
     parts = []
     for i, lo in enumerate(range(0, n, chunk)):
         idx = np.arange(lo, lo + chunk) % n

@@ -26,7 +26,14 @@ from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.diffusion.ddim import ddim_sample
 from bezmotion.diffusion.schedule import cosine_schedule
 from bezmotion.models.bmm import BMMConfig, Conditions, init_denoiser
-from bezmotion.models.bmm_data import FeatureStats, from_tokens, split_features, to_tokens
+from bezmotion.models.bmm_data import (
+    FeatureStats,
+    from_tokens,
+    inbetween_conditions,
+    normalize_conditions,
+    split_features,
+    to_tokens,
+)
 
 
 @functools.partial(
@@ -131,26 +138,11 @@ class SampledCurves(NamedTuple):
     contacts: Float[Array, "*batch controls 2"]
 
 
-def _condition_slots(config: BMMConfig, start, end, handles: Handles) -> Conditions:
-    """Slots: every joint at the first and last control point, then the handles."""
-    j = config.num_joints
-    joints = jnp.arange(j, dtype=jnp.int32)
-    return Conditions(
-        position=jnp.concatenate([start, end, handles.position]),
-        joint=jnp.concatenate([joints, joints, handles.joint]),
-        control=jnp.concatenate([jnp.zeros(j, jnp.int32), jnp.full(j, config.num_controls - 1, jnp.int32), handles.control]),
-        valid=jnp.concatenate([jnp.ones(2 * j, bool), handles.valid]),
-    )
-
-
 def _sample_one(model: BezierMotionModel, start, end, handles: Handles, key, steps, guidance, overwrite):
     cfg, stats = model.config, model.stats
     translation = start[HIPS] * jnp.asarray([1.0, 0.0, 1.0], start.dtype)
-    world = _condition_slots(cfg, start, end, handles)
-    aligned = world.position - translation
-    normalized = world._replace(
-        position=jnp.where(world.valid[:, None], stats.normalize_positions(aligned, world.joint), 0.0)
-    )
+    world = inbetween_conditions(cfg.num_controls, start, end, handles.control, handles.joint, handles.position, handles.valid)
+    normalized = normalize_conditions(stats, world, translation)
     mask, target = normalized.to_grid(cfg.num_controls, cfg.num_joints)
     _, world_target = world.to_grid(cfg.num_controls, cfg.num_joints)
     denoiser = nnx.merge(model.graphdef, model.params)

@@ -40,8 +40,9 @@ from bezmotion.models.bmm_data import (
     FeatureStats,
     control_features,
     from_tokens,
-    normalized_conditions,
-    sample_condition_mask,
+    draw_intermediate_slots,
+    inbetween_conditions,
+    normalize_conditions,
     split_features,
     to_tokens,
 )
@@ -159,9 +160,12 @@ def make_train_step(
         t = jax.random.randint(t_key, (), 0, schedule.num_timesteps)
         x0 = to_tokens(stats.normalize(control_features(pos, tangent, rot6d)))
         x_t = schedule.add_noise(x0, t, jax.random.normal(noise_key, x0.shape, x0.dtype))
-        mask = sample_condition_mask(cond_key, k_ctrl, k_joints, train_config.max_intermediate_handles)
-        mask = mask & ~jax.random.bernoulli(drop_key, train_config.condition_dropout)
-        conditions = normalized_conditions(stats, mask, pos)
+        control, joint, valid = draw_intermediate_slots(cond_key, k_ctrl, k_joints, train_config.max_intermediate_handles)
+        conditions = inbetween_conditions(k_ctrl, pos[0], pos[-1], control, joint, pos[control, joint], valid)
+        # Classifier-free guidance: drop every condition of this example at once.
+        conditions = conditions._replace(valid=conditions.valid & ~jax.random.bernoulli(drop_key, train_config.condition_dropout))
+        mask, _ = conditions.to_grid(k_ctrl, k_joints)
+        conditions = normalize_conditions(stats, conditions)
         pred_tokens, contact_logits = nnx.merge(graphdef, params)(x_t, t, conditions, key=dropout_key)
         pred_pos, pred_tangent, pred_rot6d = split_features(stats.denormalize(from_tokens(pred_tokens)))
         terms = bmm_loss_terms(

@@ -14,7 +14,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
 from bezmotion.data.curves import CurveDataset
 from bezmotion.models.bmm import FEATURES_PER_JOINT, Conditions
@@ -81,29 +81,48 @@ def from_tokens(tokens: Float[Array, "*batch controls features"]) -> Float[Array
     return tokens.reshape(*tokens.shape[:-1], -1, FEATURES_PER_JOINT)
 
 
-def sample_condition_mask(
-    key: Array, num_controls: int, num_joints: int, max_intermediate: int = MAX_INTERMEDIATE_HANDLES
-) -> Bool[Array, "controls joints"]:
-    """The training distribution of conditions (BMM §5.2), for one motion.
+def draw_intermediate_slots(
+    key: Array, num_controls: int, num_joints: int, max_handles: int, min_handles: int = 0
+) -> tuple[Int[Array, "max_handles"], Int[Array, "max_handles"], Bool[Array, "max_handles"]]:
+    """Random distinct intermediate (control, joint) slots: ``n ~ U{min_handles, …, max_handles}``
+    of the ``(K−2)·J`` slots between the end control points, chosen uniformly (BMM §5.2).
 
-    All joints at the first and last control point, plus ``n ~ U{0, …, max_intermediate}``
-    distinct (joint, intermediate control point) handles chosen uniformly.
+    Returns:
+      ``(control, joint, valid)``, each ``(max_handles,)``; the first ``n`` are valid.
     """
-    count_key, slot_key = jax.random.split(key)
-    n = jax.random.randint(count_key, (), 0, max_intermediate + 1)
-    inner = (num_controls - 2) * num_joints
-    # The n slots with the smallest random scores: a uniform n-subset without a permutation.
-    rank = jnp.argsort(jnp.argsort(jax.random.uniform(slot_key, (inner,))))
-    chosen = (rank < n).reshape(num_controls - 2, num_joints)
-    ends = jnp.ones((1, num_joints), bool)
-    return jnp.concatenate([ends, chosen, ends], axis=0)
+    count_key, order_key = jax.random.split(key)
+    n = jax.random.randint(count_key, (), min_handles, max_handles + 1)
+    # The first max_handles of a random order of all slots: distinct, uniformly chosen.
+    order = jnp.argsort(jax.random.uniform(order_key, ((num_controls - 2) * num_joints,)))[:max_handles]
+    control = (order // num_joints + 1).astype(jnp.int32)
+    joint = (order % num_joints).astype(jnp.int32)
+    return control, joint, jnp.arange(max_handles) < n
 
 
-def normalized_conditions(
-    stats: FeatureStats, mask: Bool[Array, "controls joints"], ctrl_pos: Float[Array, "controls joints 3"]
+def inbetween_conditions(
+    num_controls: int,
+    start: Float[Array, "joints 3"],
+    end: Float[Array, "joints 3"],
+    handle_control: Int[Array, "handles"],
+    handle_joint: Int[Array, "handles"],
+    handle_position: Float[Array, "handles 3"],
+    handle_valid: Bool[Array, "handles"],
 ) -> Conditions:
-    """Condition slots for every (control, joint), valid where ``mask``, positions normalised."""
-    conditions = Conditions.from_grid(mask, ctrl_pos)
-    position = stats.normalize_positions(conditions.position, conditions.joint)
-    # Padding slots carry zeros, never the ground truth they would otherwise reveal.
+    """The in-betweening condition slots of one motion: every joint at the first and at the
+    last control point (always valid), then the handles. Positions as given (cm)."""
+    j = start.shape[0]
+    joints = jnp.arange(j, dtype=jnp.int32)
+    return Conditions(
+        position=jnp.concatenate([start, end, handle_position]),
+        joint=jnp.concatenate([joints, joints, handle_joint]),
+        control=jnp.concatenate([jnp.zeros(j, jnp.int32), jnp.full(j, num_controls - 1, jnp.int32), handle_control]),
+        valid=jnp.concatenate([jnp.ones(2 * j, bool), handle_valid]),
+    )
+
+
+def normalize_conditions(stats: FeatureStats, conditions: Conditions, translation: Float[Array, "3"] | None = None) -> Conditions:
+    """Positions → the model's normalised space (after subtracting ``translation``, the
+    start alignment); padding slots get zeros, never a value they would reveal."""
+    position = conditions.position if translation is None else conditions.position - translation
+    position = stats.normalize_positions(position, conditions.joint)
     return conditions._replace(position=jnp.where(conditions.valid[..., None], position, 0.0))
