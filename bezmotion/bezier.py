@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import lineax as lx
 import numpy as np
 import optimistix as optx
-from jaxtyping import Array, ArrayLike, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from bezmotion.geometry.rotations import quat_from_rot6d, rot6d_from_quat, slerp
 
@@ -47,14 +47,15 @@ class BezierLayout:
       stride: frames between consecutive control points (≥ 1).
     """
 
-    num_frames: int
-    stride: int = DEFAULT_STRIDE
+    num_frames: int | np.integer
+    stride: int | np.integer = DEFAULT_STRIDE
 
     def __post_init__(self):
         for name in ("num_frames", "stride"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
                 raise ValueError(f"BezierLayout.{name} must be an integer, got {value!r}")
+            object.__setattr__(self, name, int(value))  # plain ints: hashable, JSON-friendly
         if self.num_frames < 2:
             raise ValueError(f"BezierLayout needs at least 2 frames, got num_frames={self.num_frames}")
         if self.stride < 1:
@@ -85,7 +86,7 @@ class BezierLayout:
         return np.arange(self.num_frames, dtype=np.float64)
 
     @classmethod
-    def from_controls(cls, num_controls: int, stride: int = DEFAULT_STRIDE) -> BezierLayout:
+    def from_controls(cls, num_controls: int | np.integer, stride: int | np.integer = DEFAULT_STRIDE) -> BezierLayout:
         """The layout of ``num_controls`` control points ``stride`` frames apart."""
         if num_controls < 2:
             raise ValueError(f"a curve needs at least 2 control points, got {num_controls}")
@@ -100,7 +101,7 @@ def bernstein(t: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch 4"]:
 
 
 def locate(
-    layout: BezierLayout, frames: Float[ArrayLike, "*shape"]
+    layout: BezierLayout, frames: Real[ArrayLike, "*shape"]
 ) -> tuple[Int[Array, "*shape"], Float[Array, "*shape"]]:
     """Segment index and local parameter ``t ∈ [0, 1]`` of each (fractional) frame time.
 
@@ -118,7 +119,7 @@ def locate(
 
 
 def basis(
-    layout: BezierLayout, frames: Float[ArrayLike, "frames"] | None = None
+    layout: BezierLayout, frames: Real[ArrayLike, "frames"] | None = None
 ) -> tuple[Float[Array, "frames controls"], Float[Array, "frames controls"]]:
     """Weights of the control positions and tangents at each frame time.
 
@@ -142,6 +143,11 @@ def basis(
     return w_pos, w_tan
 
 
+def _check_frames(layout: BezierLayout, points: Array) -> None:
+    if points.ndim < 2 or points.shape[-2] != layout.num_frames:
+        raise ValueError(f"expected (..., {layout.num_frames}, dim) points for {layout}, got shape {points.shape}")
+
+
 def _check_controls(layout: BezierLayout, *arrays: Array) -> None:
     for a in arrays:
         if a.ndim < 2 or a.shape[-2] != layout.num_controls:
@@ -154,7 +160,7 @@ def evaluate(
     layout: BezierLayout,
     ctrl_pos: Float[Array, "*batch controls dim"],
     ctrl_tangent: Float[Array, "*batch controls dim"],
-    frames: Float[ArrayLike, "frames"] | None = None,
+    frames: Real[ArrayLike, "frames"] | None = None,
 ) -> Float[Array, "*batch frames dim"]:
     """Evaluate curves at frame times (Bernstein form, Eq. 3).
 
@@ -198,9 +204,11 @@ def from_segments(
 ) -> tuple[Float[Array, "*batch controls dim"], Float[Array, "*batch controls dim"]]:
     """Control positions and tangents from the 4-point form (inverse of :func:`to_segments`).
 
-    Segments written by another tool need not be joined or symmetric; shared end points
-    and the two handles of each interior control point are averaged, which is the
-    symmetric, C1 curve nearest to them. Exact inverse for curves from :func:`to_segments`.
+    Segments written by another tool need not be joined or symmetric: shared end points
+    are averaged, and so are the two tangents each interior control point's handles
+    imply. That is a simple projection onto symmetric C1 curves — not the least-squares
+    nearest one when the input is far from joined — and the exact inverse for curves
+    from :func:`to_segments`.
     """
     segments = jnp.asarray(segments)
     if segments.ndim < 3 or segments.shape[-3:-1] != (layout.num_segments, 4):
@@ -222,6 +230,7 @@ def finite_difference_tangents(
 ) -> Float[Array, "*batch controls dim"]:
     """Tangents whose velocity ``3T/s`` matches the central finite difference of ``points``
     at each control frame (one-sided at the window ends) — the fit's starting point."""
+    _check_frames(layout, points)
     velocity = jnp.gradient(points, axis=-2)  # units per frame
     return velocity[..., layout.control_frames, :] * (layout.stride / 3.0)
 
@@ -278,12 +287,12 @@ def fit_curves(
       lie on the ground-truth curves and a model could never hit them and match the
       ground truth at once. Exact handles matter more than 0.04 cm in between.
 
-    The problem is linear, so Gauss-Newton lands on the minimiser in its first step and
-    confirms convergence in the second. Where the data do not determine a tangent
-    (stride 1 — every frame is a control point — or stride 2, or a 1-frame last segment)
-    the linear solve is the minimum-norm correction from the finite-difference tangents
-    (SVD), so those tangents stay at their natural, finite-difference values instead of
-    being arbitrary. The three coordinates of a curve are independent problems and are
+    The problem is linear, so Gauss-Newton lands on the minimiser in its first step; two
+    more steps confirm it (three in all, so ``max_steps`` must be at least 3). Where the
+    data do not fully determine the tangents (stride 1 — every frame is a control point —
+    stride 2, or a 1-frame last segment) the linear solve is the minimum-norm correction
+    from the finite-difference tangents (SVD): the part the data leave free keeps its
+    finite-difference value instead of being arbitrary (at stride 1, all of it). The three coordinates of a curve are independent problems and are
     solved separately, which keeps every Jacobian at ``frames × (2·controls)``.
 
     Args:
@@ -299,8 +308,7 @@ def fit_curves(
     Returns:
       a :class:`FitResult`, batched like ``points``.
     """
-    if points.ndim < 2 or points.shape[-2] != layout.num_frames:
-        raise ValueError(f"expected (..., {layout.num_frames}, dim) points for {layout}, got shape {points.shape}")
+    _check_frames(layout, points)
     batch_shape, dim = points.shape[:-2], points.shape[-1]
     # One scalar curve per (batch element, coordinate): (n, frames, 1).
     scalar = jnp.moveaxis(points, -1, -2).reshape(-1, layout.num_frames, 1)
@@ -345,9 +353,12 @@ def fit_curves(
 def interpolate_rotations(
     layout: BezierLayout,
     ctrl_quat: Float[Array, "*batch controls 4"],
-    frames: Float[ArrayLike, "frames"] | None = None,
+    frames: Real[ArrayLike, "frames"] | None = None,
 ) -> Float[Array, "*batch frames 4"]:
     """Orientations between control points by slerp (BMM §4.3), linear in frame time.
+
+    Outside the window the end orientations are held (``evaluate`` extrapolates
+    positions; rotations have no natural extrapolation).
 
     Args:
       ctrl_quat: ``(*batch, controls, 4)`` unit quaternions (w, x, y, z) at the control points.
@@ -368,7 +379,7 @@ def reconstruct_dense(
     ctrl_pos: Float[Array, "*batch controls joints 3"],
     ctrl_tangent: Float[Array, "*batch controls joints 3"],
     ctrl_rot6d: Float[Array, "*batch controls joints 6"],
-    frames: Float[ArrayLike, "frames"] | None = None,
+    frames: Real[ArrayLike, "frames"] | None = None,
 ) -> tuple[Float[Array, "*batch frames joints 3"], Float[Array, "*batch frames joints 6"]]:
     """Dense joint trajectories from curves: Bézier positions and slerped orientations.
 
@@ -377,6 +388,12 @@ def reconstruct_dense(
     Returns:
       ``(positions (*batch, frames, joints, 3), rot6d (*batch, frames, joints, 6))``.
     """
+    ctrl_pos, ctrl_tangent, ctrl_rot6d = (jnp.asarray(a) for a in (ctrl_pos, ctrl_tangent, ctrl_rot6d))
+    for a in (ctrl_pos, ctrl_tangent, ctrl_rot6d):
+        if a.ndim < 3 or a.shape[-3] != layout.num_controls:
+            raise ValueError(
+                f"expected (..., {layout.num_controls}, joints, ·) control arrays for {layout}, got shape {a.shape}"
+            )
     pos = evaluate(layout, jnp.moveaxis(ctrl_pos, -2, -3), jnp.moveaxis(ctrl_tangent, -2, -3), frames)
     quat = interpolate_rotations(layout, jnp.moveaxis(quat_from_rot6d(ctrl_rot6d), -2, -3), frames)
     return jnp.moveaxis(pos, -3, -2), jnp.moveaxis(rot6d_from_quat(quat), -3, -2)
