@@ -26,22 +26,6 @@ def _is_key(x: Any) -> bool:
     return isinstance(x, jax.Array | jax.ShapeDtypeStruct) and jnp.issubdtype(x.dtype, jax.dtypes.prng_key)
 
 
-def _keys_to_data(tree: Any) -> Any:
-    return jax.tree.map(lambda x: jax.random.key_data(x) if _is_key(x) else x, tree)
-
-
-def _abstract_without_keys(tree: Any) -> Any:
-    """The abstract (shape/dtype) tree orbax restores into, typed keys as raw data."""
-    return jax.tree.map(
-        lambda x: jax.ShapeDtypeStruct(jax.random.key_data(x).shape, jnp.uint32) if _is_key(x) else ocp.utils.to_shape_dtype_struct(x),
-        tree,
-    )
-
-
-def _data_to_keys(restored: Any, like: Any) -> Any:
-    return jax.tree.map(lambda r, x: jax.random.wrap_key_data(r, impl=jax.random.key_impl(x)) if _is_key(x) else r, restored, like)
-
-
 class CheckpointStore:
     """Numbered checkpoints of one training run in ``directory``.
 
@@ -51,7 +35,7 @@ class CheckpointStore:
     """
 
     def __init__(self, directory: str | os.PathLike, *, max_to_keep: int = 3):
-        self.directory = Path(directory).absolute()
+        self.directory = Path(directory).expanduser().absolute()
         self._manager = ocp.CheckpointManager(
             self.directory,
             options=ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=True, enable_async_checkpointing=False),
@@ -66,7 +50,10 @@ class CheckpointStore:
             atomic_write_text(self.directory / CONFIG_FILE, json.dumps(config, indent=2, sort_keys=True, default=str) + "\n")
         if self._manager.latest_step() == step:
             return  # already saved at this step (e.g. periodic save, then the final one)
-        self._manager.save(step, args=ocp.args.StandardSave(_keys_to_data(state)), force=True)
+        # A flat list of leaves, not the tree itself: orbax rebuilds trees with placeholder
+        # leaves, which type-checked dataclass constructors (rightly) refuse.
+        leaves = [jax.random.key_data(x) if _is_key(x) else x for x in jax.tree.leaves(state)]
+        self._manager.save(step, args=ocp.args.StandardSave({"leaves": leaves}), force=True)
         self._manager.wait_until_finished()
 
     def restore(self, like: Any, step: int | None = None) -> Any:
@@ -74,8 +61,14 @@ class CheckpointStore:
         step = self._manager.latest_step() if step is None else step
         if step is None:
             raise FileNotFoundError(f"no checkpoint in {self.directory}")
-        restored = self._manager.restore(step, args=ocp.args.StandardRestore(_abstract_without_keys(like)))
-        return _data_to_keys(restored, like)
+        flat, treedef = jax.tree.flatten(like)
+        abstract = [
+            jax.ShapeDtypeStruct(jax.random.key_data(x).shape, jnp.uint32) if _is_key(x) else ocp.utils.to_shape_dtype_struct(x)
+            for x in flat
+        ]
+        restored = self._manager.restore(step, args=ocp.args.StandardRestore({"leaves": abstract}))["leaves"]
+        leaves = [jax.random.wrap_key_data(r, impl=jax.random.key_impl(x)) if _is_key(x) else r for r, x in zip(restored, flat)]
+        return treedef.unflatten(leaves)
 
     def config(self) -> dict[str, Any] | None:
         path = self.directory / CONFIG_FILE

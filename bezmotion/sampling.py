@@ -99,10 +99,12 @@ class Handles(NamedTuple):
                 raise ValueError(f"joint index {j} out of range 0…{config.num_joints - 1}")
             joint_ids.append(int(j))
         controls = []
+        last = config.num_frames - 1
         for f in frames:
-            if f % config.stride or not 0 <= f < config.num_frames:
+            if f % config.stride or not 0 < f < last:
                 raise ValueError(
-                    f"handles sit on control frames: multiples of {config.stride} in 0…{config.num_frames - 1}, got {f}"
+                    f"handles sit on intermediate control frames: multiples of {config.stride} strictly between 0 "
+                    f"and {last} (the start and end poses are given separately), got {f}"
                 )
             controls.append(f // config.stride)
         return cls(

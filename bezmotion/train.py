@@ -97,14 +97,49 @@ class TrainState:
     params: Any
     opt_state: Any
     ema: Any
-    step: Int[Array, ""]
+    step: Int[Array, "*seeds"]
     key: Array
 
 
+class AmsgradState(NamedTuple):
+    count: Int[Array, ""]
+    mu: Any
+    nu: Any
+    nu_max: Any
+
+
+def scale_by_amsgrad_torch(b1: float = 0.9, b2: float = 0.999, eps: float = 1e-8) -> optax.GradientTransformation:
+    """Adam with AMSGrad exactly as PyTorch computes it (the paper trained with PyTorch).
+
+    PyTorch keeps the running maximum of the *raw* second moment and bias-corrects it
+    afterwards: ``m̂ / (√(max_s ν_s / (1 − β₂ᵗ)) + ε)``. ``optax.scale_by_amsgrad`` takes the
+    maximum of the already corrected moment instead, so one large early gradient — when
+    the correction multiplies ν by up to 1/(1 − β₂) — damps that parameter for good.
+    """
+
+    def init(params):
+        zeros = lambda: jax.tree.map(jnp.zeros_like, params)  # noqa: E731
+        return AmsgradState(jnp.zeros((), jnp.int32), zeros(), zeros(), zeros())
+
+    def update(grads, state, params=None):
+        del params
+        count = state.count + 1
+        mu = jax.tree.map(lambda m, g: b1 * m + (1.0 - b1) * g, state.mu, grads)
+        nu = jax.tree.map(lambda v, g: b2 * v + (1.0 - b2) * g * g, state.nu, grads)
+        nu_max = jax.tree.map(jnp.maximum, state.nu_max, nu)
+        c1 = 1.0 - b1 ** count.astype(jnp.float32)
+        c2 = 1.0 - b2 ** count.astype(jnp.float32)
+        updates = jax.tree.map(lambda m, v: (m / c1) / (jnp.sqrt(v / c2) + eps), mu, nu_max)
+        return updates, AmsgradState(count, mu, nu, nu_max)
+
+    return optax.GradientTransformation(init, update)
+
+
 def make_optimizer(config: TrainConfig) -> optax.GradientTransformation:
-    """AdamW with AMSGrad (decoupled weight decay, as PyTorch's ``AdamW(amsgrad=True)``)."""
+    """AdamW with AMSGrad as PyTorch's ``AdamW(amsgrad=True)``: decoupled weight decay
+    ``lr·wd·θ`` added to the AMSGrad direction, then scaled by the learning rate."""
     return optax.chain(
-        optax.scale_by_amsgrad(),
+        scale_by_amsgrad_torch(),
         optax.add_decayed_weights(config.weight_decay),
         optax.scale_by_learning_rate(config.learning_rate),
     )
@@ -220,7 +255,7 @@ def run_training(
     config: dict[str, Any] | None = None,
     progress: bool = True,
     log_every: int = 25,
-) -> tuple[TrainState, list[dict[str, float]]]:
+) -> tuple[TrainState, list[dict[str, float | int]]]:
     """Run a compiled step until ``state.step`` reaches ``num_steps``, resuming from ``store``.
 
     Checkpoints every ``checkpoint_every`` steps, at the end and on Ctrl-C (then

@@ -33,7 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import nnx
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 
@@ -139,7 +139,9 @@ class Conditions(NamedTuple):
         return mask, position
 
 
-def sinusoidal_encoding(position: Float[Array, "*shape"], width: int, max_period: float = 10000.0) -> Float[Array, "*shape width"]:
+def sinusoidal_encoding(
+    position: Real[ArrayLike, "*shape"], width: int, max_period: float = 10000.0
+) -> Float[Array, "*shape width"]:
     """Transformer sinusoidal encoding of (possibly fractional) positions, ``[sin | cos]`` halves."""
     half = width // 2
     freqs = jnp.exp(-math.log(max_period) * jnp.arange(half, dtype=jnp.float32) / half)
@@ -211,12 +213,17 @@ class BMMDenoiser(nnx.Module):
         frames = jnp.arange(cfg.num_controls, dtype=jnp.float32) * cfg.stride
         time_token = self.time_linear2(jax.nn.silu(self.time_linear1(sinusoidal_encoding(t, w))))
         frame_tokens = self.frame_encoder(x_t) + sinusoidal_encoding(frames, w)
-        cond_frames = conditions.control.astype(jnp.float32) * cfg.stride
+        # Padding slots become zero tokens whatever they hold (NaN, out-of-range indices):
+        # masked attention weights are 0, but 0 × NaN would still poison the output.
+        valid_cond = conditions.valid
+        joint = jnp.where(valid_cond, conditions.joint, 0)
+        cond_frames = jnp.where(valid_cond, conditions.control, 0).astype(jnp.float32) * cfg.stride
         cond_tokens = (
-            self.condition_encoder(conditions.position)
-            + self.joint_embedding(conditions.joint)
+            self.condition_encoder(jnp.where(valid_cond[:, None], conditions.position, 0.0))
+            + self.joint_embedding(joint)
             + sinusoidal_encoding(cond_frames, w)
         )
+        cond_tokens = jnp.where(valid_cond[:, None], cond_tokens, 0.0)
         tokens = jnp.concatenate([time_token[None], frame_tokens, cond_tokens], axis=0)
         valid = jnp.concatenate([jnp.ones(1 + cfg.num_controls, bool), conditions.valid])
         mask = valid[None, None, :]  # (heads, queries, keys), broadcast

@@ -57,9 +57,9 @@ class FeatureStats:
 
 
 def control_features(
-    ctrl_pos: Float[Array, "*batch controls joints 3"],
-    ctrl_tangent: Float[Array, "*batch controls joints 3"],
-    ctrl_rot6d: Float[Array, "*batch controls joints 6"],
+    ctrl_pos: Float[Array | np.ndarray, "*batch controls joints 3"],
+    ctrl_tangent: Float[Array | np.ndarray, "*batch controls joints 3"],
+    ctrl_rot6d: Float[Array | np.ndarray, "*batch controls joints 6"],
 ) -> Float[Array, "*batch controls joints 12"]:
     """Stack position, tangent and orientation per joint: ``[P, T, O]``."""
     return jnp.concatenate([jnp.asarray(ctrl_pos), jnp.asarray(ctrl_tangent), jnp.asarray(ctrl_rot6d)], axis=-1)

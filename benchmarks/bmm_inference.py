@@ -1,0 +1,92 @@
+"""Benchmark: BMM sampling latency and throughput (10 DDIM steps) at paper size and CPU size.
+
+    python benchmarks/bmm_inference.py --out bmm_inference.json
+
+For each configuration: parameter count, compile time of ``sample_curves`` (lowering and
+XLA compilation separately), steady-state latency of one motion at batch 1 (start, end
+and two intermediate handles; no guidance, as in the paper's timing), and throughput in
+motions per second at ``--batch``. Weights are random: latency does not depend on them.
+Writes ``{"paper": {"params", "compile_s", "latency_s", "motions_per_s", …}, "default": {…}}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import json
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from _common import machine_info, time_jitted, write_json
+from bezmotion.models.bmm import BMMConfig, count_parameters, init_denoiser
+from bezmotion.models.bmm_data import FeatureStats
+from bezmotion.sampling import BezierMotionModel, Handles, sample_curves
+
+PAPER_LATENCY_S = 0.08  # BMM §6: 10 steps on an RTX 3090
+
+
+def example_inputs(config: BMMConfig, batch: int | None):
+    """A plausible in-betweening problem: a 2 m walk with a hand and a foot handle."""
+    rng = np.random.default_rng(0)
+    start = rng.normal(scale=30.0, size=(config.num_joints, 3)).astype(np.float32) + [0, 90, 0]
+    end = start + np.float32([200.0, 0.0, 0.0])
+    handles = Handles.from_frames(["left_hand", "right_foot"], [12, 18], start[[2, 5]] + 80.0, config=config)
+    if batch is None:
+        return jnp.asarray(start), jnp.asarray(end), handles
+    tile = lambda x: jnp.broadcast_to(jnp.asarray(x), (batch, *np.shape(x)))  # noqa: E731
+    return tile(start), tile(end), jax.tree.map(tile, handles)
+
+
+def measure(config: BMMConfig, *, batch: int, steps: int, repeats: int) -> dict:
+    graphdef, params = init_denoiser(config, key=jax.random.key(0))
+    j = config.num_joints
+    stats = FeatureStats(jnp.zeros((j, 12)), jnp.full((j, 12), 30.0))
+    model = BezierMotionModel(params, stats, graphdef, config)
+    key = jax.random.key(1)
+    fn = functools.partial(sample_curves, steps=steps)
+    single = time_jitted(lambda m, s, e, h, k: fn(m, s, e, h, key=k), (model, *example_inputs(config, None), key), repeats=repeats)
+    batched = time_jitted(lambda m, s, e, h, k: fn(m, s, e, h, key=k), (model, *example_inputs(config, batch), key), repeats=repeats)
+    return {
+        "params": count_parameters(params),
+        "config": {k: getattr(config, k) for k in ("width", "ff_width", "num_heads", "num_layers")},
+        "steps": steps,
+        "lower_s": single["lower_s"],
+        "compile_s": single["compile_s"],
+        "latency_s": single["steady_s"],
+        "latency_min_s": single["min_s"],
+        "batch": batch,
+        "batch_compile_s": batched["compile_s"],
+        "batch_s": batched["steady_s"],
+        "motions_per_s": batch / batched["steady_s"],
+    }
+
+
+def main(argv: list[str] | None = None) -> dict:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=10, help="DDIM steps (default 10)")
+    parser.add_argument("--batch", type=int, default=256, help="batch for the throughput figure (default 256)")
+    parser.add_argument("--repeats", type=int, default=20, help="timed repeats; the median is reported")
+    parser.add_argument("--out", default=None, help="write the result as JSON to this file (atomically)")
+    args = parser.parse_args(argv)
+
+    result = {
+        "benchmark": "bmm_inference",
+        "paper_latency_s": PAPER_LATENCY_S,
+        "paper": measure(BMMConfig.paper(), batch=args.batch, steps=args.steps, repeats=args.repeats),
+        "default": measure(BMMConfig.cpu(), batch=args.batch, steps=args.steps, repeats=args.repeats),
+        "machine": machine_info(),
+    }
+    summary = {
+        name: {k: result[name][k] for k in ("params", "compile_s", "latency_s", "motions_per_s")} for name in ("paper", "default")
+    }
+    print(json.dumps(summary, indent=2))
+    if args.out:
+        write_json(args.out, result)
+    return result
+
+
+if __name__ == "__main__":
+    main(sys.argv[1:])
