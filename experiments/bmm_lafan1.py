@@ -136,6 +136,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--steps", type=int, default=6000, help="training steps (default 6000)")
     parser.add_argument("--batch-size", type=int, default=64)
     parser.add_argument("--learning-rate", type=float, default=1e-4)
+    parser.add_argument("--min-snr-gamma", type=float, default=5.0, help="Min-SNR-γ loss weighting (paper: 5; 0 = off)")
     parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="seeds trained together (vmapped)")
     parser.add_argument("--run-dir", default=None, help="checkpoints and the final model (default: <cache>/runs/bmm_lafan1_<config>)")
     parser.add_argument("--checkpoint-every", type=int, default=500)
@@ -152,7 +153,9 @@ def main(argv: list[str] | None = None) -> dict:
     val_set = lafan1_curve_dataset(args.data, "validation", progress=not args.no_progress)
     stats = FeatureStats.from_dataset(train_set)
     model_config = BMMConfig.cpu() if args.config == "cpu" else BMMConfig.paper()
-    train_config = TrainConfig(batch_size=args.batch_size, learning_rate=args.learning_rate)
+    train_config = TrainConfig(
+        batch_size=args.batch_size, learning_rate=args.learning_rate, min_snr_gamma=args.min_snr_gamma or None
+    )
 
     graphdef, state, history, train_s = train(args, model_config, train_config, train_set, stats)
 
