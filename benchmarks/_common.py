@@ -100,3 +100,11 @@ def time_jitted(fn: Callable[..., Any], args: Sequence[Any], *, repeats: int = 5
 def write_json(path: str | os.PathLike, payload: dict[str, Any]) -> None:
     """Write ``payload`` as indented JSON, atomically (never a half-written file)."""
     atomic_write_text(Path(path), json.dumps(payload, indent=2, sort_keys=True) + "\n")
+
+
+def report(result: dict[str, Any], summary: dict[str, Any], out: str | os.PathLike | None) -> dict[str, Any]:
+    """Print ``summary`` as JSON, write the full ``result`` to ``out`` (if given), return ``result``."""
+    print(json.dumps(summary, indent=2))
+    if out:
+        write_json(out, result)
+    return result

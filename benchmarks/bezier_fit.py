@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import argparse
 import functools
-import json
 import sys
 import tempfile
 import time
@@ -25,7 +24,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from _common import machine_info, time_jitted, write_json
+from _common import machine_info, report, time_jitted
 from bezmotion.bezier import BezierLayout, fit_curves
 from bezmotion.data import bandai_namco, lafan1
 from bezmotion.data.curves import (
@@ -149,10 +148,7 @@ def main(argv: list[str] | None = None) -> dict:
             for k, v in result["dataset_build"]["splits"].items()
         }
         summary["total_build_s"] = round(result["dataset_build"]["total_build_s"], 2)
-    print(json.dumps(summary, indent=2))
-    if args.out:
-        write_json(args.out, result)
-    return result
+    return report(result, summary, args.out)
 
 
 if __name__ == "__main__":

@@ -13,14 +13,13 @@ from __future__ import annotations
 
 import argparse
 import functools
-import json
 import sys
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from _common import machine_info, time_jitted, write_json
+from _common import machine_info, report, time_jitted
 from bezmotion.models.bmm import BMMConfig, count_parameters, init_denoiser
 from bezmotion.models.bmm_data import FeatureStats
 from bezmotion.sampling import BezierMotionModel, Handles, sample_curves
@@ -82,10 +81,7 @@ def main(argv: list[str] | None = None) -> dict:
     summary = {
         name: {k: result[name][k] for k in ("params", "compile_s", "latency_s", "motions_per_s")} for name in ("paper", "default")
     }
-    print(json.dumps(summary, indent=2))
-    if args.out:
-        write_json(args.out, result)
-    return result
+    return report(result, summary, args.out)
 
 
 if __name__ == "__main__":

@@ -9,14 +9,13 @@ over many frames in float32 and reports compile time, steady-state time and fram
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from _common import machine_info, time_jitted, write_json
+from _common import machine_info, report, time_jitted
 from bezmotion.geometry.skeleton import Skeleton
 
 # LaFAN1 joint order (Hips, legs, spine/head, arms).
@@ -60,10 +59,7 @@ def main(argv: list[str] | None = None) -> dict:
         "machine": machine_info(),
     }
     summary = {k: result[k] for k in ("frames", "joints", "lower_s", "compile_s", "first_call_s", "steady_s", "frames_per_s")}
-    print(json.dumps(summary, indent=2))
-    if args.out:
-        write_json(args.out, result)
-    return result
+    return report(result, summary, args.out)
 
 
 if __name__ == "__main__":

@@ -19,7 +19,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import os
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -328,8 +328,32 @@ def _check_split(split: str) -> None:
         raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
 
 
-def _cached_dataset(name: str, key: str, build, use_cache: bool) -> CurveDataset:
-    return CurveDataset.from_arrays(cached_arrays(name, key, lambda: build().to_arrays(), use_cache=use_cache))
+def _corpus_curve_dataset(
+    label: str,
+    mapping: str,
+    load_clips: Callable[[], MotionClips],
+    source_key: Callable[..., str],
+    *,
+    split: str,
+    window: int,
+    stride: int,
+    offset: int,
+    pin_positions: bool,
+    use_cache: bool,
+    progress: bool,
+) -> CurveDataset:
+    """Build (or load from the cache) one split of a corpus's curve dataset."""
+    params = dict(split=split, window=window, stride=stride, offset=offset, pin=pin_positions, v=_FORMAT_VERSION)
+
+    def build() -> dict[str, np.ndarray]:
+        return build_curve_dataset(
+            load_clips(), mapping, window=window, stride=stride, offset=offset, pin_positions=pin_positions,
+            progress=progress, description=f"fitting {label} {split} curves",
+        ).to_arrays()  # fmt: skip
+
+    name = f"{mapping.replace('_', '-')}-curves"
+    key = source_key(corpus=name, **params) if use_cache else ""
+    return CurveDataset.from_arrays(cached_arrays(name, key, build, use_cache=use_cache))
 
 
 def lafan1_curve_dataset(
@@ -350,18 +374,15 @@ def lafan1_curve_dataset(
     """
     _check_split(split)
     subjects = _lafan1.TRAIN_SUBJECTS if split == "train" else _lafan1.TEST_SUBJECTS
-    params = dict(split=split, window=window, stride=stride, offset=offset, pin=pin_positions, v=_FORMAT_VERSION)
 
-    def build() -> CurveDataset:
+    def load_clips() -> MotionClips:
         corpus = _lafan1.load_lafan1(source, use_cache=use_cache)
-        clips = MotionClips.from_lafan1(corpus, corpus.files_of(subjects))
-        return build_curve_dataset(
-            clips, "lafan1", window=window, stride=stride, offset=offset, pin_positions=pin_positions,
-            progress=progress, description=f"fitting LaFAN1 {split} curves",
-        )  # fmt: skip
+        return MotionClips.from_lafan1(corpus, corpus.files_of(subjects))
 
-    key = fingerprint(source, corpus="lafan1-curves", **params) if use_cache else ""
-    return _cached_dataset("lafan1-curves", key, build, use_cache)
+    return _corpus_curve_dataset(
+        "LaFAN1", "lafan1", load_clips, functools.partial(fingerprint, source), split=split, window=window,
+        stride=stride, offset=offset, pin_positions=pin_positions, use_cache=use_cache, progress=progress,
+    )  # fmt: skip
 
 
 def bandai_namco_curve_dataset(
@@ -382,19 +403,17 @@ def bandai_namco_curve_dataset(
     Clips shorter than ``window`` contribute no windows.
     """
     _check_split(split)
-    params = dict(split=split, window=window, stride=stride, offset=offset, pin=pin_positions, v=_FORMAT_VERSION)
 
-    def build() -> CurveDataset:
+    def load_clips() -> MotionClips:
         corpus = _bandai_namco.load_bandai_namco(source, use_cache=use_cache, progress=progress)
         train, validation = _bandai_namco.bandai_namco_split(corpus)
-        clips = MotionClips.from_bandai_namco(corpus, train if split == "train" else validation)
-        return build_curve_dataset(
-            clips, "bandai_namco", window=window, stride=stride, offset=offset, pin_positions=pin_positions,
-            progress=progress, description=f"fitting Bandai-Namco {split} curves",
-        )  # fmt: skip
+        return MotionClips.from_bandai_namco(corpus, train if split == "train" else validation)
 
-    key = _bandai_namco.source_fingerprint(source, corpus="bandai-namco-curves", **params) if use_cache else ""
-    return _cached_dataset("bandai-namco-curves", key, build, use_cache)
+    return _corpus_curve_dataset(
+        "Bandai-Namco", "bandai_namco", load_clips, functools.partial(_bandai_namco.source_fingerprint, source),
+        split=split, window=window, stride=stride, offset=offset, pin_positions=pin_positions, use_cache=use_cache,
+        progress=progress,
+    )  # fmt: skip
 
 
 __all__ = [
