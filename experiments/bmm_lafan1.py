@@ -52,6 +52,11 @@ from bezmotion.train import CurveArrays, TrainConfig, compile_train_step, data_m
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lafan1" / "lafan1-subset.zip"
 STEP_COUNTS = (5, 10, 25, 50, 100)
+CONFIGS = {
+    "cpu": BMMConfig.cpu,
+    "paper": BMMConfig.paper,
+    "tiny": lambda: BMMConfig.cpu(width=32, ff_width=64, num_heads=2, num_layers=1),
+}
 
 
 def concat_datasets(parts: list[CurveDataset]) -> CurveDataset:
@@ -91,7 +96,7 @@ def evaluate_model(args, model: BezierMotionModel, metrics_config, eval_set, key
             row[name] = m
         results["overwrite" if overwrite else "no_overwrite"] = row
     results["steps"] = {}
-    for steps in STEP_COUNTS:
+    for steps in args.table6_steps:
         t0 = time.perf_counter()
         m = curve_metrics(metrics_config, run(eval_set.handles, steps=steps), eval_set, eval_set.handles)
         results["steps"][str(steps)] = {**m, "eval_s": time.perf_counter() - t0}
@@ -132,7 +137,7 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--out", required=True, help="output JSON (a .md report is written beside it)")
     parser.add_argument("--data", default=str(DEFAULT_DATA), help="LaFAN1 zip or BVH folder (default ../shared/data/lafan1/lafan1-subset.zip)")
     parser.add_argument("--bandai-namco", default=None, help="also train on Bandai-Namco's training clips (archive or folder)")
-    parser.add_argument("--config", choices=("cpu", "paper"), default="cpu", help="model size (default cpu)")
+    parser.add_argument("--config", choices=tuple(CONFIGS), default="cpu", help="model size (default cpu; tiny: smoke tests)")
     parser.add_argument("--steps", type=int, default=6000, help="training steps (default 6000)")
     parser.add_argument("--batch-size", type=int, default=64)
     parser.add_argument("--learning-rate", type=float, default=1e-4)
@@ -142,6 +147,9 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--checkpoint-every", type=int, default=500)
     parser.add_argument("--eval-windows", type=int, default=1000, help="subject-5 windows evaluated (default 1000; 0 = all)")
     parser.add_argument("--guidance", type=float, default=1.0, help="classifier-free guidance scale at sampling (1 = off)")
+    parser.add_argument(
+        "--table6-steps", type=int, nargs="+", default=list(STEP_COUNTS), help="DDIM step counts compared (default 5 10 25 50 100)"
+    )
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
     args.run_dir = args.run_dir or str(cache_dir() / "runs" / f"bmm_lafan1_{args.config}")
@@ -152,7 +160,7 @@ def main(argv: list[str] | None = None) -> dict:
         train_set = concat_datasets([train_set, bandai_namco_curve_dataset(args.bandai_namco, "train", progress=not args.no_progress)])
     val_set = lafan1_curve_dataset(args.data, "validation", progress=not args.no_progress)
     stats = FeatureStats.from_dataset(train_set)
-    model_config = BMMConfig.cpu() if args.config == "cpu" else BMMConfig.paper()
+    model_config = CONFIGS[args.config]()
     train_config = TrainConfig(
         batch_size=args.batch_size, learning_rate=args.learning_rate, min_snr_gamma=args.min_snr_gamma or None
     )

@@ -13,6 +13,8 @@ library's own formulas.
 from __future__ import annotations
 
 import dataclasses
+import json
+from pathlib import Path
 from types import SimpleNamespace
 
 import jax
@@ -20,6 +22,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 import pytest
+
+from helpers import SHARED_DATA, requires_shared
 
 from bezmotion.assets import DEMO_CLIP
 from bezmotion.bezier import BezierLayout, evaluate
@@ -1134,3 +1138,29 @@ def test_sample_in_chunks(eval_set):
     calls.clear()
     sample_in_chunks(sample, eval_set, eval_set.handles, key=key, chunk=256)
     assert calls == [10]
+
+
+@requires_shared
+def test_bmm_lafan1_experiment_smoke(tmp_path, monkeypatch):
+    """The experiment end to end on the real LaFAN1 subset: tiny model, a few steps, a few windows."""
+    import importlib.util
+
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "experiments"))
+    spec = importlib.util.spec_from_file_location("bmm_lafan1", Path(__file__).resolve().parents[1] / "experiments" / "bmm_lafan1.py")
+    experiment = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(experiment)
+    out = tmp_path / "bmm.json"
+    args = ["--out", str(out), "--data", str(SHARED_DATA / "lafan1" / "lafan1-subset.zip"), "--config", "tiny",
+            "--steps", "4", "--checkpoint-every", "2", "--eval-windows", "8", "--table6-steps", "5",
+            "--run-dir", str(tmp_path / "run"), "--no-progress"]  # fmt: skip
+    results = experiment.main(args)
+    saved = json.loads(out.read_text())
+    assert saved["eval"]["n_windows"] == 8 and saved["training"]["steps"] == 4
+    bmm = saved["bmm"]["0"]
+    assert bmm["overwrite"]["id"]["handles_error_cm"] == 0.0 and bmm["overwrite"]["ood"]["handles_error_cm"] == 0.0
+    assert bmm["no_overwrite"]["id"]["handles_error_cm"] > 0.0
+    assert saved["reference"]["id"]["handles_error_cm"] == 0.0 and list(bmm["steps"]) == ["5"]
+    assert (tmp_path / "run" / "model" / "config.json").exists() and out.with_suffix(".md").exists()
+    # Running it again resumes at step 4: nothing more to train.
+    again = experiment.main(args)
+    assert again["training"]["history"] == [] and results["model"]["params"] == again["model"]["params"]
