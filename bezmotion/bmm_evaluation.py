@@ -137,7 +137,15 @@ def curve_metrics(
 def reference_curves(eval_set: EvalSet, handles: Handles, num_controls: int) -> SampledCurves:
     """The non-learned reference (:func:`~bezmotion.models.baselines.handle_interpolation`)
     for every window; no orientations, contacts all 0.5 (unknown)."""
-    n, j = eval_set.start.shape[:2]
+    pos, tangent = _reference_controls(eval_set.start, eval_set.end, handles, num_controls=num_controls)
+    n = pos.shape[0]
+    return SampledCurves(pos, tangent, jnp.zeros((*pos.shape[:-1], 6)), jnp.full((n, num_controls, 2), 0.5))
+
+
+@functools.partial(jax.jit, static_argnames="num_controls")
+def _reference_controls(start, end, handles: Handles, *, num_controls: int):
+    """Known control points of every window (both ends, valid handles) → interpolated curves."""
+    j = start.shape[-2]
 
     def one(start, end, h):
         mask = jnp.zeros((num_controls, j), bool).at[0].set(True).at[-1].set(True)
@@ -147,8 +155,7 @@ def reference_curves(eval_set: EvalSet, handles: Handles, num_controls: int) -> 
         target = target.at[control, h.joint].set(h.position, mode="drop")
         return handle_interpolation(mask, target)
 
-    pos, tangent = jax.jit(jax.vmap(one))(eval_set.start, eval_set.end, handles)
-    return SampledCurves(pos, tangent, jnp.zeros((*pos.shape[:-1], 6)), jnp.full((n, num_controls, 2), 0.5))
+    return jax.vmap(one)(start, end, handles)
 
 
 def ground_truth_metrics(config: CurveMetricsConfig, eval_set: EvalSet) -> dict[str, float]:

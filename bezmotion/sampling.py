@@ -25,7 +25,7 @@ from bezmotion.checkpoint import CheckpointStore
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.diffusion.ddim import ddim_sample
 from bezmotion.diffusion.schedule import cosine_schedule
-from bezmotion.models.bmm import BMMConfig, Conditions, init_denoiser
+from bezmotion.models.bmm import BMMConfig, init_denoiser
 from bezmotion.models.bmm_data import (
     FeatureStats,
     from_tokens,
