@@ -62,16 +62,24 @@ def _block(tree: Any) -> Any:
     return jax.block_until_ready(tree)
 
 
-def time_jitted(fn: Callable[..., Any], args: Sequence[Any], *, repeats: int = 5, warmup: int = 1) -> dict[str, Any]:
+def time_jitted(
+    fn: Callable[..., Any],
+    args: Sequence[Any],
+    *,
+    repeats: int = 5,
+    warmup: int = 1,
+    compiler_options: dict[str, Any] | None = None,
+) -> dict[str, Any]:
     """Time ``jax.jit(fn)(*args)``: compilation separately from steady-state execution.
 
     ``lower_s`` is tracing + lowering to StableHLO, ``compile_s`` the XLA compilation of
     that lowering (both measured with the AOT API ``jit(fn).lower(*args).compile()``),
     ``first_call_s`` one call of the compiled executable including transfer and
     ``block_until_ready``. ``steady_s`` is the median of ``repeats`` further calls after
-    ``warmup`` unmeasured ones; ``times_s`` lists them all.
+    ``warmup`` unmeasured ones; ``times_s`` lists them all. ``compiler_options`` go to
+    ``jax.jit`` (XLA debug options for this computation only).
     """
-    jitted = jax.jit(fn)
+    jitted = jax.jit(fn, compiler_options=compiler_options)
     t0 = time.perf_counter()
     lowered = jitted.lower(*args)
     t1 = time.perf_counter()

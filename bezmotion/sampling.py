@@ -21,6 +21,7 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
+from bezmotion._xla import inference_compiler_options
 from bezmotion.checkpoint import CheckpointStore
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.diffusion.ddim import ddim_sample
@@ -31,6 +32,7 @@ from bezmotion.models.bmm_data import (
     from_tokens,
     inbetween_conditions,
     normalize_conditions,
+    predict_x0,
     split_features,
     to_tokens,
 )
@@ -147,7 +149,7 @@ def _sample_one(model: BezierMotionModel, start, end, handles: Handles, key, ste
     normalized = normalize_conditions(stats, world, translation)
     mask, target = normalized.to_grid(cfg.num_controls, cfg.num_joints)
     _, world_target = world.to_grid(cfg.num_controls, cfg.num_joints)
-    denoiser = nnx.merge(model.graphdef, model.params)
+    denoiser = functools.partial(predict_x0, nnx.merge(model.graphdef, model.params), stats)
 
     def denoise(x_t, t):
         if guidance == 1.0:
@@ -173,7 +175,6 @@ def _sample_one(model: BezierMotionModel, start, end, handles: Handles, key, ste
     return SampledCurves(pos, tangent, rot6d, jax.nn.sigmoid(logits))
 
 
-@functools.partial(jax.jit, static_argnames=("steps", "guidance", "overwrite"))
 def sample_curves(
     model: BezierMotionModel,
     start: Float[Array, "*batch 6 3"],
@@ -201,7 +202,21 @@ def sample_curves(
     Returns:
       :class:`SampledCurves` in the world frame; constrained control points equal their
       targets exactly when ``overwrite``.
+
+    Compiled once per input shape and static argument, with the backend's inference
+    compiler options (:mod:`bezmotion._xla`); inside a caller's own ``jax.jit`` it is
+    simply traced into that computation.
     """
+    options = inference_compiler_options()
+    return _compiled_sampler(options)(model, start, end, handles, key=key, steps=steps, guidance=guidance, overwrite=overwrite)
+
+
+@functools.cache
+def _compiled_sampler(options: tuple[tuple[str, str], ...]):
+    return jax.jit(_sample_curves, static_argnames=("steps", "guidance", "overwrite"), compiler_options=dict(options) or None)
+
+
+def _sample_curves(model, start, end, handles, *, key, steps, guidance, overwrite) -> SampledCurves:
     batch = start.shape[:-2]
     if start.shape[-2:] != (model.config.num_joints, 3) or end.shape != start.shape:
         raise ValueError(f"start and end must both be (..., {model.config.num_joints}, 3), got {start.shape}, {end.shape}")

@@ -14,7 +14,10 @@ classifier-free guidance.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
+import signal
+import threading
 import time
 from collections.abc import Callable
 from typing import Any, NamedTuple
@@ -42,6 +45,7 @@ from bezmotion.models.bmm_data import (
     draw_intermediate_slots,
     inbetween_conditions,
     normalize_conditions,
+    predict_x0,
     split_features,
     to_tokens,
 )
@@ -200,7 +204,7 @@ def make_train_step(
         conditions = conditions._replace(valid=conditions.valid & ~jax.random.bernoulli(drop_key, train_config.condition_dropout))
         mask, _ = conditions.to_grid(k_ctrl, k_joints)
         conditions = normalize_conditions(stats, conditions)
-        pred_tokens, contact_logits = nnx.merge(graphdef, params)(x_t, t, conditions, key=dropout_key)
+        pred_tokens, contact_logits = predict_x0(nnx.merge(graphdef, params), stats, x_t, t, conditions, key=dropout_key)
         pred_pos, pred_tangent, pred_rot6d = split_features(stats.denormalize(from_tokens(pred_tokens)))
         terms = bmm_loss_terms(
             layout, pred_pos, pred_tangent, pred_rot6d, contact_logits, pos, tangent, rot6d, contacts, dense, mask
@@ -243,6 +247,23 @@ def data_mesh() -> Mesh | None:
     return Mesh(np.asarray(devices), ("data",)) if len(devices) > 1 else None
 
 
+@contextlib.contextmanager
+def _terminate_requests():
+    """Record SIGTERM (``kill``, a scheduler's pre-emption) instead of dying, so the loop
+    can stop at a step boundary and checkpoint as on Ctrl-C. Background jobs of a
+    non-interactive shell ignore SIGINT, so for them SIGTERM is the polite way to stop.
+    Yields a list that gets the signal number; a no-op outside the main thread."""
+    received: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield received
+        return
+    previous = signal.signal(signal.SIGTERM, lambda signum, frame: received.append(signum))
+    try:
+        yield received
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
 def run_training(
     step_fn: Callable[[TrainState, CurveArrays], tuple[TrainState, dict[str, Array]]],
     state: TrainState,
@@ -257,8 +278,8 @@ def run_training(
 ) -> tuple[TrainState, list[dict[str, float | int]]]:
     """Run a compiled step until ``state.step`` reaches ``num_steps``, resuming from ``store``.
 
-    Checkpoints every ``checkpoint_every`` steps, at the end and on Ctrl-C (then
-    re-raises). Returns the final state and the logged metrics (every ``log_every``
+    Checkpoints every ``checkpoint_every`` steps, at the end and on Ctrl-C or SIGTERM
+    (then raises ``KeyboardInterrupt``). Returns the final state and the logged metrics (every ``log_every``
     steps, averaged over seeds).
     """
     if store is not None and store.latest_step() is not None:
@@ -267,26 +288,29 @@ def run_training(
     history: list[dict[str, float]] = []
     bar = tqdm(total=num_steps, initial=done, desc="training", unit="step", disable=not progress)
     started, started_step = time.perf_counter(), done
-    try:
-        while done < num_steps:
-            state, metrics = step_fn(state, data)
-            done += 1
-            if done % log_every == 0 or done == num_steps:
-                logged = {k: float(np.mean(np.asarray(v))) for k, v in metrics.items()}
-                rate = (done - started_step) / max(time.perf_counter() - started, 1e-9)
-                history.append({"step": done, "steps_per_s": rate, **logged})
-                bar.set_postfix(loss=f"{logged['loss']:.4g}", steps_per_s=f"{rate:.2f}")
-            bar.update(1)
-            if store is not None and done % checkpoint_every == 0:
+    with _terminate_requests() as terminate:
+        try:
+            while done < num_steps:
+                if terminate:  # a SIGTERM arrived during the last step: stop here, cleanly
+                    raise KeyboardInterrupt(f"signal {terminate[0]}")
+                state, metrics = step_fn(state, data)
+                done += 1
+                if done % log_every == 0 or done == num_steps:
+                    logged = {k: float(np.mean(np.asarray(v))) for k, v in metrics.items()}
+                    rate = (done - started_step) / max(time.perf_counter() - started, 1e-9)
+                    history.append({"step": done, "steps_per_s": rate, **logged})
+                    bar.set_postfix(loss=f"{logged['loss']:.4g}", steps_per_s=f"{rate:.2f}")
+                bar.update(1)
+                if store is not None and done % checkpoint_every == 0:
+                    store.save(done, state, config)
+        except KeyboardInterrupt:
+            if store is not None:
+                done = int(np.max(np.asarray(state.step)))  # the state actually held, whatever was interrupted
                 store.save(done, state, config)
-    except KeyboardInterrupt:
-        if store is not None:
-            done = int(np.max(np.asarray(state.step)))  # the state actually held, whatever was interrupted
-            store.save(done, state, config)
-            bar.write(f"interrupted: saved step {done} to {store.directory}")
-        raise
-    finally:
-        bar.close()
+                bar.write(f"interrupted: saved step {done} to {store.directory}")
+            raise
+        finally:
+            bar.close()
     if store is not None:
         store.save(done, state, config)
     return state, history

@@ -45,7 +45,7 @@ from bezmotion.bezier import BezierLayout
 from bezmotion.checkpoint import CheckpointStore
 from bezmotion.data.cache import cache_dir
 from bezmotion.data.curves import CurveDataset, bandai_namco_curve_dataset, lafan1_curve_dataset
-from bezmotion.models.bmm import BMMConfig, count_parameters
+from bezmotion.models.bmm import PREDICTIONS, BMMConfig, count_parameters
 from bezmotion.models.bmm_data import FeatureStats
 from bezmotion.sampling import BezierMotionModel, sample_curves, save_model
 from bezmotion.train import CurveArrays, TrainConfig, compile_train_step, data_mesh, init_train_states, make_train_step, run_training
@@ -55,7 +55,7 @@ STEP_COUNTS = (5, 10, 25, 50, 100)
 CONFIGS = {
     "cpu": BMMConfig.cpu,
     "paper": BMMConfig.paper,
-    "tiny": lambda: BMMConfig.cpu(width=32, ff_width=64, num_heads=2, num_layers=1),
+    "tiny": lambda **kw: BMMConfig.cpu(**{"width": 32, "ff_width": 64, "num_heads": 2, "num_layers": 1, **kw}),
 }
 
 
@@ -111,7 +111,8 @@ def format_report(results: dict) -> str:
         )
 
     lines = [
-        f"BMM on LaFAN1 ({results['model']['config']} config, {results['model']['params']:,} parameters, "
+        f"BMM on LaFAN1 ({results['model']['config']} config, {results['model']['prediction']} prediction, "
+        f"{results['model']['params']:,} parameters, "
         f"{results['training']['steps']} steps × batch {results['training']['batch_size']}, "
         f"{len(results['training']['seeds'])} seed(s)); {results['eval']['n_windows']} subject-5 windows; curves before IK.",
         "",
@@ -138,6 +139,10 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--data", default=str(DEFAULT_DATA), help="LaFAN1 zip or BVH folder (default ../shared/data/lafan1/lafan1-subset.zip)")
     parser.add_argument("--bandai-namco", default=None, help="also train on Bandai-Namco's training clips (archive or folder)")
     parser.add_argument("--config", choices=tuple(CONFIGS), default="cpu", help="model size (default cpu; tiny: smoke tests)")
+    parser.add_argument(
+        "--prediction", choices=PREDICTIONS, default="x0",
+        help="decoder output: x0 (the paper) or residual over the reference curves through the conditions (ours)",
+    )  # fmt: skip
     parser.add_argument("--steps", type=int, default=6000, help="training steps (default 6000)")
     parser.add_argument("--batch-size", type=int, default=64)
     parser.add_argument("--learning-rate", type=float, default=1e-4)
@@ -152,7 +157,8 @@ def main(argv: list[str] | None = None) -> dict:
     )
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
-    args.run_dir = args.run_dir or str(cache_dir() / "runs" / f"bmm_lafan1_{args.config}")
+    suffix = "" if args.prediction == "x0" else f"_{args.prediction}"
+    args.run_dir = args.run_dir or str(cache_dir() / "runs" / f"bmm_lafan1_{args.config}{suffix}")
 
     started = time.perf_counter()
     train_set = lafan1_curve_dataset(args.data, "train", progress=not args.no_progress)
@@ -160,7 +166,7 @@ def main(argv: list[str] | None = None) -> dict:
         train_set = concat_datasets([train_set, bandai_namco_curve_dataset(args.bandai_namco, "train", progress=not args.no_progress)])
     val_set = lafan1_curve_dataset(args.data, "validation", progress=not args.no_progress)
     stats = FeatureStats.from_dataset(train_set)
-    model_config = CONFIGS[args.config]()
+    model_config = CONFIGS[args.config](prediction=args.prediction)
     train_config = TrainConfig(
         batch_size=args.batch_size, learning_rate=args.learning_rate, min_snr_gamma=args.min_snr_gamma or None
     )
@@ -174,6 +180,7 @@ def main(argv: list[str] | None = None) -> dict:
         "model": {"config": args.config, **dataclasses.asdict(model_config), "params": None},
         "training": {
             "steps": args.steps, "batch_size": args.batch_size, "learning_rate": args.learning_rate, "seeds": args.seeds,
+            "min_snr_gamma": train_config.min_snr_gamma,
             "train_windows": len(train_set), "bandai_namco": bool(args.bandai_namco), "wall_s_this_run": train_s,
             "history": history,
         },

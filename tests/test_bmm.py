@@ -112,6 +112,22 @@ def assert_trees_close(a, b, tol: float = 1e-6) -> None:
         np.testing.assert_allclose(x, y, rtol=tol, atol=tol)
 
 
+def without_key_bias(tree):
+    """``tree`` with the key part of every attention input bias zeroed. That bias adds the
+    same ``q·b_k`` to all of a query's logits, which softmax ignores: its true gradient is
+    0, so Adam turns pure rounding noise into ±lr updates whose signs depend on how the
+    computation was batched."""
+
+    def strip(path, x):
+        names = [str(getattr(p, "key", getattr(p, "name", ""))) for p in path]
+        if "in_proj" in names and "bias" in names and x.shape[-1] % 3 == 0:
+            w = x.shape[-1] // 3
+            return x.at[..., w : 2 * w].set(0)
+        return x
+
+    return jax.tree_util.tree_map_with_path(strip, tree)
+
+
 def trees_differ(a, b) -> bool:
     return any(not np.array_equal(x, y) for x, y in zip(leaves(a), leaves(b), strict=True))
 
@@ -825,7 +841,7 @@ def test_vmapped_seeds_match_single_seed_runs(kit, tmp_path):
         single, metrics = kit.step(single, kit.data)
         # One step matches to float rounding. (Not more steps: Adam's m̂/(√v̂ + ε) turns
         # rounding-level differences of gradients near ε into visible parameter differences.)
-        assert_trees_close(jax.tree.map(lambda a, i=i: a[i], multi), single, tol=1e-6)
+        assert_trees_close(without_key_bias(jax.tree.map(lambda a, i=i: a[i], multi)), without_key_bias(single), tol=1e-6)
         assert history[0]["loss"] != pytest.approx(float(metrics["loss"]))  # the history averages the seeds
         _, metrics = kit.step(single, kit.data)
         np.testing.assert_allclose(multi_metrics["loss"][i], metrics["loss"], rtol=1e-5)

@@ -39,6 +39,7 @@ from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 
 FEATURES_PER_JOINT = 12  # position (3), tangent (3), ortho6D orientation (6)
 NUM_CONTACTS = 2  # left foot, right foot
+PREDICTIONS = ("x0", "residual")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,6 +53,11 @@ class BMMConfig:
       width, ff_width, num_heads, num_layers: transformer sizes.
       dropout: dropout rate in attention and feed-forward (MDM: 0.1).
       num_timesteps: diffusion steps ``T`` (for the noise-level table; 1000).
+      prediction: what the decoder outputs. ``"x0"`` (the paper): x̂₀ itself.
+        ``"residual"`` (ours, after the Δ-interpolator's residual over SLERP): x̂₀ minus
+        the non-learned reference curves through the conditions
+        (:func:`~bezmotion.models.bmm_data.interpolation_prior`), with the decoder
+        zero-initialised so training starts from the reference.
     """
 
     num_controls: int = 6
@@ -63,6 +69,7 @@ class BMMConfig:
     num_layers: int = 8
     dropout: float = 0.1
     num_timesteps: int = 1000
+    prediction: str = "x0"
 
     def __post_init__(self):
         for name in ("num_controls", "stride", "num_joints", "width", "ff_width", "num_heads", "num_layers", "num_timesteps"):
@@ -75,6 +82,8 @@ class BMMConfig:
             raise ValueError(f"BMMConfig.width ({self.width}) must be even and divisible by num_heads ({self.num_heads})")
         if not 0.0 <= self.dropout < 1.0:
             raise ValueError(f"BMMConfig.dropout must be in [0, 1), got {self.dropout}")
+        if self.prediction not in PREDICTIONS:
+            raise ValueError(f"BMMConfig.prediction must be one of {PREDICTIONS}, got {self.prediction!r}")
 
     @property
     def frame_features(self) -> int:
@@ -149,6 +158,19 @@ def sinusoidal_encoding(
     return jnp.concatenate([jnp.sin(angles), jnp.cos(angles)], axis=-1)
 
 
+class _LayerNorm(nnx.LayerNorm):
+    """``nnx.LayerNorm`` (same parameters, same ε) with both moments from one reduction:
+    ``E[x]`` and ``E[x²]`` of a stacked array. Flax's version (also E[x²] − E[x]²)
+    compiles to two reductions and two elementwise passes; on a CPU at batch 1 each
+    compiled op costs tens of microseconds of dispatch whatever its size."""
+
+    def __call__(self, x):
+        moments = jnp.mean(jnp.stack([x, x * x]), axis=-1, keepdims=True)
+        mean, mean_sq = moments[0], moments[1]
+        var = jnp.maximum(mean_sq - mean * mean, 0.0)
+        return (x - mean) * jax.lax.rsqrt(var + self.epsilon) * self.scale[...] + self.bias[...]
+
+
 class _SelfAttention(nnx.Module):
     """Multi-head self-attention with one fused input projection (PyTorch's
     ``MultiheadAttention``: ``in_proj`` of 3·width, ``out_proj``), masked on keys."""
@@ -159,16 +181,18 @@ class _SelfAttention(nnx.Module):
         self.out_proj = nnx.Linear(width, width, rngs=rngs)
         self.dropout = nnx.Dropout(dropout)
 
-    def __call__(self, x, key_valid, key):
+    def __call__(self, x, key_valid, key, queries: slice = slice(None)):
+        """Attend from the tokens ``x[queries]`` to all tokens ``x``."""
         tokens, width = x.shape
         head = width // self.num_heads
         # One (tokens × width) @ (width × 3·width) product instead of three: fewer, larger
         # matrix products, which is what bounds single-motion latency on a CPU.
         q, k, v = jnp.moveaxis(self.in_proj(x).reshape(tokens, 3, self.num_heads, head), 1, 0)
+        q = q[queries]
         logits = jnp.einsum("qhd,khd->hqk", q, k) / math.sqrt(head)
         logits = jnp.where(key_valid[None, None, :], logits, jnp.finfo(logits.dtype).min)
         weights = self.dropout(jax.nn.softmax(logits, axis=-1), deterministic=key is None, rngs=key)
-        return self.out_proj(jnp.einsum("hqk,khd->qhd", weights, v).reshape(tokens, width))
+        return self.out_proj(jnp.einsum("hqk,khd->qhd", weights, v).reshape(q.shape[0], width))
 
 
 class _EncoderLayer(nnx.Module):
@@ -177,17 +201,19 @@ class _EncoderLayer(nnx.Module):
     def __init__(self, config: BMMConfig, *, rngs: nnx.Rngs):
         w = config.width
         self.attention = _SelfAttention(w, config.num_heads, config.dropout, rngs=rngs)
-        self.norm1 = nnx.LayerNorm(w, rngs=rngs)
+        self.norm1 = _LayerNorm(w, rngs=rngs)
         self.linear1 = nnx.Linear(w, config.ff_width, rngs=rngs)
         self.linear2 = nnx.Linear(config.ff_width, w, rngs=rngs)
-        self.norm2 = nnx.LayerNorm(w, rngs=rngs)
+        self.norm2 = _LayerNorm(w, rngs=rngs)
         self.dropout = nnx.Dropout(config.dropout)
 
-    def __call__(self, x, key_valid, key):
+    def __call__(self, x, key_valid, key, outputs: slice = slice(None)):
+        """Update all tokens, or only ``x[outputs]`` (every token still serves as a key):
+        the last layer needs only the frame tokens, and computing just those is exact."""
         deterministic = key is None
         keys = [None] * 4 if deterministic else list(jax.random.split(key, 4))
-        attended = self.attention(x, key_valid, keys[0])
-        x = self.norm1(x + self.dropout(attended, deterministic=deterministic, rngs=keys[1]))
+        attended = self.attention(x, key_valid, keys[0], outputs)
+        x = self.norm1(x[outputs] + self.dropout(attended, deterministic=deterministic, rngs=keys[1]))
         hidden = self.dropout(jax.nn.gelu(self.linear1(x)), deterministic=deterministic, rngs=keys[2])
         return self.norm2(x + self.dropout(self.linear2(hidden), deterministic=deterministic, rngs=keys[3]))
 
@@ -204,7 +230,9 @@ class BMMDenoiser(nnx.Module):
         self.time_linear1 = nnx.Linear(w, w, rngs=rngs)
         self.time_linear2 = nnx.Linear(w, w, rngs=rngs)
         self.layers = nnx.List([_EncoderLayer(config, rngs=rngs) for _ in range(config.num_layers)])
-        self.decoder = nnx.Linear(w, config.frame_features + NUM_CONTACTS, rngs=rngs)
+        # A residual decoder starts at zero, i.e. at the reference curves (as DiT's adaLN-zero).
+        zero = {"kernel_init": nnx.initializers.zeros_init()} if config.prediction == "residual" else {}
+        self.decoder = nnx.Linear(w, config.frame_features + NUM_CONTACTS, rngs=rngs, **zero)
 
     def __call__(
         self,
@@ -223,7 +251,9 @@ class BMMDenoiser(nnx.Module):
             :class:`~bezmotion.models.bmm_data.FeatureStats`).
           key: dropout key; ``None`` runs deterministically (evaluation, sampling).
         Returns:
-          ``(x̂₀ (controls, features), contact logits (controls, 2))``.
+          ``(x̂₀ (controls, features), contact logits (controls, 2))``; with
+          ``prediction="residual"`` the first is x̂₀ minus the interpolation prior, and
+          :func:`~bezmotion.models.bmm_data.predict_x0` adds the prior back.
         """
         cfg = self.config
         w = cfg.width
@@ -244,9 +274,10 @@ class BMMDenoiser(nnx.Module):
         tokens = jnp.concatenate([time_token[None], frame_tokens, cond_tokens], axis=0)
         valid = jnp.concatenate([jnp.ones(1 + cfg.num_controls, bool), conditions.valid])
         keys = [None] * cfg.num_layers if key is None else list(jax.random.split(key, cfg.num_layers))
-        for layer, layer_key in zip(self.layers, keys):
-            tokens = layer(tokens, valid, layer_key)
-        out = self.decoder(tokens[1 : 1 + cfg.num_controls])
+        frames_only = slice(1, 1 + cfg.num_controls)
+        for i, (layer, layer_key) in enumerate(zip(self.layers, keys)):
+            tokens = layer(tokens, valid, layer_key, frames_only if i == cfg.num_layers - 1 else slice(None))
+        out = self.decoder(tokens)
         return out[:, : cfg.frame_features], out[:, cfg.frame_features :]
 
 

@@ -17,7 +17,8 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from bezmotion.data.curves import CurveDataset
-from bezmotion.models.bmm import FEATURES_PER_JOINT, Conditions
+from bezmotion.models.baselines import handle_interpolation
+from bezmotion.models.bmm import FEATURES_PER_JOINT, BMMDenoiser, Conditions
 
 MAX_INTERMEDIATE_HANDLES = 4  # BMM §5.2: zero to four uniformly sampled intermediate handles
 STD_FLOOR = 1e-3  # features that never vary (e.g. a constant) must not divide by zero
@@ -126,3 +127,42 @@ def normalize_conditions(stats: FeatureStats, conditions: Conditions, translatio
     position = conditions.position if translation is None else conditions.position - translation
     position = stats.normalize_positions(position, conditions.joint)
     return conditions._replace(position=jnp.where(conditions.valid[..., None], position, 0.0))
+
+
+def interpolation_prior(stats: FeatureStats, conditions: Conditions, num_controls: int) -> Float[Array, "controls features"]:
+    """The reference curves through the conditions, as normalised frame tokens (one motion).
+
+    Positions and tangents are :func:`~bezmotion.models.baselines.handle_interpolation`
+    of the conditioned positions; orientations are the training mean (0 once
+    normalised). A joint whose first or last control point is not conditioned (e.g. all
+    conditions dropped for classifier-free guidance) gets the mean everywhere.
+
+    Args:
+      conditions: normalised condition slots (:func:`normalize_conditions`).
+    Returns:
+      ``(controls, joints·12)`` normalised features.
+    """
+    num_joints = stats.mean.shape[0]
+    mask, position = conditions.to_grid(num_controls, num_joints)
+    position_cm = position * stats.std[:, :3] + stats.mean[:, :3]
+    ctrl_pos, ctrl_tangent = handle_interpolation(mask, position_cm)
+    feats = stats.normalize(jnp.concatenate([ctrl_pos, ctrl_tangent, jnp.broadcast_to(stats.mean[:, 6:], (num_controls, num_joints, 6))], axis=-1))
+    known = mask[0] & mask[-1]
+    return to_tokens(jnp.where(known[None, :, None], feats, 0.0))
+
+
+def predict_x0(
+    denoiser: BMMDenoiser,
+    stats: FeatureStats,
+    x_t: Float[Array, "controls features"],
+    t: Int[Array, ""],
+    conditions: Conditions,
+    *,
+    key: Array | None = None,
+) -> tuple[Float[Array, "controls features"], Float[Array, "controls 2"]]:
+    """x̂₀ and contact logits from a denoiser of either ``prediction`` kind: training and
+    sampling both call this, so they cannot disagree on what the network outputs."""
+    x0, logits = denoiser(x_t, t, conditions, key=key)
+    if denoiser.config.prediction == "residual":
+        x0 = x0 + interpolation_prior(stats, conditions, denoiser.config.num_controls)
+    return x0, logits
