@@ -207,8 +207,16 @@ def sample_curves(
     compiler options (:mod:`bezmotion._xla`); inside a caller's own ``jax.jit`` it is
     simply traced into that computation.
     """
-    options = inference_compiler_options()
-    return _compiled_sampler(options)(model, start, end, handles, key=key, steps=steps, guidance=guidance, overwrite=overwrite)
+    args = (model, start, end, handles)
+    kwargs = {"key": key, "steps": steps, "guidance": guidance, "overwrite": overwrite}
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((*args, key))):
+        return _compiled_sampler(())(*args, **kwargs)  # inside a caller's jit: options are theirs
+    try:
+        return _compiled_sampler(inference_compiler_options())(*args, **kwargs)
+    except ValueError as error:  # traced by a caller's jit with only constant inputs
+        if "compiler_options" not in str(error):
+            raise
+        return _compiled_sampler(())(*args, **kwargs)
 
 
 @functools.cache

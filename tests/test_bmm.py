@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
+import signal
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -43,8 +45,12 @@ from bezmotion.diffusion.schedule import DiffusionSchedule, cosine_schedule, res
 from bezmotion.losses import LossWeights, bmm_loss_terms, dense_velocity, min_snr_weight
 from bezmotion.metrics import contact_accuracy, foot_skating_ratio, handles_error, mean_position_error
 from bezmotion.models.baselines import handle_interpolation
+from bezmotion._xla import inference_compiler_options
+from flax import nnx
+
 from bezmotion.models.bmm import (
     BMMConfig,
+    BMMDenoiser,
     Conditions,
     apply_denoiser,
     count_parameters,
@@ -57,7 +63,9 @@ from bezmotion.models.bmm_data import (
     draw_intermediate_slots,
     from_tokens,
     inbetween_conditions,
+    interpolation_prior,
     normalize_conditions,
+    predict_x0,
     split_features,
     to_tokens,
 )
@@ -824,6 +832,28 @@ def test_ctrl_c_saves_the_held_state_and_resume_completes_identically(kit, traje
     store.close()
 
 
+def test_sigterm_checkpoints_at_a_step_boundary_like_ctrl_c(kit, trajectory, tmp_path):
+    def terminated_after(k):
+        def step(state, data):
+            new = kit.step(state, data)
+            if int(new[0].step) == k:  # as `kill` from another shell would, mid-run
+                os.kill(os.getpid(), signal.SIGTERM)
+            return new
+
+        return step
+
+    before = signal.getsignal(signal.SIGTERM)
+    store = CheckpointStore(tmp_path / "run")
+    with pytest.raises(KeyboardInterrupt, match="signal"):
+        run_training(terminated_after(3), kit.state0, kit.data, num_steps=6, store=store, checkpoint_every=1000, progress=False)
+    assert signal.getsignal(signal.SIGTERM) == before  # the handler is gone again
+    assert store.latest_step() == 3
+    fresh = init_train_state(TINY, TRAIN, key=jax.random.key(98))[1]
+    resumed, _ = run_training(kit.step, fresh, kit.data, num_steps=6, store=store, progress=False)
+    assert_trees_identical(resumed, trajectory[6])
+    store.close()
+
+
 def test_vmapped_seeds_match_single_seed_runs(kit, tmp_path):
     seeds = (5, 6)
     graphdef, stacked = init_train_states(TINY, TRAIN, list(seeds))
@@ -1180,3 +1210,100 @@ def test_bmm_lafan1_experiment_smoke(tmp_path, monkeypatch):
     # Running it again resumes at step 4: nothing more to train.
     again = experiment.main(args)
     assert again["training"]["history"] == [] and results["model"]["params"] == again["model"]["params"]
+
+
+# ===================================================== residual prediction and fast paths
+
+RESIDUAL = dataclasses.replace(TINY, prediction="residual")
+
+
+def test_prediction_kind_is_validated():
+    with pytest.raises(ValueError, match="prediction"):
+        BMMConfig.cpu(prediction="eps")
+
+
+def test_last_layer_computing_only_frame_tokens_is_exact(rng):
+    """The denoiser's last layer updates only the frame tokens; every token is still a key,
+    so those rows equal the full layer's."""
+    module = BMMDenoiser(BMMConfig.cpu(width=64, ff_width=96, num_heads=4, num_layers=2), rngs=nnx.Rngs(params=jax.random.key(3)))
+    layer = module.layers[-1]
+    tokens = jnp.asarray(rng.normal(size=(21, 64)), jnp.float32)
+    valid = jnp.asarray(np.arange(21) < 18)
+    frames = slice(1, 1 + K)
+    full = jax.jit(lambda x: layer(x, valid, None))(tokens)
+    only = jax.jit(lambda x: layer(x, valid, None, frames))(tokens)
+    assert only.shape == (K, 64)
+    np.testing.assert_allclose(only, full[frames], rtol=1e-5, atol=1e-5)
+    # ... and the frames still listen to the other tokens.
+    moved = jax.jit(lambda x: layer(x, valid, None, frames))(tokens.at[12].add(1.0))
+    assert trees_differ(moved, only)
+
+
+def test_interpolation_prior_is_the_reference_curves_in_model_space(stats, demo_dataset):
+    pos = jnp.asarray(demo_dataset.ctrl_pos[4])
+    handle = (jnp.asarray([3], jnp.int32), jnp.asarray([2], jnp.int32), pos[3, 2][None], jnp.asarray([True]))
+    world = inbetween_conditions(K, pos[0], pos[-1], *handle)
+    prior = interpolation_prior(stats, normalize_conditions(stats, world), K)
+    assert prior.shape == (K, F)
+    mask = np.zeros((K, J), bool)
+    mask[[0, -1]] = True
+    mask[3, 2] = True
+    ref_pos, ref_tangent = handle_interpolation(jnp.asarray(mask), pos)
+    p, t, o = split_features(stats.denormalize(from_tokens(prior)))
+    np.testing.assert_allclose(p, ref_pos, atol=1e-3)
+    np.testing.assert_allclose(t, ref_tangent, atol=1e-3)
+    np.testing.assert_allclose(o, jnp.broadcast_to(stats.mean[:, 6:], o.shape), atol=1e-6)
+    # Without start and end (all conditions dropped for guidance) the prior is the mean: 0.
+    dropped = normalize_conditions(stats, world._replace(valid=jnp.zeros_like(world.valid)))
+    assert np.all(np.asarray(interpolation_prior(stats, dropped, K)) == 0.0)
+
+
+def test_residual_prediction_adds_the_prior_to_the_network_output(stats, rng):
+    graphdef, params = init_denoiser(RESIDUAL, key=jax.random.key(4))
+    # A trained decoder is not zero: give it weights so the network's own term shows.
+    params["decoder"]["kernel"][...] = jnp.asarray(rng.normal(size=params["decoder"]["kernel"].shape), jnp.float32)
+    module = nnx.merge(graphdef, params)
+    cond = normalize_conditions(stats, some_conditions(rng))
+    x = jnp.asarray(rng.normal(size=(K, F)), jnp.float32)
+    raw, raw_logits = module(x, jnp.int32(300), cond)
+    x0, logits = predict_x0(module, stats, x, jnp.int32(300), cond)
+    np.testing.assert_allclose(x0 - raw, interpolation_prior(stats, cond, K), atol=1e-5)
+    assert_trees_identical(logits, raw_logits)
+    # The paper's x₀ prediction returns the network output as it is.
+    plain = nnx.merge(*init_denoiser(TINY, key=jax.random.key(4)))
+    assert_trees_identical(predict_x0(plain, stats, x, jnp.int32(300), cond), plain(x, jnp.int32(300), cond))
+
+
+def test_fresh_residual_model_samples_the_reference_curves(stats, motions):
+    """A zero-initialised residual decoder starts training at the non-learned reference."""
+    graphdef, params = init_denoiser(RESIDUAL, key=jax.random.key(5))
+    fresh = BezierMotionModel(params, stats, graphdef, RESIDUAL)
+    curves = sample_curves(fresh, motions.start, motions.end, motions.handles, key=jax.random.key(6), steps=5)
+    h = motions.handles
+    start_end = jnp.stack([motions.start, motions.end], axis=1)
+    mask = np.zeros((2, K, J), bool)
+    target = np.zeros((2, K, J, 3), np.float32)
+    mask[:, [0, -1]] = True
+    target[:, [0, -1]] = np.asarray(start_end)
+    for b in range(2):
+        for i in range(h.valid.shape[1]):
+            if bool(h.valid[b, i]):
+                mask[b, int(h.control[b, i]), int(h.joint[b, i])] = True
+                target[b, int(h.control[b, i]), int(h.joint[b, i])] = np.asarray(h.position[b, i])
+    ref_pos, ref_tangent = handle_interpolation(jnp.asarray(mask), jnp.asarray(target))
+    np.testing.assert_allclose(curves.ctrl_pos, ref_pos, atol=1e-3)
+    np.testing.assert_allclose(curves.ctrl_tangent, ref_tangent, atol=1e-3)
+    assert np.all(np.asarray(curves.contacts) == 0.5)
+
+
+def test_sample_curves_composes_inside_a_callers_jit(model, motions, sampled):
+    options = inference_compiler_options()
+    assert isinstance(options, tuple) and all(isinstance(k, str) for k, _ in options)
+    outer = jax.jit(lambda s, e, h, k: sample_curves(model, s, e, h, key=k, steps=5))
+    inside = outer(motions.start, motions.end, motions.handles, jax.random.key(21))
+    # Different compiler options may order floating-point work differently: close, not identical.
+    assert_trees_close(inside, sampled, tol=1e-4)
+    assert np.all(grid_errors(inside, motions) == 0.0)
+    # ... also when every input is a constant of the caller's computation.
+    constants = jax.jit(lambda: sample_curves(model, motions.start, motions.end, motions.handles, key=jax.random.key(21), steps=5))()
+    assert_trees_close(constants, sampled, tol=1e-4)
