@@ -25,6 +25,7 @@ from bezmotion._xla import inference_compiler_options
 from bezmotion.checkpoint import CheckpointStore
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.diffusion.ddim import ddim_sample
+from bezmotion.foot_lock import lock_feet
 from bezmotion.diffusion.schedule import cosine_schedule
 from bezmotion.models.bmm import BMMConfig, init_denoiser
 from bezmotion.models.bmm_data import (
@@ -142,7 +143,7 @@ class SampledCurves(NamedTuple):
     contacts: Float[Array, "*batch controls 2"]
 
 
-def _sample_one(model: BezierMotionModel, start, end, handles: Handles, key, steps, guidance, overwrite):
+def _sample_one(model: BezierMotionModel, start, end, handles: Handles, key, steps, guidance, overwrite, foot_lock):
     cfg, stats = model.config, model.stats
     translation = start[HIPS] * jnp.asarray([1.0, 0.0, 1.0], start.dtype)
     world = inbetween_conditions(cfg.num_controls, start, end, handles.control, handles.joint, handles.position, handles.valid)
@@ -172,7 +173,10 @@ def _sample_one(model: BezierMotionModel, start, end, handles: Handles, key, ste
     pos = pos + translation
     if overwrite:  # the handles themselves, bit for bit, not a normalise/denormalise round trip
         pos = jnp.where(mask[..., None], world_target, pos)
-    return SampledCurves(pos, tangent, rot6d, jax.nn.sigmoid(logits))
+    contacts = jax.nn.sigmoid(logits)
+    if foot_lock:
+        pos, tangent = lock_feet(pos, tangent, contacts, mask)
+    return SampledCurves(pos, tangent, rot6d, contacts)
 
 
 def sample_curves(
@@ -185,6 +189,7 @@ def sample_curves(
     steps: int = 10,
     guidance: float = 1.0,
     overwrite: bool = True,
+    foot_lock: bool = False,
 ) -> SampledCurves:
     """Sample Bézier curves of the six characteristic joints between a start and an end pose.
 
@@ -199,6 +204,9 @@ def sample_curves(
         model alone, in one pass per step.
       overwrite: replace the constrained control positions in x̂₀ at every step and after
         the last (BMM); ``False`` reproduces the paper's "w/o overwrite" ablation.
+      foot_lock: afterwards, hold each foot still in the ground plane while its
+        predicted contact lasts (:func:`~bezmotion.foot_lock.lock_feet`; ours, not the
+        paper's). Constrained points do not move.
     Returns:
       :class:`SampledCurves` in the world frame; constrained control points equal their
       targets exactly when ``overwrite``.
@@ -208,7 +216,7 @@ def sample_curves(
     simply traced into that computation.
     """
     args = (model, start, end, handles)
-    kwargs = {"key": key, "steps": steps, "guidance": guidance, "overwrite": overwrite}
+    kwargs = {"key": key, "steps": steps, "guidance": guidance, "overwrite": overwrite, "foot_lock": foot_lock}
     if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((*args, key))):
         return _compiled_sampler(())(*args, **kwargs)  # inside a caller's jit: options are theirs
     try:
@@ -221,10 +229,10 @@ def sample_curves(
 
 @functools.cache
 def _compiled_sampler(options: tuple[tuple[str, str], ...]):
-    return jax.jit(_sample_curves, static_argnames=("steps", "guidance", "overwrite"), compiler_options=dict(options) or None)
+    return jax.jit(_sample_curves, static_argnames=("steps", "guidance", "overwrite", "foot_lock"), compiler_options=dict(options) or None)
 
 
-def _sample_curves(model, start, end, handles, *, key, steps, guidance, overwrite) -> SampledCurves:
+def _sample_curves(model, start, end, handles, *, key, steps, guidance, overwrite, foot_lock) -> SampledCurves:
     batch = start.shape[:-2]
     if start.shape[-2:] != (model.config.num_joints, 3) or end.shape != start.shape:
         raise ValueError(f"start and end must both be (..., {model.config.num_joints}, 3), got {start.shape}, {end.shape}")
@@ -233,7 +241,7 @@ def _sample_curves(model, start, end, handles, *, key, steps, guidance, overwrit
     n = int(np.prod(batch, dtype=int))
     flat = lambda x: x.reshape(n, *x.shape[len(batch) :])  # noqa: E731
     keys = jax.random.split(key, n) if batch else key[None]
-    one = functools.partial(_sample_one, model, steps=steps, guidance=guidance, overwrite=overwrite)
+    one = functools.partial(_sample_one, model, steps=steps, guidance=guidance, overwrite=overwrite, foot_lock=foot_lock)
     out = jax.vmap(one)(flat(start), flat(end), jax.tree.map(flat, handles), keys)
     return jax.tree.map(lambda x: x.reshape(*batch, *x.shape[1:]), out)
 

@@ -265,9 +265,9 @@ def _terminate_requests():
 
 
 def run_training(
-    step_fn: Callable[[TrainState, CurveArrays], tuple[TrainState, dict[str, Array]]],
+    step_fn: Callable[[TrainState, Any], tuple[TrainState, dict[str, Array]]],
     state: TrainState,
-    data: CurveArrays,
+    data: Any,
     *,
     num_steps: int,
     store: CheckpointStore | None = None,
@@ -277,6 +277,9 @@ def run_training(
     log_every: int = 25,
 ) -> tuple[TrainState, list[dict[str, float | int]]]:
     """Run a compiled step until ``state.step`` reaches ``num_steps``, resuming from ``store``.
+
+    Model-agnostic: ``data`` is whatever the step takes (BMM's :class:`CurveArrays`, the
+    Δ-interpolator's windows).
 
     Checkpoints every ``checkpoint_every`` steps, at the end and on Ctrl-C or SIGTERM
     (then raises ``KeyboardInterrupt``). Returns the final state and the logged metrics (every ``log_every``

@@ -12,7 +12,8 @@ evaluates the EMA parameters on subject-5 windows:
   beside the non-learned reference (curves through start, end and handles only) and
   the mocap's own skating ratio;
 - Table 3 analogue: with and without overwrite;
-- Table 6 analogue: 5, 10, 25, 50 and 100 DDIM steps.
+- Table 6 analogue: 5, 10, 25, 50 and 100 DDIM steps;
+- ours: the same with foot locking on the predicted contacts (``sample_curves(foot_lock=True)``).
 
 ``--config cpu`` (default) trains in a session on a 2-core CPU; ``--config paper`` is the
 paper's 17.4 M-parameter model and runs unchanged on a GPU. Writes the JSON, a Markdown
@@ -84,8 +85,8 @@ def train(args, model_config: BMMConfig, train_config: TrainConfig, train_set: C
 def evaluate_model(args, model: BezierMotionModel, metrics_config, eval_set, key) -> dict:
     results: dict = {}
 
-    def run(handles, *, steps=10, overwrite=True):
-        fn = functools.partial(sample_curves, model, steps=steps, overwrite=overwrite, guidance=args.guidance)
+    def run(handles, *, steps=10, overwrite=True, foot_lock=False):
+        fn = functools.partial(sample_curves, model, steps=steps, overwrite=overwrite, guidance=args.guidance, foot_lock=foot_lock)
         curves = sample_in_chunks(lambda s, e, h, k: fn(s, e, h, key=k), eval_set, handles, key=key)
         return curves
 
@@ -95,6 +96,10 @@ def evaluate_model(args, model: BezierMotionModel, metrics_config, eval_set, key
             m = curve_metrics(metrics_config, run(handles, overwrite=overwrite), eval_set, handles)
             row[name] = m
         results["overwrite" if overwrite else "no_overwrite"] = row
+    results["foot_lock"] = {
+        name: curve_metrics(metrics_config, run(handles, foot_lock=True), eval_set, handles)
+        for name, handles in (("id", eval_set.handles), ("ood", eval_set.handles_ood))
+    }
     results["steps"] = {}
     for steps in args.table6_steps:
         t0 = time.perf_counter()
@@ -126,6 +131,7 @@ def format_report(results: dict) -> str:
     for seed, r in results["bmm"].items():
         lines.append(row(f"BMM seed {seed}", r["overwrite"]["id"], r["overwrite"]["ood"]))
         lines.append(row(f"BMM seed {seed} w/o overwrite", r["no_overwrite"]["id"], r["no_overwrite"]["ood"]))
+        lines.append(row(f"BMM seed {seed} + foot lock (ours)", r["foot_lock"]["id"], r["foot_lock"]["ood"]))
     lines += ["", "Table 6 analogue (with overwrite, in distribution):", "", "| seed | steps | handles error (cm) | dense error (cm) | foot skating | eval s |", "|---|---|---|---|---|---|"]
     for seed, r in results["bmm"].items():
         for steps, m in r["steps"].items():

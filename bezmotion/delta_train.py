@@ -1,0 +1,339 @@
+"""Training the Δ-interpolator: the paper's losses, gap sampling and schedule, one jitted step.
+
+``step(state, data) -> (state, metrics)`` is pure: it draws its batch (windows, gap
+lengths, start frames, dropout) from ``state.key``, so a run is fully determined by its
+seed and resumes bit-identically from a checkpoint. It reuses :mod:`bezmotion.train`'s
+``TrainState``, ``compile_train_step`` (several seeds vmapped over a stacked state) and
+``run_training`` (atomic orbax checkpoints, Ctrl-C / SIGTERM handling).
+
+Paper settings (Appendix B, Table 5; ``../shared/REFERENCE.md`` §2): Adam, batch 64,
+lr warmed linearly from 1e-6 to 2e-4 over 50 epochs, then ×0.1 every 200 epochs (300
+in all); gap length ``n ∈ [5, 39]`` with ``p(n) ∝ 1/n``; 10 past frames and one target at
+a uniformly random start in the 50-frame training window; loss
+``10·L1(global quaternions) + 10·L1(FK positions)`` on the missing frames plus the same on
+the key frames (reconstruction). The Δ-interpolator has no EMA: ``TrainState.ema`` is
+``None``.
+
+One compiled shape serves every gap length: each example has ``n_past + 1`` key slots
+and ``max_gap`` missing slots, of which the first ``n`` are real; the others are
+predicted (missing frames only attend to key frames, so they change nothing) and masked
+out of the loss. We draw ``n`` per example (the reference draws one per batch), which
+costs nothing here and mixes gap lengths within each gradient.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import optax
+from flax import nnx
+from jaxtyping import Array, Bool, Float, Int
+
+from bezmotion.data.lafan1 import Lafan1Windows
+from bezmotion.geometry.skeleton import forward_kinematics
+from bezmotion.models.delta import DeltaConfig, DeltaOutput, KeyFrames, apply_delta, init_delta
+from bezmotion.train import TrainState, run_training
+
+
+@dataclasses.dataclass(frozen=True)
+class DeltaTrainConfig:
+    """Optimisation settings; the defaults are the paper's, with the schedule in steps.
+
+    Attributes:
+      batch_size: examples per step (64).
+      learning_rate: peak learning rate after warm-up (2e-4).
+      initial_learning_rate: learning rate at step 0 (1e-6).
+      warmup_steps: linear warm-up length (paper: 50 epochs).
+      decay_every: steps between ×``decay_factor`` drops after warm-up (paper: 200 epochs).
+      decay_factor: the step schedule's factor (0.1).
+      min_gap, max_gap: range of gap lengths ``n`` drawn with ``p(n) ∝ 1/n`` (5, 39).
+      quat_weight, pos_weight: weights of the quaternion and position L1 terms (10, 10).
+      reconstruction: add the same losses on the key frames (the paper's Appendix A).
+    """
+
+    batch_size: int = 64
+    learning_rate: float = 2e-4
+    initial_learning_rate: float = 1e-6
+    warmup_steps: int = 1000
+    decay_every: int = 4000
+    decay_factor: float = 0.1
+    min_gap: int = 5
+    max_gap: int = 39
+    quat_weight: float = 10.0
+    pos_weight: float = 10.0
+    reconstruction: bool = True
+
+    def __post_init__(self):
+        for name in ("batch_size", "min_gap", "max_gap", "decay_every"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < 1:
+                raise ValueError(f"DeltaTrainConfig.{name} must be a positive integer, got {value!r}")
+        if not isinstance(self.warmup_steps, int) or self.warmup_steps < 0:
+            raise ValueError(f"DeltaTrainConfig.warmup_steps must be a non-negative integer, got {self.warmup_steps!r}")
+        if self.min_gap > self.max_gap:
+            raise ValueError(f"DeltaTrainConfig.min_gap ({self.min_gap}) exceeds max_gap ({self.max_gap})")
+        if not self.learning_rate > 0 or not self.initial_learning_rate > 0:
+            raise ValueError(
+                f"learning rates must be positive, got learning_rate={self.learning_rate}, "
+                f"initial_learning_rate={self.initial_learning_rate}"
+            )
+        if not 0.0 < self.decay_factor <= 1.0:
+            raise ValueError(f"DeltaTrainConfig.decay_factor must be in (0, 1], got {self.decay_factor}")
+        if self.quat_weight < 0 or self.pos_weight < 0:
+            raise ValueError(f"loss weights must be non-negative, got quat_weight={self.quat_weight}, pos_weight={self.pos_weight}")
+
+    @classmethod
+    def for_steps(cls, num_steps: int, **overrides) -> DeltaTrainConfig:
+        """The paper's 300-epoch schedule squeezed into ``num_steps``: warm-up over the
+        first 1/6 of the run, ×0.1 after 2/3 more (the paper's epochs 50 and 250)."""
+        if not isinstance(num_steps, int) or num_steps < 1:
+            raise ValueError(f"num_steps must be a positive integer, got {num_steps!r}")
+        warmup = num_steps // 6
+        return cls(**{"warmup_steps": warmup, "decay_every": max(1, (2 * num_steps) // 3), **overrides})
+
+
+class DeltaArrays(NamedTuple):
+    """Training windows as device arrays, the ``data`` argument of the step (float32).
+
+    Attributes:
+      quat_local: ``(windows, frames, J, 4)`` local rotations (root: global).
+      root_pos: ``(windows, frames, 3)`` root positions (cm).
+      offsets: ``(windows, J, 3)`` each window's skeleton offsets (cm).
+    """
+
+    quat_local: Float[Array, "windows frames joints 4"]
+    root_pos: Float[Array, "windows frames 3"]
+    offsets: Float[Array, "windows joints 3"]
+
+    @classmethod
+    def from_windows(cls, windows: Lafan1Windows) -> DeltaArrays:
+        """From preprocessed LaFAN1 windows (training protocol: 50 frames, offset 20)."""
+        return cls(*(jnp.asarray(a, jnp.float32) for a in (windows.quat_local, windows.root_pos, windows.offsets)))
+
+
+def learning_rate_schedule(config: DeltaTrainConfig) -> optax.Schedule:
+    """Linear warm-up from ``initial_learning_rate`` to ``learning_rate``, then a step decay."""
+    warmup = optax.linear_schedule(config.initial_learning_rate, config.learning_rate, config.warmup_steps)
+    decay = optax.exponential_decay(
+        config.learning_rate, config.decay_every, config.decay_factor, staircase=True
+    )  # fmt: skip
+    return optax.join_schedules([warmup, decay], [config.warmup_steps])
+
+
+def make_optimizer(config: DeltaTrainConfig) -> optax.GradientTransformation:
+    """Adam (PyTorch defaults: β = (0.9, 0.999), ε = 1e-8) on the warm-up + step schedule."""
+    return optax.adam(learning_rate_schedule(config))
+
+
+def sample_gap(key: Array, min_gap: int, max_gap: int) -> Int[Array, ""]:
+    """A gap length ``n ∈ [min_gap, max_gap]`` with ``p(n) ∝ 1/n`` (int32)."""
+    lengths = jnp.arange(min_gap, max_gap + 1)
+    return (min_gap + jax.random.categorical(key, -jnp.log(lengths.astype(jnp.float32)))).astype(jnp.int32)
+
+
+class ExampleLayout(NamedTuple):
+    """Where one training example's slots come from in its window (fixed shapes).
+
+    Attributes:
+      key_frame: ``(n_past + 1,)`` window frames of the past context and the target.
+      missing_frame: ``(max_gap,)`` window frames of the missing slots; padding slots
+        repeat a real frame so every index stays inside the window and the embeddings.
+      missing_valid: ``(max_gap,)`` which missing slots are real (the first ``gap``).
+      gap: the number of missing frames ``n``.
+    """
+
+    key_frame: Int[Array, "keys"]
+    missing_frame: Int[Array, "max_gap"]
+    missing_valid: Bool[Array, "max_gap"]
+    gap: Int[Array, ""]
+
+
+def example_layout(gap: Int[Array, ""], start: Int[Array, ""], n_past: int, max_gap: int) -> ExampleLayout:
+    """Past frames ``start … start+n_past-1``, missing ``start+n_past … start+n_past+gap-1``,
+    target ``start+n_past+gap``: frame indices are absolute in the window (the reference
+    code's frame-index embedding)."""
+    key_frame = start + jnp.append(jnp.arange(n_past, dtype=jnp.int32), n_past + gap)
+    slot = jnp.arange(max_gap, dtype=jnp.int32)
+    valid = slot < gap
+    missing_frame = start + n_past + jnp.where(valid, slot, 0)
+    return ExampleLayout(key_frame, missing_frame, valid, gap)
+
+
+def draw_layout(key: Array, window_frames: int, n_past: int, min_gap: int, max_gap: int) -> ExampleLayout:
+    """Random gap (``p ∝ 1/n``) and a uniformly random start that fits it in the window."""
+    gap_key, start_key = jax.random.split(key)
+    gap = sample_gap(gap_key, min_gap, max_gap)
+    start = jax.random.randint(start_key, (), 0, window_frames - (n_past + 1 + gap) + 1, dtype=jnp.int32)
+    return example_layout(gap, start, n_past, max_gap)
+
+
+def hemisphere_aligned_l1(
+    quat_pred: Float[Array, "*batch joints 4"], quat_true: Float[Array, "*batch joints 4"]
+) -> Float[Array, "*batch"]:
+    """L1 distance of quaternions summed over joints and components, each prediction first
+    negated when it lies in the other hemisphere (``q`` and ``-q`` are one rotation)."""
+    sign = jnp.where(jnp.sum(quat_pred * quat_true, axis=-1, keepdims=True) < 0.0, -1.0, 1.0)
+    return jnp.sum(jnp.abs(sign * quat_pred - quat_true), axis=(-2, -1))
+
+
+def example_prediction(
+    graphdef: nnx.GraphDef,
+    params: nnx.State,
+    quat_window: Float[Array, "frames joints 4"],
+    root_window: Float[Array, "frames 3"],
+    offsets: Float[Array, "joints 3"],
+    layout: ExampleLayout,
+    *,
+    key: Array | None = None,
+) -> DeltaOutput:
+    """The model's prediction for one training example: it reads the window at the key
+    frames only."""
+    key_frame = layout.key_frame
+    keys = KeyFrames(quat_window[key_frame], root_window[key_frame], key_frame, jnp.ones(key_frame.shape, bool))
+    return apply_delta(graphdef, params, offsets, keys, layout.missing_frame, layout.gap, key=key)
+
+
+def example_losses(
+    graphdef: nnx.GraphDef,
+    params: nnx.State,
+    model_config: DeltaConfig,
+    quat_window: Float[Array, "frames joints 4"],
+    root_window: Float[Array, "frames 3"],
+    offsets: Float[Array, "joints 3"],
+    layout: ExampleLayout,
+    *,
+    key: Array | None = None,
+) -> dict[str, Float[Array, ""]]:
+    """Unweighted loss terms of one example: L1 of global quaternions and of FK positions
+    (cm), summed over joints and components, averaged over the real missing frames
+    (``quat``, ``pos``) and over the key frames (``rec_quat``, ``rec_pos``)."""
+    out = example_prediction(graphdef, params, quat_window, root_window, offsets, layout, key=key)
+    # Key and missing frames through one FK each (fewer scans to compile and run).
+    frame = jnp.concatenate([layout.key_frame, layout.missing_frame])
+    pred_quat = jnp.concatenate([out.key_quat, out.missing_quat])
+    pred_root = jnp.concatenate([out.key_root, out.missing_root])
+    true_q, true_p = forward_kinematics(model_config.parents, quat_window[frame], offsets, root_pos=root_window[frame])
+    pred_q, pred_p = forward_kinematics(model_config.parents, pred_quat, offsets, root_pos=pred_root)
+    quat_err = hemisphere_aligned_l1(pred_q, true_q)
+    pos_err = jnp.sum(jnp.abs(pred_p - true_p), axis=(-2, -1))
+    n_keys = layout.key_frame.shape[0]
+    weight = layout.missing_valid.astype(quat_err.dtype) / jnp.maximum(layout.gap, 1).astype(quat_err.dtype)
+    return {
+        "quat": jnp.sum(weight * quat_err[n_keys:]),
+        "pos": jnp.sum(weight * pos_err[n_keys:]),
+        "rec_quat": jnp.mean(quat_err[:n_keys]),
+        "rec_pos": jnp.mean(pos_err[:n_keys]),
+    }
+
+
+def total_loss(config: DeltaTrainConfig, terms: dict[str, Float[Array, "*batch"]]) -> Float[Array, "*batch"]:
+    """``quat_weight·(quat [+ rec_quat]) + pos_weight·(pos [+ rec_pos])``."""
+    quat, pos = terms["quat"], terms["pos"]
+    if config.reconstruction:
+        quat, pos = quat + terms["rec_quat"], pos + terms["rec_pos"]
+    return config.quat_weight * quat + config.pos_weight * pos
+
+
+def init_delta_train_state(
+    model_config: DeltaConfig, train_config: DeltaTrainConfig, *, key: Array
+) -> tuple[nnx.GraphDef, TrainState]:
+    """Fresh parameters and Adam state for one seed (``ema`` is ``None``)."""
+    init_key, state_key = jax.random.split(key)
+    graphdef, params = init_delta(model_config, key=init_key)
+    opt_state = make_optimizer(train_config).init(params)
+    return graphdef, TrainState(params, opt_state, None, jnp.zeros((), jnp.int32), state_key)
+
+
+def init_delta_train_states(
+    model_config: DeltaConfig, train_config: DeltaTrainConfig, seeds: list[int] | tuple[int, ...]
+) -> tuple[nnx.GraphDef, TrainState]:
+    """States for several seeds, stacked on a leading axis (for the vmapped step)."""
+    if not seeds:
+        raise ValueError("need at least one seed")
+    states = [init_delta_train_state(model_config, train_config, key=jax.random.key(s)) for s in seeds]
+    return states[0][0], jax.tree.map(lambda *xs: jnp.stack(xs), *(s for _, s in states))
+
+
+def make_delta_train_step(
+    graphdef: nnx.GraphDef, model_config: DeltaConfig, train_config: DeltaTrainConfig, *, window_frames: int
+) -> Callable[[TrainState, DeltaArrays], tuple[TrainState, dict[str, Array]]]:
+    """The (un-jitted) single-seed training step; compile it with
+    :func:`bezmotion.train.compile_train_step`.
+
+    Args:
+      graphdef: from :func:`init_delta_train_state`.
+      model_config, train_config: the model and the optimisation settings.
+      window_frames: frames per training window (LaFAN1 protocol: 50); the longest
+        example, ``n_past + max_gap + 1`` frames, must fit, and every frame index must have
+        an embedding row (``window_frames ≤ max_frames``).
+    """
+    n_past, max_gap = model_config.n_past, train_config.max_gap
+    if n_past + max_gap + 1 > window_frames:
+        raise ValueError(
+            f"max_gap={max_gap} does not fit {window_frames}-frame windows with {n_past} past frames and a target "
+            f"(needs {n_past + max_gap + 1} frames)"
+        )
+    if window_frames > model_config.max_frames:
+        raise ValueError(f"{window_frames}-frame windows exceed the model's max_frames={model_config.max_frames}")
+    optimizer = make_optimizer(train_config)
+    schedule = learning_rate_schedule(train_config)
+
+    def example(params, quat, root, offsets, rng):
+        layout_key, dropout_key = jax.random.split(rng)
+        layout = draw_layout(layout_key, window_frames, n_past, train_config.min_gap, max_gap)
+        return example_losses(graphdef, params, model_config, quat, root, offsets, layout, key=dropout_key)
+
+    def loss_fn(params, batch, rngs):
+        terms = jax.vmap(example, in_axes=(None, 0, 0, 0, 0))(params, *batch, rngs)
+        terms = jax.tree.map(jnp.mean, terms)
+        return total_loss(train_config, terms), terms
+
+    def step(state: TrainState, data: DeltaArrays) -> tuple[TrainState, dict[str, Array]]:
+        if data.quat_local.shape[1] != window_frames:
+            raise ValueError(f"the step was built for {window_frames}-frame windows, got {data.quat_local.shape[1]}")
+        key, index_key, example_key = jax.random.split(state.key, 3)
+        index = jax.random.randint(index_key, (train_config.batch_size,), 0, data.quat_local.shape[0])
+        batch = tuple(a[index] for a in data)
+        rngs = jax.random.split(example_key, train_config.batch_size)
+        (loss, terms), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params, batch, rngs)
+        updates, opt_state = optimizer.update(grads, state.opt_state, state.params)
+        params = optax.apply_updates(state.params, updates)
+        metrics = {"loss": loss, "grad_norm": optax.global_norm(grads), "learning_rate": schedule(state.step), **terms}
+        return TrainState(params, opt_state, None, state.step + 1, key), metrics
+
+    return step
+
+
+def run_delta_training(
+    step_fn: Callable[[TrainState, DeltaArrays], tuple[TrainState, dict[str, Array]]],
+    state: TrainState,
+    data: DeltaArrays,
+    **kwargs: Any,
+) -> tuple[TrainState, list[dict[str, float | int]]]:
+    """:func:`bezmotion.train.run_training` for Δ-interpolator data (same keyword arguments:
+    ``num_steps``, ``store``, ``checkpoint_every``, ``config``, ``progress``, ``log_every``)."""
+    return run_training(step_fn, state, data, **kwargs)
+
+
+__all__ = [
+    "DeltaArrays",
+    "DeltaTrainConfig",
+    "ExampleLayout",
+    "draw_layout",
+    "example_layout",
+    "example_losses",
+    "example_prediction",
+    "hemisphere_aligned_l1",
+    "init_delta_train_state",
+    "init_delta_train_states",
+    "learning_rate_schedule",
+    "make_delta_train_step",
+    "make_optimizer",
+    "run_delta_training",
+    "sample_gap",
+    "total_loss",
+]
