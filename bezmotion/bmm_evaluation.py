@@ -44,6 +44,7 @@ class EvalSet(NamedTuple):
       handles_ood: the same handles with uniform ±16 cm noise.
       ctrl_contacts: ``(windows, controls, 2)`` ground-truth contacts at control points.
       dense_pos: ``(windows, frames, 6, 3)`` the mocap.
+      ctrl_pos, ctrl_tangent: ``(windows, controls, 6, 3)`` the curves fitted to the mocap.
     """
 
     start: Array
@@ -52,6 +53,8 @@ class EvalSet(NamedTuple):
     handles_ood: Handles
     ctrl_contacts: Array
     dense_pos: Array
+    ctrl_pos: Array
+    ctrl_tangent: Array
 
 
 def make_eval_set(
@@ -92,6 +95,8 @@ def make_eval_set(
         handles_ood=handles._replace(position=position + noise),
         ctrl_contacts=jnp.asarray(dataset.ctrl_contacts[rows]),
         dense_pos=jnp.asarray(dataset.dense_pos[rows]),
+        ctrl_pos=ctrl_pos,
+        ctrl_tangent=jnp.asarray(dataset.ctrl_tangent[rows]),
     )
 
 
@@ -158,10 +163,19 @@ def _reference_controls(start, end, handles: Handles, *, num_controls: int):
     return jax.vmap(one)(start, end, handles)
 
 
-def ground_truth_metrics(config: CurveMetricsConfig, eval_set: EvalSet) -> dict[str, float]:
-    """The mocap's own foot-skating ratio (the paper's "GT" row)."""
+def ground_truth_metrics(config: CurveMetricsConfig, eval_set: EvalSet) -> dict[str, float | dict[str, float]]:
+    """The mocap's own foot-skating ratio (the paper's "GT" row), and the dense error and
+    skating of the curves fitted to it: what the Bézier representation itself costs, the
+    floor a model of these curves cannot go below."""
     feet = eval_set.dense_pos[..., list(FEET), :]
-    return {"foot_skating_ratio": float(foot_skating_ratio(feet, config.fps, floor_height=config.floor_height))}
+    fitted = dense_positions(config.layout, eval_set.ctrl_pos, eval_set.ctrl_tangent)
+    return {
+        "foot_skating_ratio": float(foot_skating_ratio(feet, config.fps, floor_height=config.floor_height)),
+        "fitted_curves": {
+            "dense_error_cm": float(mean_position_error(fitted, eval_set.dense_pos)),
+            "foot_skating_ratio": float(foot_skating_ratio(fitted[..., list(FEET), :], config.fps, floor_height=config.floor_height)),
+        },
+    }
 
 
 def sample_in_chunks(

@@ -18,7 +18,18 @@ One compiled shape serves every gap length: each example has ``n_past + 1`` key 
 and ``max_gap`` missing slots, of which the first ``n`` are real; the others are
 predicted (missing frames only attend to key frames, so they change nothing) and masked
 out of the loss. We draw ``n`` per example (the reference draws one per batch), which
-costs nothing here and mixes gap lengths within each gradient.
+costs nothing here and mixes gap lengths within each gradient. The model sees frame
+indices relative to the example's first past frame, as the reference code does
+(``frame_indices = indices - start_frame``), so training and evaluation (which starts
+at frame 0) read the same rows of the frame-index embedding.
+
+**In-filling** (``keyframe_period``, the paper's Anidance training, §5.2): every
+``keyframe_period``-th frame after the last past frame is given as a key frame too;
+``max_gap // keyframe_period`` extra key slots hold them (padding when fewer).
+
+**Positions only** (a model with ``representation="positions"``; Anidance): the data are
+:class:`DeltaPositionArrays` and the loss is ``pos_weight·L1(global positions)`` on the
+missing frames plus the same on the key frames (the reference's Anidance model).
 """
 
 from __future__ import annotations
@@ -33,9 +44,19 @@ import optax
 from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
+from bezmotion.data.anidance import AnidanceWindows
 from bezmotion.data.lafan1 import Lafan1Windows
 from bezmotion.geometry.skeleton import forward_kinematics
-from bezmotion.models.delta import DeltaConfig, DeltaOutput, KeyFrames, apply_delta, init_delta
+from bezmotion.models.delta import (
+    DeltaConfig,
+    DeltaOutput,
+    DeltaPositionsOutput,
+    KeyFrames,
+    KeyPositions,
+    apply_delta,
+    apply_delta_positions,
+    init_delta,
+)
 from bezmotion.train import TrainState, run_training
 
 
@@ -51,8 +72,14 @@ class DeltaTrainConfig:
       decay_every: steps between ×``decay_factor`` drops after warm-up (paper: 200 epochs).
       decay_factor: the step schedule's factor (0.1).
       min_gap, max_gap: range of gap lengths ``n`` drawn with ``p(n) ∝ 1/n`` (5, 39).
-      quat_weight, pos_weight: weights of the quaternion and position L1 terms (10, 10).
+      quat_weight, pos_weight: weights of the quaternion and position L1 terms (10, 10);
+        the positions representation has the position term only.
       reconstruction: add the same losses on the key frames (the paper's Appendix A).
+      keyframe_period: in-filling: every ``keyframe_period``-th frame after the last past
+        frame is a key frame too (Anidance: 6); ``None``: one gap between the past context
+        and the target (LaFAN1).
+      infill_probability: with ``keyframe_period``, the fraction of examples drawn with
+        the periodic key frames; the others are single gaps (1: the paper).
     """
 
     batch_size: int = 64
@@ -66,6 +93,8 @@ class DeltaTrainConfig:
     quat_weight: float = 10.0
     pos_weight: float = 10.0
     reconstruction: bool = True
+    keyframe_period: int | None = None
+    infill_probability: float = 1.0
 
     def __post_init__(self):
         for name in ("batch_size", "min_gap", "max_gap", "decay_every"):
@@ -85,6 +114,11 @@ class DeltaTrainConfig:
             raise ValueError(f"DeltaTrainConfig.decay_factor must be in (0, 1], got {self.decay_factor}")
         if self.quat_weight < 0 or self.pos_weight < 0:
             raise ValueError(f"loss weights must be non-negative, got quat_weight={self.quat_weight}, pos_weight={self.pos_weight}")
+        period = self.keyframe_period
+        if period is not None and (not isinstance(period, int) or isinstance(period, bool) or period < 2):
+            raise ValueError(f"DeltaTrainConfig.keyframe_period must be an integer >= 2 or None, got {period!r}")
+        if not 0.0 <= self.infill_probability <= 1.0:
+            raise ValueError(f"DeltaTrainConfig.infill_probability must be in [0, 1], got {self.infill_probability}")
 
     @classmethod
     def for_steps(cls, num_steps: int, **overrides) -> DeltaTrainConfig:
@@ -113,6 +147,21 @@ class DeltaArrays(NamedTuple):
     def from_windows(cls, windows: Lafan1Windows) -> DeltaArrays:
         """From preprocessed LaFAN1 windows (training protocol: 50 frames, offset 20)."""
         return cls(*(jnp.asarray(a, jnp.float32) for a in (windows.quat_local, windows.root_pos, windows.offsets)))
+
+
+class DeltaPositionArrays(NamedTuple):
+    """Training windows of the positions representation as device arrays (float32).
+
+    Attributes:
+      positions: ``(windows, frames, P, 3)`` global point positions (cm), root first.
+    """
+
+    positions: Float[Array, "windows frames points 3"]
+
+    @classmethod
+    def from_windows(cls, windows: AnidanceWindows) -> DeltaPositionArrays:
+        """From Anidance windows (benchmark protocol: 128 frames, offset 64)."""
+        return cls(jnp.asarray(windows.positions, jnp.float32))
 
 
 def learning_rate_schedule(config: DeltaTrainConfig) -> optax.Schedule:

@@ -1095,6 +1095,22 @@ def test_contact_accuracy_and_mean_position_error():
     assert float(mean_position_error(pred, jnp.zeros((2, 3, 1, 3)))) == pytest.approx(5.0 / 6.0)
 
 
+def test_ground_truth_metrics_report_the_mocap_and_its_fitted_curves(demo_dataset, eval_set):
+    from bezmotion.bmm_evaluation import ground_truth_metrics
+
+    config = CurveMetricsConfig(BezierLayout.from_controls(K, 6), demo_dataset.fps, 0.0)
+    gt = ground_truth_metrics(config, eval_set)
+    fitted = SampledCurves(eval_set.ctrl_pos, eval_set.ctrl_tangent, jnp.zeros((*eval_set.ctrl_pos.shape[:-1], 6)), eval_set.ctrl_contacts.astype(jnp.float32))
+    as_model = curve_metrics(config, fitted, eval_set, eval_set.handles)
+    assert gt["fitted_curves"]["dense_error_cm"] == pytest.approx(as_model["dense_error_cm"], rel=1e-6)
+    assert gt["fitted_curves"]["foot_skating_ratio"] == pytest.approx(as_model["foot_skating_ratio"], rel=1e-6)
+    # Fitted with pinned positions: the curves pass through the mocap's control frames,
+    # and in between they stay within the fit's sub-centimetre error.
+    assert 0.0 < gt["fitted_curves"]["dense_error_cm"] < 0.5 and as_model["handles_error_cm"] < 1e-4
+    dense_feet = eval_set.dense_pos[..., list(FEET), :]
+    assert gt["foot_skating_ratio"] == pytest.approx(float(foot_skating_ratio(dense_feet, demo_dataset.fps, floor_height=0.0)))
+
+
 @pytest.fixture(scope="module")
 def eval_set(demo_dataset):
     return make_eval_set(demo_dataset, key=jax.random.key(5))
@@ -1108,6 +1124,8 @@ def test_make_eval_set(demo_dataset, eval_set):
     np.testing.assert_array_equal(es.end, ds.ctrl_pos[:, -1])
     np.testing.assert_array_equal(es.ctrl_contacts, ds.ctrl_contacts)
     np.testing.assert_array_equal(es.dense_pos, ds.dense_pos)
+    np.testing.assert_array_equal(es.ctrl_pos, ds.ctrl_pos)
+    np.testing.assert_array_equal(es.ctrl_tangent, ds.ctrl_tangent)
     h = es.handles
     assert h.control.shape == (10, 4)
     control, joint, valid = map(np.asarray, (h.control, h.joint, h.valid))

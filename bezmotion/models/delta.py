@@ -32,6 +32,15 @@ batch. It is a flax NNX module used functionally: :func:`init_delta` returns
 ``(graphdef, params)``, :func:`apply_delta` merges them inside whatever ``jax.jit``
 calls it, and :func:`delta_inbetweener` wraps trained parameters as an in-betweener for
 :func:`bezmotion.evaluation.evaluate_transitions`.
+
+**Positions only** (``representation="positions"``, for corpora without rotations such as
+Anidance, ``../shared/REFERENCE.md`` §2): a key-frame token holds the ``P × 3`` global
+point positions, minus the root (point 0) of the last past frame when
+``input_delta="last"``; one linear head decodes ``P × 3`` positions added to the same
+kinds of baseline (lerp between the key frames around each missing frame, the last past
+frame, or nothing). Same blocks, embeddings and weight sharing; no FK. Call it with
+:meth:`DeltaInterpolator.positions` / :func:`apply_delta_positions`, and evaluate it
+with :func:`delta_position_inbetweener`.
 """
 
 from __future__ import annotations
@@ -51,6 +60,7 @@ from bezmotion.data.lafan1 import PARENTS
 from bezmotion.geometry.rotations import quat_fix_continuity, quat_from_rot6d, rot6d_from_quat, slerp
 from bezmotion.geometry.skeleton import forward_kinematics
 
+REPRESENTATIONS: tuple[str, ...] = ("rotations", "positions")
 INPUT_DELTAS: tuple[str, ...] = ("last", "none")
 OUTPUT_DELTAS: tuple[str, ...] = ("interpolation", "last", "none")
 #: The paper's Table 3 rows as ``(input_delta, output_delta)``; the first is the Δ-interpolator.
@@ -62,6 +72,7 @@ TABLE3_MODES: tuple[tuple[str, str], ...] = (
     ("none", "last"),
 )
 FEATURES_PER_JOINT = 9  # global position (3), 6D rotation (6)
+FEATURES_PER_POINT = 3  # positions representation: global position only
 
 
 @dataclasses.dataclass(frozen=True)
@@ -85,6 +96,11 @@ class DeltaConfig:
         last past frame) or ``"none"`` (absolute rotations and root position).
       position_scale: network units per centimetre for positions, in the features and
         the root head (0.01: metres), so positions and 6D rotations have similar ranges.
+      representation: ``"rotations"`` (6D rotations + root position, FK; LaFAN1) or
+        ``"positions"`` (global point positions only; Anidance).
+      num_points: points per frame of the positions representation, the root first
+        (Anidance: 24); ``None`` for rotations, whose joints ``parents`` defines (and
+        which the positions representation ignores).
     """
 
     parents: tuple[int, ...] = PARENTS
@@ -99,6 +115,8 @@ class DeltaConfig:
     input_delta: str = "last"
     output_delta: str = "interpolation"
     position_scale: float = 0.01
+    representation: str = "rotations"
+    num_points: int | None = None
 
     def __post_init__(self):
         parents = self.parents
@@ -126,14 +144,32 @@ class DeltaConfig:
             raise ValueError(f"DeltaConfig.output_delta must be one of {OUTPUT_DELTAS}, got {self.output_delta!r}")
         if not (isinstance(self.position_scale, float | int) and self.position_scale > 0):
             raise ValueError(f"DeltaConfig.position_scale must be positive, got {self.position_scale!r}")
+        if self.representation not in REPRESENTATIONS:
+            raise ValueError(f"DeltaConfig.representation must be one of {REPRESENTATIONS}, got {self.representation!r}")
+        if self.representation == "positions":
+            n = self.num_points
+            if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+                raise ValueError(f"DeltaConfig.num_points must be a positive integer for the positions representation, got {n!r}")
+        elif self.num_points is not None:
+            raise ValueError(
+                f"DeltaConfig.num_points={self.num_points!r} is only for the positions representation; "
+                "with rotations the skeleton (parents) fixes the joints"
+            )
 
     @property
     def num_joints(self) -> int:
-        return len(self.parents)
+        """Joints (rotations) or points (positions) per frame."""
+        return self.num_points if self.representation == "positions" else len(self.parents)
 
     @property
     def frame_features(self) -> int:
-        return self.num_joints * FEATURES_PER_JOINT
+        per_joint = FEATURES_PER_POINT if self.representation == "positions" else FEATURES_PER_JOINT
+        return self.num_joints * per_joint
+
+    @property
+    def output_features(self) -> int:
+        """Head outputs per token: ``J·6`` rotation + 3 root, or ``P·3`` positions."""
+        return self.num_joints * 3 if self.representation == "positions" else self.num_joints * 6 + 3
 
     @classmethod
     def paper(cls, **overrides) -> DeltaConfig:
@@ -161,6 +197,30 @@ class KeyFrames(NamedTuple):
     root_pos: Float[Array, "*batch keys 3"]
     frame: Int[Array, "*batch keys"]
     valid: Bool[Array, "*batch keys"]
+
+
+class KeyPositions(NamedTuple):
+    """The known frames of one example in the positions representation (add leading axes
+    to batch).
+
+    Attributes:
+      pos: ``(keys, P, 3)`` global point positions (cm); point 0 is the root.
+      frame: ``(keys,)`` frame index of each key (increasing over valid keys).
+      valid: ``(keys,)`` which slots hold a key frame; the others are padding. Slots
+        ``0 … n_past-1`` are the past context and must be valid.
+    """
+
+    pos: Float[Array, "*batch keys points 3"]
+    frame: Int[Array, "*batch keys"]
+    valid: Bool[Array, "*batch keys"]
+
+
+class DeltaPositionsOutput(NamedTuple):
+    """Predicted global positions (cm) of the key frames (their reconstruction) and of the
+    missing frames. Entries of padding key slots mean nothing."""
+
+    key_pos: Float[Array, "*batch keys points 3"]
+    missing_pos: Float[Array, "*batch missing points 3"]
 
 
 class DeltaOutput(NamedTuple):
@@ -236,8 +296,16 @@ class DeltaInterpolator(nnx.Module):
         # the interpolator, or zero velocity). Absolute heads keep the default init: a
         # zero 6D vector is no rotation.
         zero = {"kernel_init": nnx.initializers.zeros_init()} if config.output_delta != "none" else {}
-        self.rotation_head = nnx.Linear(w, j * 6, rngs=rngs, **zero)
-        self.root_head = nnx.Linear(w, 3, rngs=rngs, **zero)
+        if config.representation == "positions":
+            self.position_head = nnx.Linear(w, j * 3, rngs=rngs, **zero)
+        else:
+            self.rotation_head = nnx.Linear(w, j * 6, rngs=rngs, **zero)
+            self.root_head = nnx.Linear(w, 3, rngs=rngs, **zero)
+
+    def _decode(self, tokens):
+        if self.config.representation == "positions":
+            return self.position_head(tokens)
+        return jnp.concatenate([self.rotation_head(tokens), self.root_head(tokens)], axis=-1)
 
     def network(
         self,
@@ -249,10 +317,12 @@ class DeltaInterpolator(nnx.Module):
         *,
         key: Array | None = None,
     ) -> tuple[Float[Array, "keys out"], Float[Array, "missing out"]]:
-        """The transformer alone: raw head outputs ``[J·6 rotation | 3 root]`` per token.
+        """The transformer alone: raw head outputs per token, ``[J·6 rotation | 3 root]``
+        (rotations) or ``P·3`` positions (positions representation).
 
         Args:
-          key_features: ``(keys, J·9)`` per-joint ``[position · position_scale | 6D]``.
+          key_features: ``(keys, J·9)`` per-joint ``[position · position_scale | 6D]``, or
+            ``(keys, P·3)`` positions · position_scale.
           key_frame, missing_frame: frame indices in the window (``< max_frames``).
           key_valid: which key slots are real; padding slots are neither attended to nor
             read (their content may be anything, NaN included).
@@ -276,11 +346,7 @@ class DeltaInterpolator(nnx.Module):
             key_tokens = block(key_tokens, key_tokens, key_valid, stream_keys[2 * i])
             # Cross-attention to the key-frame stream this block just produced, same weights.
             missing_tokens = block(missing_tokens, key_tokens, key_valid, stream_keys[2 * i + 1])
-
-        def decode(tokens):
-            return jnp.concatenate([self.rotation_head(tokens), self.root_head(tokens)], axis=-1)
-
-        return decode(key_tokens), decode(missing_tokens)
+        return self._decode(key_tokens), self._decode(missing_tokens)
 
     def __call__(
         self,
@@ -303,6 +369,8 @@ class DeltaInterpolator(nnx.Module):
           :class:`DeltaOutput` for the key slots and the missing slots.
         """
         cfg = self.config
+        if cfg.representation != "rotations":
+            raise ValueError(f"this model has the {cfg.representation!r} representation: call .positions(...) instead")
         ref = cfg.n_past - 1
         dtype = keys.root_pos.dtype
         rot6d = rot6d_from_quat(keys.quat_local)
@@ -324,6 +392,59 @@ class DeltaInterpolator(nnx.Module):
         n_keys = key_out.shape[0]
         return DeltaOutput(quat[:n_keys], root[:n_keys], quat[n_keys:], root[n_keys:])
 
+    def positions(
+        self,
+        keys: KeyPositions,
+        missing_frame: Int[Array, "missing"],
+        gap: Int[Array, ""],
+        *,
+        key: Array | None = None,
+    ) -> DeltaPositionsOutput:
+        """In-between one example of the positions representation.
+
+        Args:
+          keys: the known frames; slot ``n_past - 1`` is the reference (last past frame).
+          missing_frame: ``(missing,)`` frame indices to predict.
+          gap: the number of missing frames (the gap-length embedding's index).
+          key: dropout key; ``None`` runs deterministically (evaluation).
+        Returns:
+          :class:`DeltaPositionsOutput`: global positions (cm) of the key and missing slots.
+        """
+        cfg = self.config
+        if cfg.representation != "positions":
+            raise ValueError(f"this model has the {cfg.representation!r} representation: call it with offsets and KeyFrames")
+        if keys.pos.shape[-2:] != (cfg.num_joints, 3):
+            raise ValueError(f"keys.pos has shape {keys.pos.shape}, expected (keys, {cfg.num_joints}, 3)")
+        pos = keys.pos
+        if cfg.input_delta == "last":
+            # Relative to the reference frame's root: a constant translation of the input
+            # cancels here and comes back through the baseline.
+            pos = pos - keys.pos[cfg.n_past - 1, 0]
+        features = (pos * cfg.position_scale).reshape(pos.shape[0], -1)
+        key_out, missing_out = self.network(features, keys.frame, keys.valid, missing_frame, gap, key=key)
+        out = jnp.concatenate([key_out, missing_out], axis=0).reshape(-1, cfg.num_joints, 3)
+        pos = _position_baselines(cfg, keys, missing_frame) + out / cfg.position_scale
+        n_keys = key_out.shape[0]
+        return DeltaPositionsOutput(pos[:n_keys], pos[n_keys:])
+
+
+def _bracketing_keys(
+    frame: Int[Array, "keys"], valid: Bool[Array, "keys"], missing_frame: Int[Array, "missing"], dtype
+) -> tuple[Int[Array, "missing"], Int[Array, "missing"], Array]:
+    """For each missing frame: the slots of the nearest valid keys before and after it and
+    its lerp weight between them (0 at ``prev``). A frame with a key on one side only gets
+    that key on both sides (weight 0)."""
+    t = missing_frame[:, None]
+    before = valid[None, :] & (frame[None, :] < t)
+    after = valid[None, :] & (frame[None, :] > t)
+    prev = jnp.argmax(jnp.where(before, frame[None, :], jnp.iinfo(frame.dtype).min), axis=-1)
+    nxt = jnp.argmin(jnp.where(after, frame[None, :], jnp.iinfo(frame.dtype).max), axis=-1)
+    prev = jnp.where(before.any(-1), prev, nxt)
+    nxt = jnp.where(after.any(-1), nxt, prev)
+    span = frame[nxt] - frame[prev]
+    w = jnp.where(span > 0, (missing_frame - frame[prev]).astype(dtype) / jnp.maximum(span, 1).astype(dtype), 0.0)
+    return prev, nxt, w
+
 
 def interpolation_baseline(
     keys: KeyFrames, missing_frame: Int[Array, "missing"]
@@ -332,20 +453,30 @@ def interpolation_baseline(
     before and just after each missing frame (weights by frame index). With 10 past frames
     and one target this is the benchmark's interpolation baseline, weights ``k/(n+1)``.
     A frame with a key on one side only copies that key."""
-    frame = keys.frame
-    t = missing_frame[:, None]
-    before = keys.valid[None, :] & (frame[None, :] < t)
-    after = keys.valid[None, :] & (frame[None, :] > t)
-    prev = jnp.argmax(jnp.where(before, frame[None, :], jnp.iinfo(frame.dtype).min), axis=-1)
-    nxt = jnp.argmin(jnp.where(after, frame[None, :], jnp.iinfo(frame.dtype).max), axis=-1)
-    prev = jnp.where(before.any(-1), prev, nxt)
-    nxt = jnp.where(after.any(-1), nxt, prev)
-    span = frame[nxt] - frame[prev]
-    dtype = keys.root_pos.dtype
-    w = jnp.where(span > 0, (missing_frame - frame[prev]).astype(dtype) / jnp.maximum(span, 1).astype(dtype), 0.0)
+    prev, nxt, w = _bracketing_keys(keys.frame, keys.valid, missing_frame, keys.root_pos.dtype)
     quat = slerp(keys.quat_local[prev], keys.quat_local[nxt], w[:, None])
     root = keys.root_pos[prev] + w[:, None] * (keys.root_pos[nxt] - keys.root_pos[prev])
     return quat, root
+
+
+def position_interpolation_baseline(
+    keys: KeyPositions, missing_frame: Int[Array, "missing"]
+) -> Float[Array, "missing points 3"]:
+    """Lerp every point between the valid key frames just before and just after each
+    missing frame, weights by frame index (the Anidance benchmark's LERP baseline; with key
+    frames every 6 frames, piecewise linear through them). A frame with a key on one side
+    only copies that key. One example; ``jax.vmap`` over a batch."""
+    prev, nxt, w = _bracketing_keys(keys.frame, keys.valid, missing_frame, keys.pos.dtype)
+    return keys.pos[prev] + w[:, None, None] * (keys.pos[nxt] - keys.pos[prev])
+
+
+def position_zero_velocity_baseline(
+    keys: KeyPositions, missing_frame: Int[Array, "missing"]
+) -> Float[Array, "missing points 3"]:
+    """Every missing frame copies the nearest valid key frame before it (the zero-velocity
+    baseline; with one past frame and one target, the past frame). One example."""
+    prev, _, _ = _bracketing_keys(keys.frame, keys.valid, missing_frame, keys.pos.dtype)
+    return keys.pos[prev]
 
 
 def _baselines(config: DeltaConfig, keys: KeyFrames, missing_frame):
@@ -362,6 +493,17 @@ def _baselines(config: DeltaConfig, keys: KeyFrames, missing_frame):
         n = n_keys + n_missing
         return jnp.broadcast_to(rot6d_from_quat(keys.quat_local[ref]), (n, j, 6)), jnp.broadcast_to(keys.root_pos[ref], (n, 3))
     return jnp.zeros((n_keys + n_missing, j, 6), dtype), jnp.zeros((n_keys + n_missing, 3), dtype)
+
+
+def _position_baselines(config: DeltaConfig, keys: KeyPositions, missing_frame):
+    """``(keys + missing, P, 3)`` positions, key slots first: what the position head's
+    output is added to (known frames are their own interpolation baseline)."""
+    n = keys.frame.shape[0] + missing_frame.shape[0]
+    if config.output_delta == "interpolation":
+        return jnp.concatenate([keys.pos, position_interpolation_baseline(keys, missing_frame)], axis=0)
+    if config.output_delta == "last":
+        return jnp.broadcast_to(keys.pos[config.n_past - 1], (n, *keys.pos.shape[1:]))
+    return jnp.zeros((n, *keys.pos.shape[1:]), keys.pos.dtype)
 
 
 # ------------------------------------------------------------------------ functional API
@@ -384,6 +526,20 @@ def apply_delta(
 ) -> DeltaOutput:
     """Pure call of the model on one example (see :meth:`DeltaInterpolator.__call__`)."""
     return nnx.merge(graphdef, params)(offsets, keys, missing_frame, gap, key=key)
+
+
+def apply_delta_positions(
+    graphdef: nnx.GraphDef,
+    params: nnx.State,
+    keys: KeyPositions,
+    missing_frame: Int[Array, "missing"],
+    gap: Int[Array, ""],
+    *,
+    key: Array | None = None,
+) -> DeltaPositionsOutput:
+    """Pure call of a positions-representation model on one example (see
+    :meth:`DeltaInterpolator.positions`)."""
+    return nnx.merge(graphdef, params).positions(keys, missing_frame, gap, key=key)
 
 
 def transition_layout(n_past: int, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -452,6 +608,65 @@ def delta_inbetweener(
     return inbetween
 
 
+def delta_position_inbetweener(
+    graphdef: nnx.GraphDef, params: nnx.State, *, batch_size: int | None = None
+) -> Callable[..., Array]:
+    """A trained positions-representation model as an in-betweener for
+    :func:`bezmotion.anidance_evaluation.evaluate_anidance`.
+
+    ``inbetween(key_pos (B, K, P, 3), key_frame, missing_frame) -> (B, M, P, 3)`` with
+    ``key_frame`` (``K``) and ``missing_frame`` (``M``) tuples of Python ints: the frames
+    of the window that are known (the first ``n_past`` are the past context) and those to
+    predict. Inputs are cast to the parameters' dtype.
+
+    Args:
+      graphdef, params: from :func:`init_delta` (or training) with ``representation="positions"``.
+      batch_size: examples per vectorised chunk (``jax.lax.map``), bounding memory; ``None``
+        runs the whole batch at once.
+    """
+    if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
+        raise ValueError(f"batch_size must be a positive integer or None, got {batch_size!r}")
+    dtype = jax.tree.leaves(params)[0].dtype
+
+    def inbetween(key_pos, key_frame, missing_frame):
+        model = nnx.merge(graphdef, params)
+        cfg = model.config
+        if cfg.representation != "positions":
+            raise ValueError(f"delta_position_inbetweener needs a positions model, got representation={cfg.representation!r}")
+        _check_frames(cfg, key_frame, missing_frame)
+        if key_pos.shape[-3:] != (len(key_frame), cfg.num_joints, 3):
+            raise ValueError(f"key_pos has shape {key_pos.shape}, expected (batch, {len(key_frame)}, {cfg.num_joints}, 3)")
+        frames = jnp.asarray(key_frame, jnp.int32)
+        valid = jnp.ones(frames.shape, bool)
+        missing = jnp.asarray(missing_frame, jnp.int32)
+        gap = jnp.asarray(len(missing_frame), jnp.int32)
+
+        def one(pos):
+            return model.positions(KeyPositions(pos, frames, valid), missing, gap).missing_pos
+
+        pos = key_pos.astype(dtype)
+        return jax.vmap(one)(pos) if batch_size is None else jax.lax.map(one, pos, batch_size=batch_size)
+
+    return inbetween
+
+
+def _check_frames(config: DeltaConfig, key_frame, missing_frame) -> None:
+    """Validate a static key / missing frame layout before tracing."""
+    ints = all(isinstance(f, int | np.integer) and not isinstance(f, bool) for f in (*key_frame, *missing_frame))
+    if not ints or not missing_frame:
+        raise ValueError(f"key_frame and missing_frame must be non-empty tuples of ints, got {key_frame!r} and {missing_frame!r}")
+    if len(key_frame) < config.n_past + 1 or any(b <= a for a, b in zip(key_frame, key_frame[1:])):
+        raise ValueError(f"key_frame must hold {config.n_past} past frame(s) and a target, strictly increasing, got {key_frame!r}")
+    if set(key_frame) & set(missing_frame):
+        raise ValueError(f"frames {sorted(set(key_frame) & set(missing_frame))} are both key and missing frames")
+    frames = (*key_frame, *missing_frame)
+    if min(frames) < 0 or max(frames) >= config.max_frames or len(missing_frame) >= config.max_frames:
+        raise ValueError(
+            f"frame indices must lie in [0, {config.max_frames}) and fewer than {config.max_frames} frames be missing "
+            f"(the model's max_frames), got frames {min(frames)}…{max(frames)} with {len(missing_frame)} missing"
+        )
+
+
 def count_parameters(params: nnx.State) -> int:
     return int(sum(np.prod(x.shape) for x in jax.tree.leaves(params)))
 
@@ -459,15 +674,22 @@ def count_parameters(params: nnx.State) -> int:
 __all__ = [
     "INPUT_DELTAS",
     "OUTPUT_DELTAS",
+    "REPRESENTATIONS",
     "TABLE3_MODES",
     "DeltaConfig",
     "DeltaInterpolator",
     "DeltaOutput",
+    "DeltaPositionsOutput",
     "KeyFrames",
+    "KeyPositions",
     "apply_delta",
+    "apply_delta_positions",
     "count_parameters",
     "delta_inbetweener",
+    "delta_position_inbetweener",
     "init_delta",
     "interpolation_baseline",
+    "position_interpolation_baseline",
+    "position_zero_velocity_baseline",
     "transition_layout",
 ]
