@@ -188,36 +188,92 @@ class ExampleLayout(NamedTuple):
     """Where one training example's slots come from in its window (fixed shapes).
 
     Attributes:
-      key_frame: ``(n_past + 1,)`` window frames of the past context and the target.
-      missing_frame: ``(max_gap,)`` window frames of the missing slots; padding slots
-        repeat a real frame so every index stays inside the window and the embeddings.
-      missing_valid: ``(max_gap,)`` which missing slots are real (the first ``gap``).
-      gap: the number of missing frames ``n``.
+      key_frame: ``(n_past + extra + 1,)`` window frames of the past context, of the
+        in-filling key frames (``extra = max_gap // keyframe_period`` slots, none without
+        in-filling) and of the target; padding slots repeat the last past frame.
+      missing_frame: ``(max_gap,)`` window frames of the missing slots, real ones first and
+        in order; padding slots repeat a real frame so every index stays inside the window
+        and the embeddings.
+      missing_valid: ``(max_gap,)`` which missing slots are real.
+      gap: the number of real missing frames (the gap-length embedding's index).
+      key_valid: which key slots are real (all of them without in-filling).
     """
 
     key_frame: Int[Array, "keys"]
     missing_frame: Int[Array, "max_gap"]
     missing_valid: Bool[Array, "max_gap"]
     gap: Int[Array, ""]
+    key_valid: Bool[Array, "keys"]
 
 
-def example_layout(gap: Int[Array, ""], start: Int[Array, ""], n_past: int, max_gap: int) -> ExampleLayout:
-    """Past frames ``start … start+n_past-1``, missing ``start+n_past … start+n_past+gap-1``,
-    target ``start+n_past+gap``: frame indices are absolute in the window (the reference
-    code's frame-index embedding)."""
-    key_frame = start + jnp.append(jnp.arange(n_past, dtype=jnp.int32), n_past + gap)
-    slot = jnp.arange(max_gap, dtype=jnp.int32)
-    valid = slot < gap
-    missing_frame = start + n_past + jnp.where(valid, slot, 0)
-    return ExampleLayout(key_frame, missing_frame, valid, gap)
+def example_layout(
+    gap: Int[Array, ""],
+    start: Int[Array, ""],
+    n_past: int,
+    max_gap: int,
+    period: int | None = None,
+    infill: bool | Bool[Array, ""] = True,
+) -> ExampleLayout:
+    """Past frames ``start … ref`` (``ref = start+n_past-1``), the target ``ref+gap+1``, and
+    the ``gap`` frames between them missing — except, with ``period`` and ``infill``, the
+    frames ``ref + k·period`` (``k ≥ 1``), which are key frames too (the Anidance in-filling
+    layout: with one past frame, key frames every ``period`` frames from the first, plus
+    the last). Frames are window indices, for gathering."""
+    ref = start + n_past - 1
+    offset = jnp.arange(1, max_gap + 1, dtype=jnp.int32)  # frames after the reference
+    inside = offset <= gap
+    interior = inside & (offset % period == 0) & infill if period is not None else jnp.zeros_like(inside)
+    missing = inside & ~interior
+
+    def compact(mask, slots):
+        # Offsets where ``mask`` holds, in order, then padding: a stable sort on ~mask.
+        order = jnp.argsort((~mask).astype(jnp.int32), stable=True)[:slots]
+        valid = jnp.arange(slots) < jnp.sum(mask)
+        return offset[order], valid
+
+    missing_offset, missing_valid = compact(missing, max_gap)
+    missing_frame = ref + jnp.where(missing_valid, missing_offset, 1)
+    key_frame = [start + jnp.arange(n_past, dtype=jnp.int32)]
+    key_valid = [jnp.ones(n_past, bool)]
+    if period is not None:
+        interior_offset, interior_valid = compact(interior, max_gap // period)
+        key_frame.append(ref + jnp.where(interior_valid, interior_offset, 0))
+        key_valid.append(interior_valid)
+    key_frame.append(jnp.reshape(ref + gap + 1, (1,)).astype(jnp.int32))
+    key_valid.append(jnp.ones(1, bool))
+    return ExampleLayout(
+        jnp.concatenate(key_frame), missing_frame, missing_valid, jnp.sum(missing).astype(jnp.int32), jnp.concatenate(key_valid)
+    )
 
 
-def draw_layout(key: Array, window_frames: int, n_past: int, min_gap: int, max_gap: int) -> ExampleLayout:
-    """Random gap (``p ∝ 1/n``) and a uniformly random start that fits it in the window."""
+def draw_layout(
+    key: Array,
+    window_frames: int,
+    n_past: int,
+    min_gap: int,
+    max_gap: int,
+    period: int | None = None,
+    infill_probability: float = 1.0,
+) -> ExampleLayout:
+    """Random gap (``p ∝ 1/n``, frames between the last past frame and the target), a
+    uniformly random start that fits it in the window, and — with ``period`` — in-filling
+    key frames with probability ``infill_probability``."""
     gap_key, start_key = jax.random.split(key)
     gap = sample_gap(gap_key, min_gap, max_gap)
+    infill: bool | Array = True
+    if period is not None:
+        # Split only here, so single-gap training keeps its random stream.
+        start_key, infill_key = jax.random.split(start_key)
+        infill = jax.random.bernoulli(infill_key, infill_probability)
     start = jax.random.randint(start_key, (), 0, window_frames - (n_past + 1 + gap) + 1, dtype=jnp.int32)
-    return example_layout(gap, start, n_past, max_gap)
+    return example_layout(gap, start, n_past, max_gap, period, infill)
+
+
+def _model_frames(layout: ExampleLayout) -> tuple[Int[Array, "keys"], Int[Array, "max_gap"]]:
+    """Key and missing frames relative to the first past frame: the indices the model sees
+    (the reference code's ``indices - start_frame``; evaluation windows start there)."""
+    start = layout.key_frame[0]
+    return layout.key_frame - start, layout.missing_frame - start
 
 
 def hemisphere_aligned_l1(
@@ -241,9 +297,32 @@ def example_prediction(
 ) -> DeltaOutput:
     """The model's prediction for one training example: it reads the window at the key
     frames only."""
-    key_frame = layout.key_frame
-    keys = KeyFrames(quat_window[key_frame], root_window[key_frame], key_frame, jnp.ones(key_frame.shape, bool))
-    return apply_delta(graphdef, params, offsets, keys, layout.missing_frame, layout.gap, key=key)
+    key_frame, missing_frame = _model_frames(layout)
+    keys = KeyFrames(quat_window[layout.key_frame], root_window[layout.key_frame], key_frame, layout.key_valid)
+    return apply_delta(graphdef, params, offsets, keys, missing_frame, layout.gap, key=key)
+
+
+def example_position_prediction(
+    graphdef: nnx.GraphDef,
+    params: nnx.State,
+    pos_window: Float[Array, "frames points 3"],
+    layout: ExampleLayout,
+    *,
+    key: Array | None = None,
+) -> DeltaPositionsOutput:
+    """A positions model's prediction for one training example (reads the key frames only)."""
+    key_frame, missing_frame = _model_frames(layout)
+    keys = KeyPositions(pos_window[layout.key_frame], key_frame, layout.key_valid)
+    return apply_delta_positions(graphdef, params, keys, missing_frame, layout.gap, key=key)
+
+
+def _split_means(err, layout: ExampleLayout) -> tuple[Array, Array]:
+    """Mean of per-frame errors ``(keys + max_gap,)`` over the real missing frames and over
+    the real key frames."""
+    n_keys = layout.key_frame.shape[0]
+    missing = layout.missing_valid.astype(err.dtype) / jnp.maximum(layout.gap, 1).astype(err.dtype)
+    keys = layout.key_valid.astype(err.dtype) / jnp.sum(layout.key_valid).astype(err.dtype)
+    return jnp.sum(missing * err[n_keys:]), jnp.sum(keys * err[:n_keys])
 
 
 def example_losses(
@@ -267,24 +346,38 @@ def example_losses(
     pred_root = jnp.concatenate([out.key_root, out.missing_root])
     true_q, true_p = forward_kinematics(model_config.parents, quat_window[frame], offsets, root_pos=root_window[frame])
     pred_q, pred_p = forward_kinematics(model_config.parents, pred_quat, offsets, root_pos=pred_root)
-    quat_err = hemisphere_aligned_l1(pred_q, true_q)
-    pos_err = jnp.sum(jnp.abs(pred_p - true_p), axis=(-2, -1))
-    n_keys = layout.key_frame.shape[0]
-    weight = layout.missing_valid.astype(quat_err.dtype) / jnp.maximum(layout.gap, 1).astype(quat_err.dtype)
-    return {
-        "quat": jnp.sum(weight * quat_err[n_keys:]),
-        "pos": jnp.sum(weight * pos_err[n_keys:]),
-        "rec_quat": jnp.mean(quat_err[:n_keys]),
-        "rec_pos": jnp.mean(pos_err[:n_keys]),
-    }
+    quat, rec_quat = _split_means(hemisphere_aligned_l1(pred_q, true_q), layout)
+    pos, rec_pos = _split_means(jnp.sum(jnp.abs(pred_p - true_p), axis=(-2, -1)), layout)
+    return {"quat": quat, "pos": pos, "rec_quat": rec_quat, "rec_pos": rec_pos}
+
+
+def example_position_losses(
+    graphdef: nnx.GraphDef,
+    params: nnx.State,
+    pos_window: Float[Array, "frames points 3"],
+    layout: ExampleLayout,
+    *,
+    key: Array | None = None,
+) -> dict[str, Float[Array, ""]]:
+    """Unweighted loss terms of one positions example: L1 of global positions (cm), summed
+    over points and coordinates, averaged over the real missing frames (``pos``) and over
+    the real key frames (``rec_pos``)."""
+    out = example_position_prediction(graphdef, params, pos_window, layout, key=key)
+    frame = jnp.concatenate([layout.key_frame, layout.missing_frame])
+    pred = jnp.concatenate([out.key_pos, out.missing_pos])
+    pos, rec_pos = _split_means(jnp.sum(jnp.abs(pred - pos_window[frame]), axis=(-2, -1)), layout)
+    return {"pos": pos, "rec_pos": rec_pos}
 
 
 def total_loss(config: DeltaTrainConfig, terms: dict[str, Float[Array, "*batch"]]) -> Float[Array, "*batch"]:
-    """``quat_weight·(quat [+ rec_quat]) + pos_weight·(pos [+ rec_pos])``."""
-    quat, pos = terms["quat"], terms["pos"]
-    if config.reconstruction:
-        quat, pos = quat + terms["rec_quat"], pos + terms["rec_pos"]
-    return config.quat_weight * quat + config.pos_weight * pos
+    """``quat_weight·(quat [+ rec_quat]) + pos_weight·(pos [+ rec_pos])``; a representation
+    without rotations has no ``quat`` terms."""
+    total = 0.0
+    for name, weight in (("quat", config.quat_weight), ("pos", config.pos_weight)):
+        if name in terms:
+            term = terms[name] + terms["rec_" + name] if config.reconstruction else terms[name]
+            total = total + weight * term
+    return total
 
 
 def init_delta_train_state(
@@ -309,43 +402,60 @@ def init_delta_train_states(
 
 def make_delta_train_step(
     graphdef: nnx.GraphDef, model_config: DeltaConfig, train_config: DeltaTrainConfig, *, window_frames: int
-) -> Callable[[TrainState, DeltaArrays], tuple[TrainState, dict[str, Array]]]:
+) -> Callable[[TrainState, DeltaArrays | DeltaPositionArrays], tuple[TrainState, dict[str, Array]]]:
     """The (un-jitted) single-seed training step; compile it with
     :func:`bezmotion.train.compile_train_step`.
 
     Args:
       graphdef: from :func:`init_delta_train_state`.
-      model_config, train_config: the model and the optimisation settings.
-      window_frames: frames per training window (LaFAN1 protocol: 50); the longest
-        example, ``n_past + max_gap + 1`` frames, must fit, and every frame index must have
-        an embedding row (``window_frames ≤ max_frames``).
+      model_config, train_config: the model and the optimisation settings. The data the
+        step takes follow the model's representation: :class:`DeltaArrays` (rotations) or
+        :class:`DeltaPositionArrays` (positions).
+      window_frames: frames per training window (LaFAN1 protocol: 50; Anidance: 128); the
+        longest example, ``n_past + max_gap + 1`` frames, must fit in it, and its frame
+        indices (relative to its first frame) must have embedding rows (``≤ max_frames``).
     """
     n_past, max_gap = model_config.n_past, train_config.max_gap
-    if n_past + max_gap + 1 > window_frames:
+    span = n_past + max_gap + 1
+    if span > window_frames:
         raise ValueError(
             f"max_gap={max_gap} does not fit {window_frames}-frame windows with {n_past} past frames and a target "
-            f"(needs {n_past + max_gap + 1} frames)"
+            f"(needs {span} frames)"
         )
-    if window_frames > model_config.max_frames:
-        raise ValueError(f"{window_frames}-frame windows exceed the model's max_frames={model_config.max_frames}")
+    if span > model_config.max_frames:
+        raise ValueError(
+            f"examples of {n_past} past frames, up to {max_gap} missing frames and a target ({span} frames) "
+            f"exceed the model's max_frames={model_config.max_frames}"
+        )
+    positions = model_config.representation == "positions"
+    data_type = DeltaPositionArrays if positions else DeltaArrays
     optimizer = make_optimizer(train_config)
     schedule = learning_rate_schedule(train_config)
 
-    def example(params, quat, root, offsets, rng):
+    def example(params, window, rng):
         layout_key, dropout_key = jax.random.split(rng)
-        layout = draw_layout(layout_key, window_frames, n_past, train_config.min_gap, max_gap)
-        return example_losses(graphdef, params, model_config, quat, root, offsets, layout, key=dropout_key)
+        layout = draw_layout(
+            layout_key, window_frames, n_past, train_config.min_gap, max_gap,
+            train_config.keyframe_period, train_config.infill_probability,
+        )  # fmt: skip
+        if positions:
+            return example_position_losses(graphdef, params, *window, layout, key=dropout_key)
+        return example_losses(graphdef, params, model_config, *window, layout, key=dropout_key)
 
     def loss_fn(params, batch, rngs):
-        terms = jax.vmap(example, in_axes=(None, 0, 0, 0, 0))(params, *batch, rngs)
+        terms = jax.vmap(example, in_axes=(None, 0, 0))(params, batch, rngs)
         terms = jax.tree.map(jnp.mean, terms)
         return total_loss(train_config, terms), terms
 
-    def step(state: TrainState, data: DeltaArrays) -> tuple[TrainState, dict[str, Array]]:
-        if data.quat_local.shape[1] != window_frames:
-            raise ValueError(f"the step was built for {window_frames}-frame windows, got {data.quat_local.shape[1]}")
+    def step(state: TrainState, data: DeltaArrays | DeltaPositionArrays) -> tuple[TrainState, dict[str, Array]]:
+        if not isinstance(data, data_type):
+            raise ValueError(
+                f"a {model_config.representation!r} model trains on {data_type.__name__}, got {type(data).__name__}"
+            )
+        if data[0].shape[1] != window_frames:
+            raise ValueError(f"the step was built for {window_frames}-frame windows, got {data[0].shape[1]}")
         key, index_key, example_key = jax.random.split(state.key, 3)
-        index = jax.random.randint(index_key, (train_config.batch_size,), 0, data.quat_local.shape[0])
+        index = jax.random.randint(index_key, (train_config.batch_size,), 0, data[0].shape[0])
         batch = tuple(a[index] for a in data)
         rngs = jax.random.split(example_key, train_config.batch_size)
         (loss, terms), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params, batch, rngs)
@@ -358,9 +468,9 @@ def make_delta_train_step(
 
 
 def run_delta_training(
-    step_fn: Callable[[TrainState, DeltaArrays], tuple[TrainState, dict[str, Array]]],
+    step_fn: Callable[[TrainState, DeltaArrays | DeltaPositionArrays], tuple[TrainState, dict[str, Array]]],
     state: TrainState,
-    data: DeltaArrays,
+    data: DeltaArrays | DeltaPositionArrays,
     **kwargs: Any,
 ) -> tuple[TrainState, list[dict[str, float | int]]]:
     """:func:`bezmotion.train.run_training` for Δ-interpolator data (same keyword arguments:
@@ -370,11 +480,14 @@ def run_delta_training(
 
 __all__ = [
     "DeltaArrays",
+    "DeltaPositionArrays",
     "DeltaTrainConfig",
     "ExampleLayout",
     "draw_layout",
     "example_layout",
     "example_losses",
+    "example_position_losses",
+    "example_position_prediction",
     "example_prediction",
     "hemisphere_aligned_l1",
     "init_delta_train_state",

@@ -176,7 +176,7 @@ def test_train_config_validation_and_schedule(forward):
     with pytest.raises(ValueError, match="does not fit 30-frame windows"):
         make_delta_train_step(forward.graphdef, FORWARD, DeltaTrainConfig(), window_frames=30)
     with pytest.raises(ValueError, match="exceed the model's max_frames=65"):
-        make_delta_train_step(forward.graphdef, FORWARD, DeltaTrainConfig(), window_frames=80)
+        make_delta_train_step(forward.graphdef, FORWARD, DeltaTrainConfig(max_gap=60), window_frames=80)
 
 
 # ------------------------------------------------------------------------ architecture
