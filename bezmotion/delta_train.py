@@ -57,7 +57,7 @@ from bezmotion.models.delta import (
     apply_delta_positions,
     init_delta,
 )
-from bezmotion.train import TrainState, run_training
+from bezmotion.train import TrainState, run_training, stack_seeds
 
 
 @dataclasses.dataclass(frozen=True)
@@ -394,10 +394,7 @@ def init_delta_train_states(
     model_config: DeltaConfig, train_config: DeltaTrainConfig, seeds: list[int] | tuple[int, ...]
 ) -> tuple[nnx.GraphDef, TrainState]:
     """States for several seeds, stacked on a leading axis (for the vmapped step)."""
-    if not seeds:
-        raise ValueError("need at least one seed")
-    states = [init_delta_train_state(model_config, train_config, key=jax.random.key(s)) for s in seeds]
-    return states[0][0], jax.tree.map(lambda *xs: jnp.stack(xs), *(s for _, s in states))
+    return stack_seeds(lambda key: init_delta_train_state(model_config, train_config, key=key), seeds)
 
 
 def make_delta_train_step(

@@ -162,11 +162,17 @@ def init_train_states(
     model_config: BMMConfig, train_config: TrainConfig, seeds: list[int] | tuple[int, ...]
 ) -> tuple[nnx.GraphDef, TrainState]:
     """States for several seeds, stacked on a leading axis (for the vmapped step)."""
+    return stack_seeds(lambda key: init_train_state(model_config, train_config, key=key), seeds)
+
+
+def stack_seeds(
+    init_one: Callable[[Array], tuple[nnx.GraphDef, TrainState]], seeds: list[int] | tuple[int, ...]
+) -> tuple[nnx.GraphDef, TrainState]:
+    """``init_one(key)`` for every seed, states stacked on a leading axis (any model)."""
     if not seeds:
         raise ValueError("need at least one seed")
-    states = [init_train_state(model_config, train_config, key=jax.random.key(s)) for s in seeds]
-    graphdef = states[0][0]
-    return graphdef, jax.tree.map(lambda *xs: jnp.stack(xs), *(s for _, s in states))
+    states = [init_one(jax.random.key(s)) for s in seeds]
+    return states[0][0], jax.tree.map(lambda *xs: jnp.stack(xs), *(s for _, s in states))
 
 
 def _sharded(x: Array, mesh: Mesh | None) -> Array:
@@ -330,4 +336,5 @@ __all__ = [
     "make_optimizer",
     "make_train_step",
     "run_training",
+    "stack_seeds",
 ]

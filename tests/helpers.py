@@ -228,3 +228,34 @@ def assert_finite_gradients(cases: Mapping[str, tuple[Callable, Sequence, Sequen
     jacs = jacobians({name: tuple(args) for name, (_, args, _) in cases.items()})
     bad = [f"{name}: {mode} w.r.t. argument {i}" for (name, mode, i), jac in jacs.items() if not np.all(np.isfinite(jac))]
     assert not bad, "non-finite derivatives:\n" + "\n".join(bad)
+
+
+# --------------------------------------------------------------------- comparing pytrees
+
+
+def leaves(tree) -> list[np.ndarray]:
+    """Leaves as NumPy arrays, typed PRNG keys as their raw data."""
+    out = []
+    for x in jax.tree.leaves(tree):
+        if isinstance(x, jax.Array) and jnp.issubdtype(x.dtype, jax.dtypes.prng_key):
+            x = jax.random.key_data(x)
+        out.append(np.asarray(x))
+    return out
+
+
+def assert_trees_identical(a, b) -> None:
+    """Same structure and bit-identical leaves."""
+    assert jax.tree.structure(a) == jax.tree.structure(b)
+    for x, y in zip(leaves(a), leaves(b), strict=True):
+        assert x.dtype == y.dtype and x.shape == y.shape
+        np.testing.assert_array_equal(x, y)
+
+
+def assert_trees_close(a, b, tol: float = 1e-6) -> None:
+    assert jax.tree.structure(a) == jax.tree.structure(b)
+    for x, y in zip(leaves(a), leaves(b), strict=True):
+        np.testing.assert_allclose(x, y, rtol=tol, atol=tol)
+
+
+def trees_differ(a, b) -> bool:
+    return any(not np.array_equal(x, y) for x, y in zip(leaves(a), leaves(b), strict=True))

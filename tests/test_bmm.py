@@ -25,7 +25,7 @@ import numpy as np
 import optax
 import pytest
 
-from helpers import SHARED_DATA, requires_shared
+from helpers import SHARED_DATA, assert_trees_close, assert_trees_identical, requires_shared, trees_differ
 
 from bezmotion.assets import DEMO_CLIP
 from bezmotion.bezier import BezierLayout, evaluate
@@ -96,30 +96,6 @@ def np_cosine_alpha_bar(T: int, s: float = 0.008, max_beta: float = 0.999) -> np
     return np.cumprod(1.0 - betas)
 
 
-def leaves(tree) -> list[np.ndarray]:
-    """Leaves as NumPy arrays, typed PRNG keys as their raw data."""
-    out = []
-    for x in jax.tree.leaves(tree):
-        if isinstance(x, jax.Array) and jnp.issubdtype(x.dtype, jax.dtypes.prng_key):
-            x = jax.random.key_data(x)
-        out.append(np.asarray(x))
-    return out
-
-
-def assert_trees_identical(a, b) -> None:
-    """Same structure and bit-identical leaves."""
-    assert jax.tree.structure(a) == jax.tree.structure(b)
-    for x, y in zip(leaves(a), leaves(b), strict=True):
-        assert x.dtype == y.dtype and x.shape == y.shape
-        np.testing.assert_array_equal(x, y)
-
-
-def assert_trees_close(a, b, tol: float = 1e-6) -> None:
-    assert jax.tree.structure(a) == jax.tree.structure(b)
-    for x, y in zip(leaves(a), leaves(b), strict=True):
-        np.testing.assert_allclose(x, y, rtol=tol, atol=tol)
-
-
 def without_key_bias(tree):
     """``tree`` with the key part of every attention input bias zeroed. That bias adds the
     same ``q·b_k`` to all of a query's logits, which softmax ignores: its true gradient is
@@ -134,10 +110,6 @@ def without_key_bias(tree):
         return x
 
     return jax.tree_util.tree_map_with_path(strip, tree)
-
-
-def trees_differ(a, b) -> bool:
-    return any(not np.array_equal(x, y) for x, y in zip(leaves(a), leaves(b), strict=True))
 
 
 def recording(fn):

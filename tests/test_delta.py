@@ -18,6 +18,8 @@ import numpy as np
 import pytest
 from flax import nnx
 
+from helpers import assert_trees_identical, leaves, trees_differ
+
 from bezmotion.checkpoint import CheckpointStore
 from bezmotion.data import lafan1
 from bezmotion.delta_train import (
@@ -51,23 +53,6 @@ FORWARD = DeltaConfig(num_blocks=2, dropout=0.2, **SIZES)  # Last / I: the paper
 
 
 # ------------------------------------------------------------------------------ helpers
-
-
-def leaves(tree) -> list[np.ndarray]:
-    """Leaves as NumPy arrays, typed PRNG keys as their raw data."""
-    out = []
-    for x in jax.tree.leaves(tree):
-        if isinstance(x, jax.Array) and jnp.issubdtype(x.dtype, jax.dtypes.prng_key):
-            x = jax.random.key_data(x)
-        out.append(np.asarray(x))
-    return out
-
-
-def assert_trees_identical(a, b) -> None:
-    assert jax.tree.structure(a) == jax.tree.structure(b)
-    for x, y in zip(leaves(a), leaves(b), strict=True):
-        assert x.dtype == y.dtype and x.shape == y.shape
-        np.testing.assert_array_equal(x, y)
 
 
 def with_random_heads(params, seed: int):
@@ -195,7 +180,7 @@ def test_one_set_of_block_weights_serves_both_streams(forward, windows):
                 lambda path, x, b=b, part=part: x + 0.05 if [getattr(p, "key", None) for p in path][:3] == ["blocks", b, part] else x,
                 forward.trained,
             )
-            assert any(not np.array_equal(x, y) for x, y in zip(leaves(bumped), leaves(forward.trained), strict=True))
+            assert trees_differ(bumped, forward.trained)
             out = forward.apply(bumped, *args)
             # The key-frame stream (its reconstruction) and the missing-frame stream both move.
             assert np.abs(out.key_root - base.key_root).max() > 1e-3, (b, part)
