@@ -1,0 +1,28 @@
+"""IK modules: six characteristic-joint targets → a full-body pose of one character.
+
+See :mod:`bezmotion.ik.protocol` for the ``ik_fn(params, targets) -> pose`` protocol.
+"""
+
+from bezmotion.ik.protocol import (
+    Character,
+    IKFn,
+    IKTargets,
+    Pose,
+    pose_fk,
+    pose_from_global,
+    pose_from_motion,
+    pose_local,
+    targets_from_pose,
+)
+
+__all__ = [
+    "Character",
+    "IKFn",
+    "IKTargets",
+    "Pose",
+    "pose_fk",
+    "pose_from_global",
+    "pose_from_motion",
+    "pose_local",
+    "targets_from_pose",
+]

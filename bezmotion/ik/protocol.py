@@ -1,0 +1,160 @@
+"""The IK protocol: six characteristic-joint targets in, a full-body pose of one character out.
+
+BMM (§4.3) factorises motion into skeleton-agnostic curves of the six characteristic
+joints and a skeleton-specific IK module. Every IK module in bezmotion — learned
+(:mod:`bezmotion.ik.protores`), analytic (:mod:`bezmotion.ik.rig`) or your own — is a
+function ``ik_fn(params, targets) -> pose`` for one frame, written for unbatched inputs
+and ``vmap``-ped by the caller. The pipeline never imports a particular IK.
+
+Conventions: positions in centimetres, +Y up, world frame; rotations are global
+(world-from-joint) for targets and local (parent-from-joint) for poses; quaternions
+(w, x, y, z); orientations ortho6D (:func:`~bezmotion.geometry.rotations.rot6d_from_quat`).
+
+A :class:`Pose` stores the *hips* global position and every joint's local rotation.
+Joints above the hips (Bandai-Namco's static ``joint_Root``) are held at identity, so the
+hips' local rotation is its global one; :func:`pose_from_motion` re-expresses any motion
+in this form without changing a single global joint position.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping
+from typing import Any, NamedTuple, Protocol
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS, characteristic_indices
+from bezmotion.geometry.rotations import quat_identity, rot6d_from_quat
+from bezmotion.geometry.skeleton import Skeleton, forward_kinematics, inverse_kinematics
+
+
+class IKTargets(NamedTuple):
+    """What an IK module is asked to reach, for the six characteristic joints.
+
+    Attributes:
+      position: ``(*batch, 6, 3)`` world positions (cm), :data:`CHARACTERISTIC_JOINTS` order.
+      rot6d: ``(*batch, 6, 6)`` global orientations in the *target character's* joint
+        convention (see :func:`bezmotion.pipeline.orientation_offsets` for transfers).
+    """
+
+    position: Float[Array, "*batch 6 3"]
+    rot6d: Float[Array, "*batch 6 6"]
+
+
+class Pose(NamedTuple):
+    """A full-body pose of one character.
+
+    Attributes:
+      root_pos: ``(*batch, 3)`` global position of the hips (cm).
+      quat_local: ``(*batch, joints, 4)`` local rotations of every joint; joints above the
+        hips are identity.
+    """
+
+    root_pos: Float[Array, "*batch 3"]
+    quat_local: Float[Array, "*batch joints 4"]
+
+
+class IKFn(Protocol):
+    """``ik_fn(params, targets) -> pose`` for one frame (unbatched; ``vmap`` it)."""
+
+    def __call__(self, params: Any, targets: IKTargets) -> Pose: ...
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Character:
+    """A skeleton plus where its six characteristic joints are.
+
+    Attributes:
+      skeleton: the joint hierarchy and rest offsets (cm).
+      characteristic: indices of hips, head, hands, feet (:data:`CHARACTERISTIC_JOINTS` order).
+      name: a label for files and reports.
+    """
+
+    skeleton: Skeleton
+    characteristic: tuple[int, ...] = dataclasses.field(metadata=dict(static=True))
+    name: str = dataclasses.field(default="character", metadata=dict(static=True))
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "characteristic", tuple(int(i) for i in self.characteristic))
+        if len(self.characteristic) != len(CHARACTERISTIC_JOINTS):
+            raise ValueError(f"need {len(CHARACTERISTIC_JOINTS)} characteristic joints, got {self.characteristic}")
+        bad = [i for i in self.characteristic if not 0 <= i < self.skeleton.num_joints]
+        if bad:
+            raise ValueError(f"characteristic joint indices {bad} out of range for {self.skeleton.num_joints} joints")
+
+    @classmethod
+    def from_skeleton(cls, skeleton: Skeleton, mapping: str | Mapping[str, str], name: str | None = None) -> Character:
+        """A character from a skeleton and a role → joint-name map (or preset ``"lafan1"``, ``"bandai_namco"``)."""
+        label = name if name is not None else (mapping if isinstance(mapping, str) else "character")
+        return cls(skeleton, characteristic_indices(skeleton.names, mapping), label)
+
+    @property
+    def hips(self) -> int:
+        """Index of the hips, the joint whose global position a :class:`Pose` stores."""
+        return self.characteristic[HIPS]
+
+    @property
+    def num_joints(self) -> int:
+        return self.skeleton.num_joints
+
+    def ancestors_of_hips(self) -> tuple[int, ...]:
+        """Joints strictly above the hips (held at identity in a :class:`Pose`)."""
+        chain, j = [], self.skeleton.parents[self.hips]
+        while j >= 0:
+            chain.append(j)
+            j = self.skeleton.parents[j]
+        return tuple(chain)
+
+    def rest_hips_parent_position(self) -> np.ndarray:
+        """Global position (cm) of the hips' parent when everything above it is at rest (zero for a root hips)."""
+        offsets = np.asarray(self.skeleton.offsets, np.float64)
+        return offsets[list(self.ancestors_of_hips())].sum(axis=0) if self.ancestors_of_hips() else np.zeros(3)
+
+
+def pose_local(character: Character, pose: Pose) -> tuple[Float[Array, "*batch joints 4"], Float[Array, "*batch joints 3"]]:
+    """Local rotations and translations (every joint, as a BVH stores them) of ``pose``."""
+    offsets = jnp.asarray(character.skeleton.offsets, pose.root_pos.dtype)
+    batch = pose.root_pos.shape[:-1]
+    pos_local = jnp.broadcast_to(offsets, (*batch, character.num_joints, 3))
+    hips_local = pose.root_pos - jnp.asarray(character.rest_hips_parent_position(), pose.root_pos.dtype)
+    return pose.quat_local, pos_local.at[..., character.hips, :].set(hips_local)
+
+
+def pose_fk(character: Character, pose: Pose) -> tuple[Float[Array, "*batch joints 4"], Float[Array, "*batch joints 3"]]:
+    """Global ``(quat, pos)`` of every joint of ``pose`` (cm)."""
+    quat_local, pos_local = pose_local(character, pose)
+    return forward_kinematics(character.skeleton.parents, quat_local, pos_local)
+
+
+def pose_from_motion(
+    character: Character, quat_local: Float[Array, "*batch joints 4"], pos_local: Float[Array, "*batch joints 3"]
+) -> Pose:
+    """Re-express motion frames (local rotations and per-joint translations) as :class:`Pose`.
+
+    Global positions are unchanged as long as only the hips and its ancestors are
+    translated away from their rest offsets (true of LaFAN1 and Bandai-Namco).
+    """
+    quat_global, pos_global = forward_kinematics(character.skeleton.parents, quat_local, pos_local)
+    above = list(character.ancestors_of_hips())
+    quat = quat_local.at[..., character.hips, :].set(quat_global[..., character.hips, :])
+    if above:
+        quat = quat.at[..., above, :].set(quat_identity((len(above),), quat.dtype))
+    return Pose(pos_global[..., character.hips, :], quat)
+
+
+def pose_from_global(character: Character, quat_global: Float[Array, "*batch joints 4"], pos_global: Float[Array, "*batch joints 3"]) -> Pose:
+    """A :class:`Pose` from global joint rotations (the hips' position taken from ``pos_global``)."""
+    quat_local, pos_local = inverse_kinematics(character.skeleton.parents, quat_global, pos_global)
+    return pose_from_motion(character, quat_local, pos_local)
+
+
+def targets_from_pose(character: Character, pose: Pose) -> IKTargets:
+    """The six characteristic joints' world positions and orientations in ``pose`` (what IK should reproduce)."""
+    quat_global, pos_global = pose_fk(character, pose)
+    idx = np.asarray(character.characteristic)
+    return IKTargets(pos_global[..., idx, :], rot6d_from_quat(quat_global[..., idx, :]))
