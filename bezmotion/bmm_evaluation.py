@@ -17,7 +17,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -45,6 +45,7 @@ class EvalSet(NamedTuple):
       ctrl_contacts: ``(windows, controls, 2)`` ground-truth contacts at control points.
       dense_pos: ``(windows, frames, 6, 3)`` the mocap.
       ctrl_pos, ctrl_tangent: ``(windows, controls, 6, 3)`` the curves fitted to the mocap.
+      rows: ``(windows,)`` which dataset windows these are.
     """
 
     start: Array
@@ -55,6 +56,7 @@ class EvalSet(NamedTuple):
     dense_pos: Array
     ctrl_pos: Array
     ctrl_tangent: Array
+    rows: np.ndarray
 
 
 def make_eval_set(
@@ -97,6 +99,7 @@ def make_eval_set(
         dense_pos=jnp.asarray(dataset.dense_pos[rows]),
         ctrl_pos=ctrl_pos,
         ctrl_tangent=jnp.asarray(dataset.ctrl_tangent[rows]),
+        rows=rows,
     )
 
 
@@ -178,6 +181,20 @@ def ground_truth_metrics(config: CurveMetricsConfig, eval_set: EvalSet) -> dict[
     }
 
 
+def map_in_chunks(fn: Callable[[Any, Array], Any], inputs: Any, *, key: Array, chunk: int = 256) -> Any:
+    """Run ``fn(inputs_chunk, key)`` over the leading axis of the pytree ``inputs``, ``chunk``
+    rows at a time (the last chunk padded so one compilation serves all), one folded key
+    per chunk; outputs are concatenated back to the full length."""
+    n = jax.tree.leaves(inputs)[0].shape[0]
+    chunk = min(chunk, n)
+    parts = []
+    for i, lo in enumerate(range(0, n, chunk)):
+        idx = np.arange(lo, lo + chunk) % n
+        out = fn(jax.tree.map(lambda a: a[idx], inputs), jax.random.fold_in(key, i))
+        parts.append(jax.tree.map(lambda a: np.asarray(a)[: min(chunk, n - lo)], out))
+    return jax.tree.map(lambda *xs: jnp.asarray(np.concatenate(xs)), *parts)
+
+
 def sample_in_chunks(
     sample: Callable[[Array, Array, Handles, Array], SampledCurves],
     eval_set: EvalSet,
@@ -186,13 +203,5 @@ def sample_in_chunks(
     key: Array,
     chunk: int = 256,
 ) -> SampledCurves:
-    """Run ``sample(start, end, handles, key)`` over the windows ``chunk`` at a time (the
-    last chunk padded so one compilation serves all)."""
-    n = eval_set.start.shape[0]
-    chunk = min(chunk, n)
-    parts = []
-    for i, lo in enumerate(range(0, n, chunk)):
-        idx = np.arange(lo, lo + chunk) % n
-        out = sample(eval_set.start[idx], eval_set.end[idx], jax.tree.map(lambda a: a[idx], handles), jax.random.fold_in(key, i))
-        parts.append(jax.tree.map(lambda a: np.asarray(a)[: min(chunk, n - lo)], out))
-    return jax.tree.map(lambda *xs: jnp.asarray(np.concatenate(xs)), *parts)
+    """Run ``sample(start, end, handles, key)`` over the windows ``chunk`` at a time."""
+    return map_in_chunks(lambda x, k: sample(*x, k), (eval_set.start, eval_set.end, handles), key=key, chunk=chunk)

@@ -246,10 +246,25 @@ def _sample_curves(model, start, end, handles, *, key, steps, guidance, overwrit
     return jax.tree.map(lambda x: x.reshape(*batch, *x.shape[1:]), out)
 
 
-def save_model(directory: str | os.PathLike, model: BezierMotionModel) -> None:
-    """Write a trained BMM (parameters, statistics, config) to ``directory``, atomically."""
+STORAGE_DTYPES = ("float32", "float16", "bfloat16")
+
+
+def cast_floating(tree, dtype):
+    """``tree`` with every floating-point leaf cast to ``dtype`` (other leaves untouched)."""
+    return jax.tree.map(lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x, tree)
+
+
+def save_model(directory: str | os.PathLike, model: BezierMotionModel, *, storage_dtype: str = "float32") -> None:
+    """Write a trained BMM (parameters, statistics, config) to ``directory``, atomically.
+
+    ``storage_dtype="float16"`` halves the file (for bundling); :func:`load_model` casts
+    the parameters back to float32. The statistics are always stored in float32.
+    """
+    if storage_dtype not in STORAGE_DTYPES:
+        raise ValueError(f"storage_dtype must be one of {STORAGE_DTYPES}, got {storage_dtype!r}")
     store = CheckpointStore(directory, max_to_keep=1)
-    store.save(0, {"params": model.params, "stats": model.stats}, {"model": dataclasses.asdict(model.config)})
+    params = cast_floating(model.params, jnp.dtype(storage_dtype))
+    store.save(0, {"params": params, "stats": model.stats}, {"model": dataclasses.asdict(model.config), "storage_dtype": storage_dtype})
     store.close()
 
 
@@ -262,7 +277,8 @@ def load_model(directory: str | os.PathLike) -> BezierMotionModel:
     config = BMMConfig(**saved["model"])
     graphdef, params = init_denoiser(config, key=jax.random.key(0))
     j = config.num_joints
-    like = {"params": params, "stats": FeatureStats(jnp.zeros((j, 12)), jnp.ones((j, 12)))}
+    storage = jnp.dtype(saved.get("storage_dtype", "float32"))
+    like = {"params": cast_floating(params, storage), "stats": FeatureStats(jnp.zeros((j, 12)), jnp.ones((j, 12)))}
     restored = store.restore(like)
     store.close()
-    return BezierMotionModel(restored["params"], restored["stats"], graphdef, config)
+    return BezierMotionModel(cast_floating(restored["params"], jnp.float32), restored["stats"], graphdef, config)

@@ -3,7 +3,9 @@
     python experiments/bmm_lafan1.py --out results/bmm_lafan1.json
 
 Trains on the curve dataset of LaFAN1 subjects 1–4 (31-frame windows, stride 6;
-``--bandai-namco PATH`` adds Bandai-Namco's training clips) with the paper's losses and
+``--bandai-namco PATH`` adds Bandai-Namco's training clips; ``--corpus bandai_namco``
+trains and evaluates on Bandai-Namco alone, its validation takes standing in for
+subject 5) with the paper's losses and
 optimiser, checkpointing into ``--run-dir`` (resumes there when interrupted), then
 evaluates the EMA parameters on subject-5 windows:
 
@@ -51,7 +53,12 @@ from bezmotion.models.bmm_data import FeatureStats
 from bezmotion.sampling import BezierMotionModel, sample_curves, save_model
 from bezmotion.train import CurveArrays, TrainConfig, compile_train_step, data_mesh, init_train_states, make_train_step, run_training
 
-DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lafan1" / "lafan1-subset.zip"
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+DEFAULT_DATA = {
+    "lafan1": SHARED_DATA / "lafan1" / "lafan1-subset.zip",
+    "bandai_namco": SHARED_DATA / "bandai-namco" / "bandai-namco-2.tar.xz",
+}
+CURVE_DATASETS = {"lafan1": lafan1_curve_dataset, "bandai_namco": bandai_namco_curve_dataset}
 STEP_COUNTS = (5, 10, 25, 50, 100)
 CONFIGS = {
     "cpu": BMMConfig.cpu,
@@ -116,10 +123,10 @@ def format_report(results: dict) -> str:
         )
 
     lines = [
-        f"BMM on LaFAN1 ({results['model']['config']} config, {results['model']['prediction']} prediction, "
+        f"BMM on {results['training']['corpus']} ({results['model']['config']} config, {results['model']['prediction']} prediction, "
         f"{results['model']['params']:,} parameters, "
         f"{results['training']['steps']} steps × batch {results['training']['batch_size']}, "
-        f"{len(results['training']['seeds'])} seed(s)); {results['eval']['n_windows']} subject-5 windows; curves before IK.",
+        f"{len(results['training']['seeds'])} seed(s)); {results['eval']['n_windows']} validation windows; curves before IK.",
         "",
         "Table 1 / Table 3 analogue (10 DDIM steps):",
         "",
@@ -144,7 +151,11 @@ def format_report(results: dict) -> str:
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", required=True, help="output JSON (a .md report is written beside it)")
-    parser.add_argument("--data", default=str(DEFAULT_DATA), help="LaFAN1 zip or BVH folder (default ../shared/data/lafan1/lafan1-subset.zip)")
+    parser.add_argument("--corpus", choices=tuple(DEFAULT_DATA), default="lafan1", help="training and evaluation corpus (default lafan1)")
+    parser.add_argument(
+        "--data", default=None,
+        help="the corpus archive or folder (default ../shared/data/lafan1/lafan1-subset.zip or ../shared/data/bandai-namco/bandai-namco-2.tar.xz)",
+    )  # fmt: skip
     parser.add_argument("--bandai-namco", default=None, help="also train on Bandai-Namco's training clips (archive or folder)")
     parser.add_argument("--config", choices=tuple(CONFIGS), default="cpu", help="model size (default cpu; tiny: smoke tests)")
     parser.add_argument(
@@ -166,13 +177,17 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
     suffix = "" if args.prediction == "x0" else f"_{args.prediction}"
-    args.run_dir = args.run_dir or str(cache_dir() / "runs" / f"bmm_lafan1_{args.config}{suffix}")
+    args.run_dir = args.run_dir or str(cache_dir() / "runs" / f"bmm_{args.corpus}_{args.config}{suffix}")
+    args.data = args.data or str(DEFAULT_DATA[args.corpus])
+    if args.bandai_namco and args.corpus != "lafan1":
+        parser.error("--bandai-namco adds Bandai-Namco to LaFAN1 training; with --corpus bandai_namco it is already the corpus")
 
     started = time.perf_counter()
-    train_set = lafan1_curve_dataset(args.data, "train", progress=not args.no_progress)
+    curve_dataset = CURVE_DATASETS[args.corpus]
+    train_set = curve_dataset(args.data, "train", progress=not args.no_progress)
     if args.bandai_namco:
         train_set = concat_datasets([train_set, bandai_namco_curve_dataset(args.bandai_namco, "train", progress=not args.no_progress)])
-    val_set = lafan1_curve_dataset(args.data, "validation", progress=not args.no_progress)
+    val_set = curve_dataset(args.data, "validation", progress=not args.no_progress)
     stats = FeatureStats.from_dataset(train_set)
     model_config = CONFIGS[args.config](prediction=args.prediction)
     train_config = TrainConfig(
@@ -187,7 +202,7 @@ def main(argv: list[str] | None = None) -> dict:
     results: dict = {
         "model": {"config": args.config, **dataclasses.asdict(model_config), "params": None},
         "training": {
-            "steps": args.steps, "batch_size": args.batch_size, "learning_rate": args.learning_rate, "seeds": args.seeds,
+            "corpus": args.corpus, "steps": args.steps, "batch_size": args.batch_size, "learning_rate": args.learning_rate, "seeds": args.seeds,
             "min_snr_gamma": train_config.min_snr_gamma,
             "train_windows": len(train_set), "bandai_namco": bool(args.bandai_namco), "wall_s_this_run": train_s,
             "history": history,

@@ -328,6 +328,23 @@ def _check_split(split: str) -> None:
         raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
 
 
+def lafan1_clips(source: str | os.PathLike, split: str, *, use_cache: bool = True) -> MotionClips:
+    """The clips behind :func:`lafan1_curve_dataset` (its ``clip_index`` indexes these)."""
+    _check_split(split)
+    corpus = _lafan1.load_lafan1(source, use_cache=use_cache)
+    return MotionClips.from_lafan1(corpus, corpus.files_of(_lafan1.TRAIN_SUBJECTS if split == "train" else _lafan1.TEST_SUBJECTS))
+
+
+def bandai_namco_clips(
+    source: str | os.PathLike, split: str, *, use_cache: bool = True, progress: bool = True
+) -> MotionClips:
+    """The clips behind :func:`bandai_namco_curve_dataset` (its ``clip_index`` indexes these)."""
+    _check_split(split)
+    corpus = _bandai_namco.load_bandai_namco(source, use_cache=use_cache, progress=progress)
+    train, validation = _bandai_namco.bandai_namco_split(corpus)
+    return MotionClips.from_bandai_namco(corpus, train if split == "train" else validation)
+
+
 def _corpus_curve_dataset(
     label: str,
     mapping: str,
@@ -373,14 +390,8 @@ def lafan1_curve_dataset(
     (``corpus.files_of(subjects)``). Fitted once per configuration and cached.
     """
     _check_split(split)
-    subjects = _lafan1.TRAIN_SUBJECTS if split == "train" else _lafan1.TEST_SUBJECTS
-
-    def load_clips() -> MotionClips:
-        corpus = _lafan1.load_lafan1(source, use_cache=use_cache)
-        return MotionClips.from_lafan1(corpus, corpus.files_of(subjects))
-
     return _corpus_curve_dataset(
-        "LaFAN1", "lafan1", load_clips, functools.partial(fingerprint, source), split=split, window=window,
+        "LaFAN1", "lafan1", functools.partial(lafan1_clips, source, split, use_cache=use_cache), functools.partial(fingerprint, source), split=split, window=window,
         stride=stride, offset=offset, pin_positions=pin_positions, use_cache=use_cache, progress=progress,
     )  # fmt: skip
 
@@ -403,14 +414,9 @@ def bandai_namco_curve_dataset(
     Clips shorter than ``window`` contribute no windows.
     """
     _check_split(split)
-
-    def load_clips() -> MotionClips:
-        corpus = _bandai_namco.load_bandai_namco(source, use_cache=use_cache, progress=progress)
-        train, validation = _bandai_namco.bandai_namco_split(corpus)
-        return MotionClips.from_bandai_namco(corpus, train if split == "train" else validation)
-
     return _corpus_curve_dataset(
-        "Bandai-Namco", "bandai_namco", load_clips, functools.partial(_bandai_namco.source_fingerprint, source),
+        "Bandai-Namco", "bandai_namco",
+        functools.partial(bandai_namco_clips, source, split, use_cache=use_cache, progress=progress), functools.partial(_bandai_namco.source_fingerprint, source),
         split=split, window=window, stride=stride, offset=offset, pin_positions=pin_positions, use_cache=use_cache,
         progress=progress,
     )  # fmt: skip
@@ -420,8 +426,10 @@ __all__ = [
     "CHARACTERISTIC_JOINTS",
     "CurveDataset",
     "MotionClips",
+    "bandai_namco_clips",
     "bandai_namco_curve_dataset",
     "build_curve_dataset",
     "characteristic_windows",
+    "lafan1_clips",
     "lafan1_curve_dataset",
 ]

@@ -27,6 +27,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from bezmotion.data.bvh import BvhMotion
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS, characteristic_indices
 from bezmotion.geometry.rotations import quat_identity, rot6d_from_quat
 from bezmotion.geometry.skeleton import Skeleton, forward_kinematics, inverse_kinematics
@@ -73,11 +74,14 @@ class Character:
       skeleton: the joint hierarchy and rest offsets (cm).
       characteristic: indices of hips, head, hands, feet (:data:`CHARACTERISTIC_JOINTS` order).
       name: a label for files and reports.
+      end_sites: ``(parent joint, (x, y, z) offset in cm)`` of the skeleton's End Sites,
+        kept so that exported BVH files show the head, hand and toe lengths.
     """
 
     skeleton: Skeleton
     characteristic: tuple[int, ...] = dataclasses.field(metadata=dict(static=True))
     name: str = dataclasses.field(default="character", metadata=dict(static=True))
+    end_sites: tuple[tuple[int, tuple[float, float, float]], ...] = dataclasses.field(default=(), metadata=dict(static=True))
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "characteristic", tuple(int(i) for i in self.characteristic))
@@ -92,6 +96,12 @@ class Character:
         """A character from a skeleton and a role → joint-name map (or preset ``"lafan1"``, ``"bandai_namco"``)."""
         label = name if name is not None else (mapping if isinstance(mapping, str) else "character")
         return cls(skeleton, characteristic_indices(skeleton.names, mapping), label)
+
+    @classmethod
+    def from_bvh(cls, motion: BvhMotion, mapping: str | Mapping[str, str], name: str | None = None) -> Character:
+        """A character from a BVH motion's skeleton (its End Sites kept for export)."""
+        character = cls.from_skeleton(motion.skeleton, mapping, name)
+        return dataclasses.replace(character, end_sites=tuple(motion.end_sites))
 
     @property
     def hips(self) -> int:
@@ -110,10 +120,11 @@ class Character:
             j = self.skeleton.parents[j]
         return tuple(chain)
 
-    def rest_hips_parent_position(self) -> np.ndarray:
+    def rest_hips_parent_position(self) -> Float[Array, "3"]:
         """Global position (cm) of the hips' parent when everything above it is at rest (zero for a root hips)."""
-        offsets = np.asarray(self.skeleton.offsets, np.float64)
-        return offsets[list(self.ancestors_of_hips())].sum(axis=0) if self.ancestors_of_hips() else np.zeros(3)
+        offsets = jnp.asarray(self.skeleton.offsets)
+        above = list(self.ancestors_of_hips())
+        return offsets[np.asarray(above)].sum(axis=0) if above else jnp.zeros(3, offsets.dtype)
 
 
 def pose_local(character: Character, pose: Pose) -> tuple[Float[Array, "*batch joints 4"], Float[Array, "*batch joints 3"]]:

@@ -1,0 +1,420 @@
+"""A traditional IK rig that needs no data (BMM Appendix D.4): FABRIK spine, two-bone limbs.
+
+The rig turns :class:`~bezmotion.ik.protocol.IKTargets` into a full-body
+:class:`~bezmotion.ik.protocol.Pose` with geometry alone, so it drives any humanoid
+skeleton whose chains are named in a :class:`RigSpec`:
+
+1. **Hips** take the target position and global orientation.
+2. **Spine** (hips → head): the hips-to-head rotation the targets ask for is shared
+   evenly by the spine joints (this sets the twist and a natural curve), FABRIK then bends
+   the chain so the head joint reaches its target as far as the bone lengths allow, and
+   each spine joint takes the smallest swing from its first guess onto the bent chain.
+   The head then takes its target orientation.
+3. **Arms and legs**: analytic two-bone IK (law of cosines) reaches the hand / ankle
+   exactly when it can and the nearest reachable point along the same direction when it
+   cannot. The bend plane comes from a pole hint built from bone directions in world
+   space (never from assumed joint axes, so it works for LaFAN1's zero-rotation rest pose
+   and for Bandai-Namco's alike): knees towards the toes and the pelvis' forward, elbows
+   behind and below the chest. The hand / foot then takes its target orientation; the
+   elbow / knee rotation is a pure swing in the bend plane and the wrist / ankle rotation
+   has no twist.
+4. Every other joint (clavicles, toes, joints above the hips) keeps its rest rotation.
+
+Everything is one frame, fixed iteration counts and no data-dependent Python control
+flow: ``jax.vmap(rig_ik, in_axes=(None, 0))`` solves a batch of frames, and divisions,
+square roots and normalisations use the double-``where`` pattern so gradients are finite
+at full extension, at zero target distance and at collinear pole hints.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Mapping, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
+from bezmotion.geometry.rotations import (
+    normalize,
+    quat_between,
+    quat_conjugate,
+    quat_from_rot6d,
+    quat_identity,
+    quat_mul,
+    quat_rotate,
+    safe_norm,
+    slerp,
+)
+from bezmotion.geometry.skeleton import Skeleton
+from bezmotion.ik.protocol import Character, IKTargets, Pose
+
+_HEAD, _LEFT_HAND, _RIGHT_HAND, _LEFT_FOOT, _RIGHT_FOOT = (
+    CHARACTERISTIC_JOINTS.index(role) for role in ("head", "left_hand", "right_hand", "left_foot", "right_foot")
+)
+_LIMBS: tuple[str, ...] = ("left_arm", "right_arm", "left_leg", "right_leg")
+_LIMB_TARGET: tuple[int, ...] = (_LEFT_HAND, _RIGHT_HAND, _LEFT_FOOT, _RIGHT_FOOT)
+
+# Pole hints, sums of unit vectors in world space. Knees: towards the toes (the foot's
+# bone carries the leg's rotation about its axis) and the pelvis' forward (which keeps
+# the hint defined when the toes point along the leg: tiptoe, a straight kick). Elbows:
+# behind the chest, and a little down and out.
+_KNEE_FORWARD_WEIGHT = 1.0
+_ELBOW_DOWN_WEIGHT = 0.5
+_ELBOW_OUT_WEIGHT = 0.5
+
+# Below this (cm, or cm² for squared lengths) a length counts as zero.
+_EPS = 1e-6
+
+
+# --------------------------------------------------------------------------------- spec
+
+
+@dataclasses.dataclass(frozen=True)
+class RigSpec:
+    """Which joints of a skeleton form the rig's chains (names, so one spec fits many files).
+
+    Attributes:
+      spine: the chain from the hips to the head, parent to child (at least one joint
+        between them), e.g. ``("Hips", "Spine", "Spine1", "Spine2", "Neck", "Head")``.
+      left_arm, right_arm: ``(upper arm, forearm, hand)``; the joints between the spine
+        and the upper arm (shoulders / clavicles) stay at rest.
+      left_leg, right_leg: ``(upper leg, lower leg, foot)`` — the foot is the ankle joint.
+    """
+
+    spine: tuple[str, ...]
+    left_arm: tuple[str, str, str]
+    right_arm: tuple[str, str, str]
+    left_leg: tuple[str, str, str]
+    right_leg: tuple[str, str, str]
+
+    def __post_init__(self) -> None:
+        for field in ("spine", *_LIMBS):
+            value = getattr(self, field)
+            if isinstance(value, str) or not isinstance(value, Sequence):
+                raise ValueError(f"RigSpec.{field} must be a sequence of joint names, got {value!r}")
+            names = tuple(value)
+            bad = [n for n in names if not isinstance(n, str) or not n]
+            if bad:
+                raise ValueError(f"RigSpec.{field} has invalid joint names {bad}")
+            if field == "spine" and len(names) < 3:
+                raise ValueError(f"RigSpec.spine needs the hips, at least one spine joint and the head, got {names}")
+            if field != "spine" and len(names) != 3:
+                raise ValueError(f"RigSpec.{field} needs exactly 3 joints (root, middle, end), got {names}")
+            object.__setattr__(self, field, names)
+        seen: dict[str, str] = {}
+        for field in ("spine", *_LIMBS):
+            for name in getattr(self, field):
+                if name in seen:
+                    raise ValueError(f"joint {name!r} is in both RigSpec.{seen[name]} and RigSpec.{field}")
+                seen[name] = field
+
+    @classmethod
+    def preset(cls, name: str) -> RigSpec:
+        """The spec of a bundled skeleton: ``"lafan1"`` or ``"bandai_namco"``."""
+        if name not in RIG_PRESETS:
+            raise ValueError(f"unknown rig preset {name!r}; known: {sorted(RIG_PRESETS)}, or pass a dict")
+        return RIG_PRESETS[name]
+
+    @classmethod
+    def from_dict(cls, mapping: Mapping[str, Sequence[str]]) -> RigSpec:
+        """A spec from ``{"spine": [...], "left_arm": [...], "right_arm": [...], "left_leg": [...], "right_leg": [...]}``."""
+        fields = ("spine", *_LIMBS)
+        missing = [f for f in fields if f not in mapping]
+        unknown = [k for k in mapping if k not in fields]
+        if missing or unknown:
+            raise ValueError(f"a rig spec needs exactly the keys {list(fields)}; missing {missing}, unknown {unknown}")
+        return cls(**{f: tuple(mapping[f]) for f in fields})
+
+
+RIG_PRESETS: Mapping[str, RigSpec] = {
+    "lafan1": RigSpec(
+        spine=("Hips", "Spine", "Spine1", "Spine2", "Neck", "Head"),
+        left_arm=("LeftArm", "LeftForeArm", "LeftHand"),
+        right_arm=("RightArm", "RightForeArm", "RightHand"),
+        left_leg=("LeftUpLeg", "LeftLeg", "LeftFoot"),
+        right_leg=("RightUpLeg", "RightLeg", "RightFoot"),
+    ),
+    "bandai_namco": RigSpec(
+        spine=("Hips", "Spine", "Chest", "Neck", "Head"),
+        left_arm=("UpperArm_L", "LowerArm_L", "Hand_L"),
+        right_arm=("UpperArm_R", "LowerArm_R", "Hand_R"),
+        left_leg=("UpperLeg_L", "LowerLeg_L", "Foot_L"),
+        right_leg=("UpperLeg_R", "LowerLeg_R", "Foot_R"),
+    ),
+}
+"""Rig specs of the bundled skeletons (LaFAN1 BVH and Bandai-Namco BVH joint names)."""
+
+
+# ---------------------------------------------------------------------------------- rig
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Rig:
+    """Parameters of :func:`rig_ik`: a skeleton's rest offsets and its chains (a pytree).
+
+    Build it with :func:`make_rig`. Only ``skeleton.offsets`` is an array leaf; the
+    joint indices are static, so a rig passes straight into ``jit``/``vmap``/``grad``.
+
+    Attributes:
+      skeleton: the character's skeleton (rest offsets in cm).
+      spine: joint indices from the hips to the head.
+      limbs: ``(root, middle, end)`` joint indices of the left arm, right arm, left leg,
+        right leg.
+      limb_bases: per limb, ``(k, path)``: the limb hangs off ``spine[k]`` through the
+        joints ``path`` (the clavicle, …, the limb root), which stay at rest.
+      toes: per leg, a child joint of the foot whose bone gives the toes' direction, or
+        ``-1`` when the foot has none.
+      spine_iterations: FABRIK iterations for the spine.
+    """
+
+    skeleton: Skeleton
+    spine: tuple[int, ...] = dataclasses.field(metadata=dict(static=True))
+    limbs: tuple[tuple[int, int, int], ...] = dataclasses.field(metadata=dict(static=True))
+    limb_bases: tuple[tuple[int, tuple[int, ...]], ...] = dataclasses.field(metadata=dict(static=True))
+    toes: tuple[int, int] = dataclasses.field(metadata=dict(static=True))
+    spine_iterations: int = dataclasses.field(default=8, metadata=dict(static=True))
+
+    @property
+    def num_joints(self) -> int:
+        return self.skeleton.num_joints
+
+
+def _joint(skeleton: Skeleton, name: str, where: str) -> int:
+    if name not in skeleton.names:
+        raise ValueError(f"unknown joint {name!r} in RigSpec.{where}; this skeleton has {list(skeleton.names)}")
+    return skeleton.names.index(name)
+
+
+def _check_chain(skeleton: Skeleton, chain: Sequence[int], where: str) -> None:
+    for parent, child in zip(chain[:-1], chain[1:]):
+        if skeleton.parents[child] != parent:
+            actual = skeleton.parents[child]
+            actual_name = skeleton.names[actual] if actual >= 0 else None
+            raise ValueError(
+                f"RigSpec.{where}: joint {skeleton.names[child]!r} is a child of {actual_name!r}, "
+                f"not of {skeleton.names[parent]!r}; a chain lists parent → child joints"
+            )
+
+
+def make_rig(character: Character, spec: RigSpec | str | Mapping[str, Sequence[str]], *, spine_iterations: int = 8) -> Rig:
+    """The :class:`Rig` of a character, checking the spec against its skeleton.
+
+    Args:
+      character: the skeleton and its characteristic joints.
+      spec: a :class:`RigSpec`, a preset name (``"lafan1"``, ``"bandai_namco"``) or a dict
+        for :meth:`RigSpec.from_dict`.
+      spine_iterations: FABRIK iterations for the spine (each costs two passes over it).
+    Raises:
+      ValueError: an unknown joint name (the message names it), a chain that is not
+        parent → child, chain ends that are not the character's characteristic joints,
+        or a limb that does not hang off the spine.
+    """
+    if isinstance(spec, str):
+        spec = RigSpec.preset(spec)
+    elif not isinstance(spec, RigSpec):
+        spec = RigSpec.from_dict(spec)
+    if not (isinstance(spine_iterations, int) and spine_iterations >= 0):
+        raise ValueError(f"spine_iterations must be a non-negative int, got {spine_iterations!r}")
+    skeleton = character.skeleton
+    spine = tuple(_joint(skeleton, n, "spine") for n in spec.spine)
+    _check_chain(skeleton, spine, "spine")
+    limbs = tuple(tuple(_joint(skeleton, n, field) for n in getattr(spec, field)) for field in _LIMBS)
+    for field, limb in zip(_LIMBS, limbs):
+        _check_chain(skeleton, limb, field)
+
+    def expect(joint: int, role: str, where: str) -> None:
+        wanted = character.characteristic[CHARACTERISTIC_JOINTS.index(role)]
+        if joint != wanted:
+            raise ValueError(
+                f"RigSpec.{where} ends at {skeleton.names[joint]!r} but the character's {role} is "
+                f"{skeleton.names[wanted]!r}"
+            )
+
+    expect(spine[0], "hips", "spine")
+    expect(spine[-1], "head", "spine")
+    for field, limb, role in zip(_LIMBS, limbs, ("left_hand", "right_hand", "left_foot", "right_foot")):
+        expect(limb[-1], role, field)
+
+    limb_bases = []
+    for field, limb in zip(_LIMBS, limbs):
+        path, j = [limb[0]], skeleton.parents[limb[0]]
+        while j >= 0 and j not in spine:
+            path.append(j)
+            j = skeleton.parents[j]
+        if j < 0:
+            raise ValueError(f"RigSpec.{field}: {skeleton.names[limb[0]]!r} does not hang off the spine chain {spec.spine}")
+        if spine.index(j) == len(spine) - 1:
+            raise ValueError(f"RigSpec.{field}: {skeleton.names[limb[0]]!r} hangs off the head; limbs must hang off the hips or the spine")
+        limb_bases.append((spine.index(j), tuple(reversed(path))))
+    toes = tuple(next(iter(skeleton.children(limb[-1])), -1) for limb in limbs[2:])
+    return Rig(skeleton, spine, limbs, tuple(limb_bases), toes, spine_iterations)  # type: ignore[arg-type]
+
+
+# ------------------------------------------------------------------------------ solving
+
+
+def _where_normalize(v: Float[Array, "3"], fallback: Float[Array, "3"]) -> Float[Array, "3"]:
+    """``v / |v|``, or ``fallback`` when ``v`` (almost) vanishes; finite gradients either way."""
+    norm = safe_norm(v, keepdims=True)
+    ok = norm > _EPS
+    return jnp.where(ok, v / jnp.where(ok, norm, 1.0), fallback)
+
+
+def _perpendicular(v: Float[Array, "3"], axis: Float[Array, "3"]) -> Float[Array, "3"]:
+    """The part of ``v`` perpendicular to the unit vector ``axis``."""
+    return v - jnp.dot(v, axis) * axis
+
+
+def _any_perpendicular(axis: Float[Array, "3"]) -> Float[Array, "3"]:
+    """Some unit vector perpendicular to the unit vector ``axis`` (the last-resort bend direction)."""
+    basis = jnp.eye(3, dtype=axis.dtype)[jnp.argmin(jnp.abs(axis))]
+    return normalize(jnp.cross(axis, basis))
+
+
+def _fabrik(points: Float[Array, "n 3"], lengths: Float[Array, "n-1"], target: Float[Array, "3"], iterations: int) -> Float[Array, "n 3"]:
+    """FABRIK (Aristidou & Lasenby 2011) with the first point pinned; a fixed number of iterations."""
+    count = points.shape[0]
+
+    def iteration(_, points):
+        # Backward from the target, then forward from the pinned base; each step keeps
+        # one bone's length exactly.
+        base = points[0]
+        points = points.at[-1].set(target)
+        for k in range(count - 2, -1, -1):
+            points = points.at[k].set(points[k + 1] + lengths[k] * normalize(points[k] - points[k + 1]))
+        points = points.at[0].set(base)
+        for k in range(count - 1):
+            points = points.at[k + 1].set(points[k] + lengths[k] * normalize(points[k + 1] - points[k]))
+        return points
+
+    return jax.lax.fori_loop(0, iterations, iteration, points)
+
+
+def _two_bone(
+    p_root: Float[Array, "3"],
+    bone_upper: Float[Array, "3"],
+    bone_lower: Float[Array, "3"],
+    target: Float[Array, "3"],
+    quat_end: Float[Array, "4"],
+    hint: Float[Array, "3"],
+) -> tuple[Float[Array, "4"], Float[Array, "4"]]:
+    """Global rotations of the upper and lower bone of a two-bone limb.
+
+    Args:
+      p_root: world position of the limb root (shoulder / hip joint), cm.
+      bone_upper: rest offset of the middle joint in the root's frame (cm).
+      bone_lower: rest offset of the end joint in the middle joint's frame (cm).
+      target: where the end joint should be (cm); clamped to the reachable shell.
+      quat_end: the end joint's target global rotation (sets the limb's twist).
+      hint: world direction towards which the middle joint should bend.
+    Returns:
+      ``(quat_upper, quat_lower)`` global rotations of the root and middle joints.
+    """
+    len_upper = safe_norm(bone_upper)
+    len_lower = safe_norm(bone_lower)
+    to_target = target - p_root
+    dist = safe_norm(to_target)
+    # The limb's straight direction under the end rotation: the reach direction when the
+    # target sits on the root (any direction would do; this one is continuous in quat_end).
+    rest_dir = normalize(quat_rotate(quat_end, bone_upper + bone_lower))
+    axis = _where_normalize(to_target, _where_normalize(rest_dir, jnp.asarray([0.0, 1.0, 0.0], p_root.dtype)))
+    reach = jnp.clip(dist, jnp.abs(len_upper - len_lower), len_upper + len_lower)
+    end = p_root + reach * axis
+    # Law of cosines for the angle at the root between the reach axis and the upper bone.
+    num = len_upper * len_upper + reach * reach - len_lower * len_lower
+    den = 2.0 * len_upper * reach
+    ok = den > _EPS
+    cos_root = jnp.clip(jnp.where(ok, num / jnp.where(ok, den, 1.0), 0.0), -1.0, 1.0)
+    sin_sq = 1.0 - cos_root * cos_root
+    bent = sin_sq > _EPS * _EPS
+    sin_root = jnp.where(bent, jnp.sqrt(jnp.where(bent, sin_sq, 1.0)), 0.0)
+    bend = _where_normalize(_perpendicular(hint, axis), _any_perpendicular(axis))
+    p_mid = p_root + len_upper * (cos_root * axis + sin_root * bend)
+    # Lower bone: the least swing from the end rotation (so the wrist / ankle does not
+    # twist); upper bone: the least swing from the lower one (a hinge in the bend plane).
+    quat_lower = quat_mul(quat_between(quat_rotate(quat_end, bone_lower), end - p_mid), quat_end)
+    quat_upper = quat_mul(quat_between(quat_rotate(quat_lower, bone_upper), p_mid - p_root), quat_lower)
+    return quat_upper, quat_lower
+
+
+def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
+    """Solve one frame: six characteristic-joint targets → a full-body pose.
+
+    Satisfies :class:`~bezmotion.ik.protocol.IKFn`; ``jax.vmap(rig_ik, in_axes=(None, 0))``
+    solves many frames.
+
+    Args:
+      rig: from :func:`make_rig`.
+      targets: ``position (6, 3)`` cm and ``rot6d (6, 6)`` global orientations, in
+        :data:`~bezmotion.data.characteristic.CHARACTERISTIC_JOINTS` order.
+    Returns:
+      The pose: hips at the target position; hips, head, hands and feet at their target
+      orientations; hands and feet at their targets when reachable (else as close as the
+      limb reaches along the same direction); the head as close as the spine reaches.
+    """
+    dtype = targets.position.dtype
+    offsets = jnp.asarray(rig.skeleton.offsets, dtype)
+    quat_target = quat_from_rot6d(targets.rot6d)
+    pos_target = targets.position
+    spine = rig.spine
+    n = len(spine) - 1  # spine[n] is the head; spine[1:n] bend the chain
+
+    quat_hips = quat_target[0]
+    # First guess: every joint from spine[1] to the head takes the same share of the
+    # hips-to-head rotation, so the twist spreads along the spine.
+    step = slerp(quat_identity((), dtype), quat_mul(quat_conjugate(quat_hips), quat_target[_HEAD]), 1.0 / n)
+    guess = [quat_hips]
+    for _ in range(1, n):
+        guess.append(quat_mul(guess[-1], step))
+    points = [pos_target[0] + quat_rotate(quat_hips, offsets[spine[1]])]
+    for k in range(1, n):
+        points.append(points[-1] + quat_rotate(guess[k], offsets[spine[k + 1]]))
+    lengths = safe_norm(offsets[np.asarray(spine[2:])])
+    points = _fabrik(jnp.stack(points), lengths, pos_target[_HEAD], rig.spine_iterations)
+    quat_spine = [quat_hips]
+    pos_spine = [pos_target[0], points[0]]
+    for k in range(1, n):
+        bone = points[k] - points[k - 1]
+        quat_spine.append(quat_mul(quat_between(quat_rotate(guess[k], offsets[spine[k + 1]]), bone), guess[k]))
+        pos_spine.append(pos_spine[-1] + quat_rotate(quat_spine[k], offsets[spine[k + 1]]))
+    quat_spine.append(quat_target[_HEAD])
+
+    # Limb roots hang off the posed spine through joints held at rest.
+    roots = []
+    for k, path in rig.limb_bases:
+        roots.append(pos_spine[k] + quat_rotate(quat_spine[k], offsets[np.asarray(path)].sum(axis=0)))
+    up = normalize(pos_target[_HEAD] - pos_target[0])
+    pelvis_left = _where_normalize(roots[2] - roots[3], quat_rotate(quat_hips, jnp.asarray([0.0, 0.0, 1.0], dtype)))
+    chest_left = _where_normalize(roots[0] - roots[1], pelvis_left)
+    pelvis_forward = normalize(jnp.cross(pelvis_left, up))
+    chest_forward = normalize(jnp.cross(chest_left, up))
+
+    hints = [-chest_forward - _ELBOW_DOWN_WEIGHT * up + side * _ELBOW_OUT_WEIGHT * chest_left for side in (1.0, -1.0)]
+    for leg, toe in zip(rig.limbs[2:], rig.toes):
+        toe_dir = normalize(quat_rotate(quat_target[_LIMB_TARGET[len(hints)]], offsets[toe])) if toe >= 0 else 0.0
+        hints.append(toe_dir + _KNEE_FORWARD_WEIGHT * pelvis_forward)
+
+    quat_global = {spine[k]: quat_spine[k] for k in range(n + 1)}
+    parent_global = {}
+    for limb, (k, path), root, hint, t in zip(rig.limbs, rig.limb_bases, roots, hints, _LIMB_TARGET):
+        upper, lower = _two_bone(root, offsets[limb[1]], offsets[limb[2]], pos_target[t], quat_target[t], hint)
+        quat_global.update({limb[0]: upper, limb[1]: lower, limb[2]: quat_target[t]})
+        parent_global[limb[0]] = quat_spine[k]
+
+    parents = rig.skeleton.parents
+    quat_local = quat_identity((rig.num_joints,), dtype)
+    for j, q in quat_global.items():
+        p = parents[j]
+        if j == spine[0]:
+            parent_q = None
+        elif p in quat_global:
+            parent_q = quat_global[p]
+        else:  # the limb root's parent is a rest joint (a clavicle) carried by the spine
+            parent_q = parent_global[j]
+        local = q if parent_q is None else quat_mul(quat_conjugate(parent_q), q)
+        quat_local = quat_local.at[j].set(local)
+    return Pose(pos_target[0], quat_local)

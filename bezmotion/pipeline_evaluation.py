@@ -1,0 +1,135 @@
+"""Metrics of the full pipeline, after IK, on a corpus's validation windows (BMM Table 1).
+
+The evaluation windows are those of :func:`bezmotion.bmm_evaluation.make_eval_set` (same
+handles, same OOD noise); here each window also carries the ground-truth full-body poses
+of the target character, so the start and end poses are real and MPJPE can be measured.
+Everything is in the windows' aligned frame (hips start at the origin in XZ).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from bezmotion.bmm_evaluation import EvalSet, map_in_chunks
+from bezmotion.data.curves import CurveDataset, MotionClips
+from bezmotion.ik.protocol import Character, IKFn, Pose, pose_fk, pose_from_motion, targets_from_pose
+from bezmotion.metrics import foot_skating_ratio
+from bezmotion.pipeline import Transfer, _inbetween, full_body_handles_error
+from bezmotion.sampling import BezierMotionModel, Handles
+
+
+def window_poses(character: Character, clips: MotionClips, dataset: CurveDataset, rows: np.ndarray) -> Pose:
+    """Ground-truth poses ``(windows, frames, …)`` of dataset windows ``rows``, aligned like
+    the dataset (the start hips at the origin in XZ).
+
+    Args:
+      clips: the clips ``dataset`` was built from (e.g. :func:`~bezmotion.data.curves.lafan1_clips`).
+    """
+    frames = dataset.layout.num_frames
+    first = clips.starts[dataset.clip_index[rows]] + dataset.start_frame[rows]
+    index = first[:, None] + np.arange(frames)
+    pose = pose_from_motion(
+        character, jnp.asarray(clips.quat_local[index], jnp.float32), jnp.asarray(clips.pos_local[index], jnp.float32)
+    )
+    shift = pose.root_pos[:, :1] * jnp.asarray([1.0, 0.0, 1.0], jnp.float32)
+    return pose._replace(root_pos=pose.root_pos - shift)
+
+
+@dataclasses.dataclass(frozen=True)
+class PipelineMetricsConfig:
+    """Settings of the after-IK metrics: the curves' stride, frame rate and the character's
+    ankle height with the foot flat (cm; :func:`~bezmotion.bmm_evaluation.floor_height_from`)."""
+
+    stride: int
+    fps: float
+    floor_height: float
+
+
+def pose_metrics(
+    config: PipelineMetricsConfig, character: Character, pose: Pose, truth: Pose, handles: Handles
+) -> dict[str, float]:
+    """Handles error (full skeleton), foot-skating ratio and MPJPE of ``pose`` ``(windows, frames, …)``."""
+    _, pos = pose_fk(character, pose)
+    _, true_pos = pose_fk(character, truth)
+    feet = np.asarray(character.characteristic[4:6])
+    return {
+        "handles_error_cm": float(full_body_handles_error(character, pose, handles, config.stride)),
+        "foot_skating_ratio": float(foot_skating_ratio(pos[..., feet, :], config.fps, floor_height=config.floor_height)),
+        "mpjpe_cm": float(jnp.mean(jnp.linalg.norm(pos - true_pos, axis=-1))),
+    }
+
+
+def ground_truth_pose_metrics(
+    config: PipelineMetricsConfig, character: Character, truth: Pose, ik_fn: IKFn | None = None, ik_params: Any = None
+) -> dict[str, float]:
+    """The mocap's own foot skating; with an IK, also the IK's floor: MPJPE of IK applied to
+    the true six-joint trajectories (positions and orientations) of every frame."""
+    _, pos = pose_fk(character, truth)
+    feet = np.asarray(character.characteristic[4:6])
+    out = {"foot_skating_ratio": float(foot_skating_ratio(pos[..., feet, :], config.fps, floor_height=config.floor_height))}
+    if ik_fn is not None:
+        ik = jax.jit(jax.vmap(jax.vmap(ik_fn, in_axes=(None, 0)), in_axes=(None, 0)))
+        recon = map_in_chunks(lambda t, _: ik(ik_params, t), targets_from_pose(character, truth), key=jax.random.key(0))
+        _, rpos = pose_fk(character, recon)
+        out["ik_of_mocap_mpjpe_cm"] = float(jnp.mean(jnp.linalg.norm(rpos - pos, axis=-1)))
+        out["ik_of_mocap_foot_skating_ratio"] = float(
+            foot_skating_ratio(rpos[..., feet, :], config.fps, floor_height=config.floor_height)
+        )
+    return out
+
+
+def run_pipeline(
+    bmm: BezierMotionModel,
+    ik_fn: IKFn,
+    ik_params: Any,
+    character: Character,
+    truth: Pose,
+    handles: Handles,
+    *,
+    key: jax.Array,
+    transfer: Transfer | None = None,
+    steps: int = 10,
+    foot_lock: bool = False,
+    chunk: int = 128,
+) -> Pose:
+    """In-between every window (start and end from ``truth``) through ``handles``; poses ``(windows, frames, …)``."""
+    transfer = Transfer.identity() if transfer is None else transfer
+    one = functools.partial(_inbetween, ik_fn=ik_fn, steps=steps, guidance=1.0, foot_lock=foot_lock, keep_keyframes=True)
+
+    @jax.jit
+    def batch(inputs, key):
+        start, end, h = inputs
+        keys = jax.random.split(key, start.root_pos.shape[0])
+        run = lambda s, e, hh, k: one(bmm, ik_params, character, s, e, hh, transfer, k).pose  # noqa: E731
+        return jax.vmap(run)(start, end, h, keys)
+
+    first = jax.tree.map(lambda x: x[:, 0], truth)
+    last = jax.tree.map(lambda x: x[:, -1], truth)
+    return map_in_chunks(batch, (first, last, handles), key=key, chunk=chunk)
+
+
+def evaluate_pipeline(
+    config: PipelineMetricsConfig,
+    bmm: BezierMotionModel,
+    ik_fn: IKFn,
+    ik_params: Any,
+    character: Character,
+    truth: Pose,
+    eval_set: EvalSet,
+    *,
+    key: jax.Array,
+    transfer: Transfer | None = None,
+    foot_lock: bool = False,
+) -> dict[str, dict[str, float]]:
+    """After-IK metrics in distribution and OOD (handles with ±16 cm noise), 10 DDIM steps."""
+    out = {}
+    for name, handles in (("id", eval_set.handles), ("ood", eval_set.handles_ood)):
+        pose = run_pipeline(bmm, ik_fn, ik_params, character, truth, handles, key=key, transfer=transfer, foot_lock=foot_lock)
+        out[name] = pose_metrics(config, character, pose, truth, handles)
+    return out

@@ -1,0 +1,59 @@
+"""Measure the character profiles used to transfer BMM curves between skeletons (BMM §5.2).
+
+    python experiments/character_profiles.py --out-dir bezmotion/assets/profiles
+
+For LaFAN1 and Bandai-Namco: the height measure (bone lengths hips→head + hips→foot) and
+each characteristic joint's mean global orientation relative to the facing, over every
+10th training frame. Writes ``<corpus>.json`` (:class:`bezmotion.pipeline.CharacterProfile`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import jax.numpy as jnp
+
+from bezmotion._io import atomic_write_text
+from bezmotion.data.curves import bandai_namco_clips, lafan1_clips
+from bezmotion.geometry.skeleton import Skeleton
+from bezmotion.ik.protocol import Character, pose_from_motion
+from bezmotion.pipeline import CharacterProfile
+
+SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+SOURCES = {
+    "lafan1": (lafan1_clips, SHARED_DATA / "lafan1" / "lafan1-subset.zip"),
+    "bandai_namco": (bandai_namco_clips, SHARED_DATA / "bandai-namco" / "bandai-namco-2.tar.xz"),
+}
+
+
+def corpus_profile(corpus: str, source: Path, every: int = 10) -> tuple[Character, CharacterProfile]:
+    """The character (first clip's offsets) and profile of ``corpus``'s training clips."""
+    load, _ = SOURCES[corpus]
+    clips = load(source, "train")
+    offsets = clips.pos_local[0].copy()
+    skeleton = Skeleton.from_parents(clips.parents, clips.joint_names, offsets)
+    character = Character.from_skeleton(skeleton, corpus)
+    frames = slice(None, None, every)
+    poses = pose_from_motion(
+        character, jnp.asarray(clips.quat_local[frames], jnp.float32), jnp.asarray(clips.pos_local[frames], jnp.float32)
+    )
+    return character, CharacterProfile.from_poses(character, poses)
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out-dir", required=True)
+    parser.add_argument("--corpora", nargs="+", choices=tuple(SOURCES), default=list(SOURCES))
+    args = parser.parse_args(argv)
+    out = Path(args.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    for corpus in args.corpora:
+        _, profile = corpus_profile(corpus, SOURCES[corpus][1])
+        atomic_write_text(out / f"{corpus}.json", json.dumps({"corpus": corpus, **profile.to_json()}, indent=2) + "\n")
+        print(f"{corpus}: height {profile.height:.2f} cm -> {out / f'{corpus}.json'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,151 @@
+"""Train the learned frame IK (ProtoRes-style, :mod:`bezmotion.ik.protores`) on one corpus.
+
+    python experiments/train_ik.py --corpus lafan1 --steps 9000
+    python experiments/train_ik.py --corpus bandai_namco --steps 9000
+
+Trains on every frame of the corpus's training split (LaFAN1 subjects 1–4; Bandai-Namco
+all but every 10th take), posed on one skeleton per corpus (:mod:`bezmotion.ik.frames`),
+with the effector sampling and losses of :mod:`bezmotion.ik.training`. Checkpoints go to
+``<out-dir>/checkpoints`` every ``--checkpoint-every`` steps (and on Ctrl-C / SIGTERM);
+running the same command again resumes from the latest one, bit-identically. At the end
+the trained model is saved to ``<out-dir>/model`` (:func:`~bezmotion.ik.protores.save_ik_model`:
+config, character and parameters) and ``<out-dir>/training.json`` records the loss curve
+and the validation MPJPE of every Table 2 configuration (on every ``--eval-step``-th
+validation frame).
+
+Default ``--out-dir``: ``~/.cache/bezmotion/runs/ik_<corpus>``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from bezmotion._io import atomic_write_text
+from bezmotion.checkpoint import CheckpointStore
+from bezmotion.data.cache import cache_dir
+from bezmotion.ik.frames import CORPORA, load_frames
+from bezmotion.ik.protores import ProtoResConfig, ProtoResModel, character_to_json, count_parameters, save_ik_model
+from bezmotion.ik.training import (
+    CHARACTERISTIC,
+    IKTrainConfig,
+    effector_configurations,
+    effector_mpjpe,
+    init_ik_train_state,
+    make_ik_train_step,
+)
+from bezmotion.train import compile_train_step, run_training
+
+CONFIGS = {"cpu": ProtoResConfig.cpu, "paper": ProtoResConfig.paper, "tiny": ProtoResConfig.tiny}
+
+
+def default_run_dir(corpus: str) -> Path:
+    return cache_dir() / "runs" / f"ik_{corpus}"
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--corpus", choices=CORPORA, required=True)
+    parser.add_argument("--data", default=None, help="corpus archive or folder (default: ../shared/data, or the extracted Bandai-Namco in the cache)")
+    parser.add_argument("--out-dir", default=None, help="run folder (default ~/.cache/bezmotion/runs/ik_<corpus>)")
+    parser.add_argument("--steps", type=int, default=9000)
+    parser.add_argument("--config", choices=sorted(CONFIGS), default="cpu")
+    parser.add_argument("--batch-size", type=int, default=IKTrainConfig.batch_size)
+    parser.add_argument("--learning-rate", type=float, default=IKTrainConfig.learning_rate)
+    parser.add_argument("--rot-weight", type=float, default=IKTrainConfig.rot_weight)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--frame-step", type=int, default=1, help="train on every n-th frame (default 1)")
+    parser.add_argument("--checkpoint-every", type=int, default=500)
+    parser.add_argument("--eval-step", type=int, default=4, help="validate on every n-th validation frame (default 4)")
+    parser.add_argument("--no-progress", action="store_true")
+    return parser.parse_args(argv)
+
+
+def train_ik(args: argparse.Namespace) -> dict:
+    """Train (or resume) and save; returns the summary written to ``training.json``."""
+    out_dir = Path(args.out_dir).expanduser() if args.out_dir else default_run_dir(args.corpus)
+    started = time.perf_counter()
+    character, poses = load_frames(args.corpus, "train", source=args.data, frame_step=args.frame_step, progress=not args.no_progress)
+    print(f"{args.corpus}: {poses.root_pos.shape[0]} training frames of {character.num_joints} joints ({time.perf_counter() - started:.1f} s)")
+    model_config = CONFIGS[args.config](character.num_joints)
+    train_config = IKTrainConfig(
+        num_steps=args.steps, batch_size=args.batch_size, learning_rate=args.learning_rate, rot_weight=args.rot_weight,
+        dense_batch_size=min(IKTrainConfig.dense_batch_size, args.batch_size // 8),
+    )  # fmt: skip
+    configurations = effector_configurations(character)
+    graphdef, state = init_ik_train_state(model_config, train_config, key=jax.random.key(args.seed))
+    config = {
+        "corpus": args.corpus,
+        "seed": args.seed,
+        "frame_step": args.frame_step,
+        "model": dataclasses.asdict(model_config),
+        "train": dataclasses.asdict(train_config),
+        "character": character_to_json(character),
+    }
+    store = CheckpointStore(out_dir / "checkpoints")
+    saved = store.config()
+    if saved is not None and store.latest_step() is not None:
+        for key in ("corpus", "seed", "frame_step", "model", "train"):
+            if json.loads(json.dumps(saved.get(key), default=str)) != json.loads(json.dumps(config[key], default=str)):
+                raise SystemExit(f"{out_dir}: its checkpoints were trained with a different {key!r} ({saved.get(key)}); use another --out-dir")
+        print(f"resuming from step {store.latest_step()} in {out_dir}")
+    step = compile_train_step(make_ik_train_step(graphdef, model_config, train_config, character, configurations), num_seeds=None)
+    history: list[dict] = []
+    train_started = time.perf_counter()
+    done = store.latest_step() or 0
+    # In segments of one checkpoint each, so the log shows progress without a progress bar.
+    while done < args.steps:
+        target = min(args.steps, (done // args.checkpoint_every + 1) * args.checkpoint_every)
+        state, logged = run_training(
+            step, state, poses, num_steps=target, store=store, checkpoint_every=args.checkpoint_every, config=config,
+            progress=not args.no_progress, log_every=min(100, args.checkpoint_every),
+        )  # fmt: skip
+        history += logged
+        done = target
+        if logged:
+            last = logged[-1]
+            print(
+                f"step {done}: loss {last['loss']:.3f}, MPJPE {last['pos']:.3f} cm, rot {last['rot']:.4f}, "
+                f"{last['steps_per_s']:.2f} steps/s, {time.perf_counter() - train_started:.0f} s",
+                flush=True,
+            )
+    store.close()
+    train_s = time.perf_counter() - train_started
+    model = ProtoResModel(state.params, character, graphdef, model_config)
+    save_ik_model(out_dir / "model", model)
+
+    _, validation = load_frames(args.corpus, "validation", source=args.data, frame_step=args.eval_step, progress=False)
+    errors = {name: float(np.mean(effector_mpjpe(model, validation, joints))) for name, joints in configurations.items()}
+    errors[CHARACTERISTIC + " (positions only)"] = float(np.mean(effector_mpjpe(model, validation, configurations[CHARACTERISTIC], rotations=False)))
+    summary = {
+        "corpus": args.corpus,
+        "config": args.config,
+        "params": count_parameters(state.params),
+        "steps": args.steps,
+        "train_frames": int(poses.root_pos.shape[0]),
+        "validation_frames": int(validation.root_pos.shape[0]),
+        "train_s_this_session": train_s,
+        "validation_mpjpe_cm": errors,
+        "history": history,
+        "model_dir": str(out_dir / "model"),
+        **config,
+    }
+    atomic_write_text(out_dir / "training.json", json.dumps(summary, indent=2, default=str) + "\n")
+    print(f"saved {out_dir / 'model'}; validation MPJPE (cm):")
+    for name, value in errors.items():
+        print(f"  {name}: {value:.3f}")
+    return summary
+
+
+def main(argv: list[str] | None = None) -> dict:
+    return train_ik(parse_args(argv))
+
+
+if __name__ == "__main__":
+    main()
