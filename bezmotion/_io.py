@@ -47,3 +47,15 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
+
+
+def write_results(out: str | os.PathLike, results: dict, report: str) -> None:
+    """Print an experiment's Markdown ``report`` and write it beside its JSON ``results``
+    (``out`` and ``out`` with suffix ``.md``), both atomically."""
+    import json
+
+    out = Path(out)
+    print(report)
+    atomic_write_text(out, json.dumps(results, indent=2) + "\n")
+    atomic_write_text(out.with_suffix(".md"), report + "\n")
+    print(f"wrote {out} and {out.with_suffix('.md')}")

@@ -20,6 +20,9 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import json
+import os
+from pathlib import Path
 from typing import Any, NamedTuple
 
 import jax
@@ -99,6 +102,15 @@ class CharacterProfile:
 
     def to_json(self) -> dict:
         return {"height": self.height, "mean_orientation": np.asarray(self.mean_orientation).tolist()}
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> CharacterProfile:
+        """Read a profile written by ``experiments/character_profiles.py`` (e.g. ``PROFILES_DIR / "lafan1.json"``)."""
+        path = Path(path)
+        try:
+            return cls.from_json(json.loads(path.read_text()))
+        except (KeyError, ValueError, TypeError) as e:
+            raise ValueError(f"{path}: not a character profile ({e})") from None
 
     @classmethod
     def from_json(cls, data: dict) -> CharacterProfile:

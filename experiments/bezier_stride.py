@@ -15,7 +15,6 @@ it, and prints the table.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
@@ -23,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bezmotion._io import atomic_path, atomic_write_text
+from bezmotion._io import atomic_path, write_results
 from bezmotion.bezier import BezierLayout, evaluate, fit_curves
 from bezmotion.data import lafan1
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
@@ -125,9 +124,7 @@ def main(argv: list[str] | None = None) -> dict:
     out = Path(args.out)
     table = format_table(results, strides)
     print(f"Bézier stride on LaFAN1 subject 5 ({args.data}): {results['n_windows']} windows of {args.window} frames")
-    print(table)
-    atomic_write_text(out, json.dumps(results, indent=2) + "\n")
-    atomic_write_text(out.with_suffix(".md"), table + "\n")
+    write_results(out, results, table)
     plot(results, strides, out.with_suffix(".png"))
     print(f"wrote {out}, {out.with_suffix('.md')}, {out.with_suffix('.png')} in {time.perf_counter() - start:.1f} s")
     return results

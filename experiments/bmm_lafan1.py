@@ -27,14 +27,13 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import functools
-import json
 import time
 from pathlib import Path
 
 import jax
 import numpy as np
 
-from bezmotion._io import atomic_write_text
+from bezmotion._io import write_results
 from bezmotion.bmm_evaluation import (
     CurveMetricsConfig,
     curve_metrics,
@@ -223,12 +222,9 @@ def main(argv: list[str] | None = None) -> dict:
             save_model(Path(args.run_dir) / "model", model)
         results["bmm"][str(seed)] = evaluate_model(args, model, metrics_config, eval_set, jax.random.key(seed + 99))
     results["wall_s"] = time.perf_counter() - started
-    out = Path(args.out)
     report = format_report(results)
-    print(report)
-    atomic_write_text(out, json.dumps(results, indent=2) + "\n")
-    atomic_write_text(out.with_suffix(".md"), report + "\n")
-    print(f"wrote {out} and {out.with_suffix('.md')}; model in {Path(args.run_dir) / 'model'}")
+    write_results(args.out, results, report)
+    print(f"model in {Path(args.run_dir) / 'model'}")
     return results
 
 

@@ -45,15 +45,13 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import json
 import time
 import warnings
 from pathlib import Path
 
 import jax
-import numpy as np
 
-from bezmotion._io import atomic_write_text
+from bezmotion._io import write_results
 from bezmotion.anidance_evaluation import (
     ANIDANCE_LENGTHS,
     KEYFRAME_PERIOD,
@@ -65,18 +63,19 @@ from bezmotion.anidance_evaluation import (
     format_anidance_table,
     in_stored_layout,
 )
-from bezmotion.checkpoint import CONFIG_FILE, CheckpointStore
 from bezmotion.data.anidance import anidance_statistics, anidance_windows, load_anidance
-from bezmotion.data.cache import cache_dir
-from bezmotion.delta_train import (
-    DeltaPositionArrays,
-    DeltaTrainConfig,
-    init_delta_train_states,
-    make_delta_train_step,
-    run_delta_training,
+from bezmotion.delta_experiment import (
+    MODE_NAMES,
+    ModeRun,
+    add_delta_arguments,
+    check_resumable,
+    mean_over_seeds,
+    mode_label,
+    resolve_run_dir,
+    train_delta_mode,
 )
+from bezmotion.delta_train import DeltaPositionArrays, DeltaTrainConfig
 from bezmotion.models.delta import TABLE3_MODES, DeltaConfig, count_parameters, delta_position_inbetweener
-from bezmotion.train import compile_train_step
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "anidance" / "anidance.tar.xz"
 TRAIN_WINDOW = 128
@@ -94,7 +93,6 @@ MODES = {
     "table3": TABLE3_MODES,
 }
 TRAIN_LAYOUTS = {"infill": 1.0, "mixed": 0.5, "gap": 0.0}  # probability of the in-filling layout
-MODE_NAMES = {"last": "Last", "none": "No", "interpolation": "I"}
 ROW_NAMES = {"last-interpolation": "Δ-Interpolator (ours)", "none-none": "Δ-Interpolator (w/o Δ-mode)"}
 #: The paper's Table 2 (full Anidance, 8 seeds); its Table 7 gives Duan et al.'s baselines too.
 PAPER_TABLE2 = {
@@ -108,62 +106,6 @@ PROTOCOL_TITLES = {
     "gap": "single gap (key frames 0 and n; the n − 1 frames between predicted)",
     "infill": f"in-filling (key frames every {KEYFRAME_PERIOD} frames: 0, {KEYFRAME_PERIOD}, … < n, and n)",
 }
-
-
-def mode_label(mode: tuple[str, str]) -> str:
-    return f"{mode[0]}-{mode[1]}"
-
-
-def run_plan(args, model_config: DeltaConfig, train_config: DeltaTrainConfig) -> tuple[Path, dict]:
-    """The checkpoint directory of one Δ-mode and the configuration saved beside it."""
-    label = f"{mode_label((model_config.input_delta, model_config.output_delta))}-{args.train_layout}-{args.points}"
-    config = {
-        "data": {"points": args.points, "train_layout": args.train_layout},
-        "model": dataclasses.asdict(model_config),
-        "train": {**dataclasses.asdict(train_config), "seeds": list(args.seeds), "num_steps": args.steps},
-    }
-    return Path(args.run_dir) / label / "checkpoints", config
-
-
-def check_resumable(directory: Path, config: dict) -> None:
-    """Refuse to resume a run trained with other settings (the schedule depends on ``--steps``
-    too), naming the settings that differ."""
-    path = directory / CONFIG_FILE
-    if not path.exists():
-        return
-    saved = json.loads(path.read_text())
-    new = json.loads(json.dumps(config, sort_keys=True, default=str))  # as the store writes it
-    differ = [
-        f"{section}.{key}: {saved.get(section, {}).get(key)!r} → {new[section].get(key)!r}"
-        for section in new
-        for key in sorted(set(new[section]) | set(saved.get(section, {})))
-        if saved.get(section, {}).get(key) != new[section].get(key)
-    ]
-    if differ:
-        raise ValueError(f"{directory} holds a run with other settings ({'; '.join(differ)}); use another --run-dir")
-
-
-def train_mode(args, model_config: DeltaConfig, train_config: DeltaTrainConfig, data: DeltaPositionArrays):
-    """Train (or resume) one Δ-mode for all seeds at once; returns ``(graphdef, state, history, seconds)``."""
-    graphdef, state = init_delta_train_states(model_config, train_config, args.seeds)
-    step = compile_train_step(
-        make_delta_train_step(graphdef, model_config, train_config, window_frames=TRAIN_WINDOW), num_seeds=len(args.seeds)
-    )
-    device = jax.devices()[0]
-    directory, config = run_plan(args, model_config, train_config)
-    store = CheckpointStore(directory)
-    started = time.perf_counter()
-    # Restored checkpoints are device-committed; commit fresh states too (one compilation).
-    state, history = run_delta_training(
-        lambda s, d: step(jax.device_put(s, device), d), state, data, num_steps=args.steps, store=store,
-        checkpoint_every=args.checkpoint_every, config=config, progress=not args.no_progress,
-    )  # fmt: skip
-    store.close()
-    return graphdef, state, history, time.perf_counter() - started
-
-
-def mean_over_seeds(per_seed: list[dict[str, float]]) -> dict[str, float]:
-    return {n: float(np.mean([r[n] for r in per_seed])) for n in per_seed[0]}
 
 
 def table_rows(results: dict, protocol: str) -> dict[str, dict[str, float]]:
@@ -207,28 +149,19 @@ def format_report(results: dict) -> str:
 
 def main(argv: list[str] | None = None) -> dict:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", required=True, help="output JSON (a .md report is written beside it)")
-    parser.add_argument("--data", default=str(DEFAULT_DATA), help="anidance.tar.xz or its extracted folder (default ../shared/data/anidance/anidance.tar.xz)")
-    parser.add_argument("--config", choices=tuple(CONFIGS), default="cpu", help="model size (default cpu; paper: width 1024, 6 blocks; tiny: smoke tests)")
+    add_delta_arguments(
+        parser, configs=CONFIGS, lengths=ANIDANCE_LENGTHS, default_data=DEFAULT_DATA, run_name="delta_anidance",
+        data_help="anidance.tar.xz or its extracted folder (default ../shared/data/anidance/anidance.tar.xz)",
+    )  # fmt: skip
     parser.add_argument("--modes", choices=tuple(MODES), default="table2", help="Δ-modes to train: table2 (Last/I and No/No, default), main (Last/I), table3 (all five)")
-    parser.add_argument("--steps", type=int, default=3000, help="training steps per Δ-mode (default 3000; 0: evaluate the untrained model)")
-    parser.add_argument("--batch-size", type=int, default=64)
-    parser.add_argument("--learning-rate", type=float, default=2e-4, help="peak learning rate (paper: 2e-4)")
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="seeds trained together (vmapped)")
     parser.add_argument("--train-layout", choices=tuple(TRAIN_LAYOUTS), default="mixed", help="key frames every 6 frames in training: infill (the paper), gap, mixed (half; default)")
     parser.add_argument("--points", choices=("world", "stored"), default="world", help="train on world positions (default) or the stored layout (bones relative to the center)")
     parser.add_argument("--min-gap", type=int, default=4, help="fewest frames between the past key frame and the target in training (default 4: the benchmark's n = 5)")
     parser.add_argument("--max-gap", type=int, default=39)
-    parser.add_argument("--run-dir", default=None, help="checkpoints (default: <cache>/runs/delta_anidance_<config>)")
-    parser.add_argument("--checkpoint-every", type=int, default=500)
-    parser.add_argument("--eval-batch", type=int, default=256, help="test windows per vectorised chunk at evaluation")
-    parser.add_argument("--lengths", type=int, nargs="+", default=list(ANIDANCE_LENGTHS), help="transition lengths (default 5 15 30)")
-    parser.add_argument("--no-cache", action="store_true", help="re-parse the CSV files instead of using the cache")
-    parser.add_argument("--no-progress", action="store_true")
     args = parser.parse_args(argv)
     if args.steps < 0:
         parser.error(f"--steps must be non-negative, got {args.steps}")
-    args.run_dir = args.run_dir or str(cache_dir() / "runs" / f"delta_anidance_{args.config}")
+    resolve_run_dir(args)
     lengths = tuple(args.lengths)
 
     started = time.perf_counter()
@@ -247,8 +180,10 @@ def main(argv: list[str] | None = None) -> dict:
     )  # fmt: skip
 
     model_configs = [CONFIGS[args.config](input_delta=inp, output_delta=out) for inp, out in MODES[args.modes]]
+    data_settings = {"points": args.points, "train_layout": args.train_layout}
+    plan = lambda config: ModeRun.plan(args, config, train_config, data=data_settings, suffix=f"-{args.train_layout}-{args.points}")  # noqa: E731
     for model_config in model_configs:  # before any work
-        check_resumable(*run_plan(args, model_config, train_config))
+        check_resumable(plan(model_config).directory, plan(model_config).config)
 
     results: dict = {
         "data": str(args.data),
@@ -268,7 +203,9 @@ def main(argv: list[str] | None = None) -> dict:
     }
     for model_config in model_configs:
         mode = (model_config.input_delta, model_config.output_delta)
-        graphdef, state, history, train_s = train_mode(args, model_config, train_config, data)
+        graphdef, state, history, train_s = train_delta_mode(
+            args, plan(model_config), model_config, train_config, data, window_frames=TRAIN_WINDOW
+        )
         entry: dict = {"train_s_this_run": train_s, "history": history}
         per_protocol: dict[str, dict[str, dict[str, float]]] = {p: {} for p in PROTOCOLS}
         for i, seed in enumerate(args.seeds):
@@ -284,12 +221,8 @@ def main(argv: list[str] | None = None) -> dict:
         results["delta"][mode_label(mode)] = entry
         print(f"{mode_label(mode)}: trained in {train_s:.0f} s this run; L2P gap {entry['gap']['mean']}, infill {entry['infill']['mean']}", flush=True)
     results["wall_s"] = time.perf_counter() - started
-    out = Path(args.out)
     report = format_report(results)
-    print(report)
-    atomic_write_text(out, json.dumps(results, indent=2) + "\n")
-    atomic_write_text(out.with_suffix(".md"), report + "\n")
-    print(f"wrote {out} and {out.with_suffix('.md')}")
+    write_results(args.out, results, report)
     return results
 
 

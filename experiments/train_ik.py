@@ -58,6 +58,7 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--config", choices=sorted(CONFIGS), default="cpu")
     parser.add_argument("--batch-size", type=int, default=IKTrainConfig.batch_size)
     parser.add_argument("--learning-rate", type=float, default=IKTrainConfig.learning_rate)
+    parser.add_argument("--output-rotations", choices=("local", "global"), default="local")
     parser.add_argument("--rot-weight", type=float, default=IKTrainConfig.rot_weight)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--frame-step", type=int, default=1, help="train on every n-th frame (default 1)")
@@ -73,7 +74,7 @@ def train_ik(args: argparse.Namespace) -> dict:
     started = time.perf_counter()
     character, poses = load_frames(args.corpus, "train", source=args.data, frame_step=args.frame_step, progress=not args.no_progress)
     print(f"{args.corpus}: {poses.root_pos.shape[0]} training frames of {character.num_joints} joints ({time.perf_counter() - started:.1f} s)")
-    model_config = CONFIGS[args.config](character.num_joints)
+    model_config = CONFIGS[args.config](character.num_joints, output_rotations=args.output_rotations)
     train_config = IKTrainConfig(
         num_steps=args.steps, batch_size=args.batch_size, learning_rate=args.learning_rate, rot_weight=args.rot_weight,
         dense_batch_size=min(IKTrainConfig.dense_batch_size, args.batch_size // 8),
@@ -96,6 +97,10 @@ def train_ik(args: argparse.Namespace) -> dict:
                 raise SystemExit(f"{out_dir}: its checkpoints were trained with a different {key!r} ({saved.get(key)}); use another --out-dir")
         print(f"resuming from step {store.latest_step()} in {out_dir}")
     step = compile_train_step(make_ik_train_step(graphdef, model_config, train_config, character, configurations), num_seeds=None)
+    # Restored checkpoints are committed to the device; commit the fresh state too, so
+    # the step compiles once whether it starts fresh or from a checkpoint.
+    state = jax.device_put(state, jax.devices()[0])
+    poses = jax.device_put(poses, jax.devices()[0])
     history: list[dict] = []
     train_started = time.perf_counter()
     done = store.latest_step() or 0

@@ -115,6 +115,15 @@ def lafan1_frames(
     return character, _convert(character, corpus.quat_local[frames], pos_local)
 
 
+def lafan1_clip_starts(corpus: _lafan1.Lafan1Corpus, split: str = "train", *, frame_step: int = 1) -> np.ndarray:
+    """``(files + 1,)`` where each file's frames start in :func:`lafan1_frames`'s output
+    (same ``split`` and ``frame_step``), so windows never straddle two files."""
+    _check(split, frame_step)
+    subjects = _lafan1.TRAIN_SUBJECTS if split == "train" else _lafan1.TEST_SUBJECTS
+    counts = [len(range(int(corpus.starts[f]), int(corpus.starts[f + 1]), frame_step)) for f in corpus.files_of(subjects)]
+    return np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+
+
 def bandai_namco_frames(
     corpus: _bandai_namco.BandaiNamcoCorpus, split: str = "train", *, frame_step: int = 1
 ) -> tuple[Character, Pose]:
@@ -176,6 +185,7 @@ __all__ = [
     "bandai_namco_frames",
     "default_source",
     "lafan1_character",
+    "lafan1_clip_starts",
     "lafan1_frames",
     "load_frames",
 ]

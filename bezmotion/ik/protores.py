@@ -64,6 +64,7 @@ RIGHT_ROLES: tuple[str, str] = ("right_hand", "right_foot")
 FEATURES_PER_EFFECTOR = 10  # position (3), 6D orientation (6), has-orientation flag (1)
 _IDENTITY_6D = (1.0, 0.0, 0.0, 0.0, 1.0, 0.0)
 _FORMAT = "bezmotion.ik.protores/1"
+OUTPUT_ROTATIONS: tuple[str, ...] = ("local", "global")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,6 +80,11 @@ class ProtoResConfig:
       embedding_dim: size of the learned joint-id embedding.
       position_scale: network units per centimetre (0.01: metres), so positions and 6D
         orientations have similar ranges.
+      output_rotations: what the head's 6D rotations are. ``"local"`` (ProtoRes):
+        parent-from-joint rotations, posed by FK. ``"global"`` (ours): every joint's
+        orientation in the canonical frame, turned into local rotations by
+        ``R_local = R_parentᵀ R_joint`` — an error in one joint then no longer rotates
+        everything below it, and a given orientation can be passed straight through.
     """
 
     num_joints: int
@@ -88,6 +94,7 @@ class ProtoResConfig:
     decoder_blocks: int = 2
     embedding_dim: int = 16
     position_scale: float = 0.01
+    output_rotations: str = "local"
 
     def __post_init__(self):
         for name in ("num_joints", "encoder_width", "stage_blocks", "decoder_width", "decoder_blocks", "embedding_dim"):
@@ -96,6 +103,8 @@ class ProtoResConfig:
                 raise ValueError(f"ProtoResConfig.{name} must be a positive integer, got {value!r}")
         if not (isinstance(self.position_scale, float | int) and self.position_scale > 0):
             raise ValueError(f"ProtoResConfig.position_scale must be positive, got {self.position_scale!r}")
+        if self.output_rotations not in OUTPUT_ROTATIONS:
+            raise ValueError(f"ProtoResConfig.output_rotations must be one of {OUTPUT_ROTATIONS}, got {self.output_rotations!r}")
 
     @classmethod
     def paper(cls, num_joints: int, **overrides) -> ProtoResConfig:
@@ -351,8 +360,16 @@ def apply_protores(
     root, raw6d = model(features, effectors.joint, valid)
     matrix = matrix_from_rot6d(raw6d)
     hips = character.hips
-    matrix = matrix.at[hips].set(yaw @ matrix[hips])
     above = list(character.ancestors_of_hips())
+    if cfg.output_rotations == "global":
+        world = yaw @ matrix  # every joint's orientation, world frame
+        if above:
+            world = world.at[np.asarray(above)].set(jnp.eye(3, dtype=dtype))
+        parents = np.asarray(character.skeleton.parents)
+        parent_world = jnp.where((parents >= 0)[:, None, None], world[np.maximum(parents, 0)], jnp.eye(3, dtype=dtype))
+        matrix = jnp.swapaxes(parent_world, -1, -2) @ world
+    else:
+        matrix = matrix.at[hips].set(yaw @ matrix[hips])
     if above:
         matrix = matrix.at[np.asarray(above)].set(jnp.eye(3, dtype=dtype))
     root_pos = yaw @ (root / cfg.position_scale) + origin

@@ -156,11 +156,14 @@ RIG_PRESETS: Mapping[str, RigSpec] = {
 class Rig:
     """Parameters of :func:`rig_ik`: a skeleton's rest offsets and its chains (a pytree).
 
-    Build it with :func:`make_rig`. Only ``skeleton.offsets`` is an array leaf; the
-    joint indices are static, so a rig passes straight into ``jit``/``vmap``/``grad``.
+    Build it with :func:`make_rig`. The arrays (``skeleton.offsets``, ``rest_quat_local``)
+    are leaves and the joint indices static, so a rig passes straight into
+    ``jit``/``vmap``/``grad``.
 
     Attributes:
       skeleton: the character's skeleton (rest offsets in cm).
+      rest_quat_local: ``(joints, 4)`` local rotations of the joints the rig does not
+        solve (clavicles, toes, …); identity unless :func:`make_rig` was given others.
       spine: joint indices from the hips to the head.
       limbs: ``(root, middle, end)`` joint indices of the left arm, right arm, left leg,
         right leg.
@@ -172,6 +175,7 @@ class Rig:
     """
 
     skeleton: Skeleton
+    rest_quat_local: Float[Array, "joints 4"]
     spine: tuple[int, ...] = dataclasses.field(metadata=dict(static=True))
     limbs: tuple[tuple[int, int, int], ...] = dataclasses.field(metadata=dict(static=True))
     limb_bases: tuple[tuple[int, tuple[int, ...]], ...] = dataclasses.field(metadata=dict(static=True))
@@ -200,18 +204,31 @@ def _check_chain(skeleton: Skeleton, chain: Sequence[int], where: str) -> None:
             )
 
 
-def make_rig(character: Character, spec: RigSpec | str | Mapping[str, Sequence[str]], *, spine_iterations: int = 8) -> Rig:
+def make_rig(
+    character: Character,
+    spec: RigSpec | str | Mapping[str, Sequence[str]],
+    *,
+    rest_quat_local: Float[Array | np.ndarray, "joints 4"] | None = None,
+    spine_iterations: int = 8,
+) -> Rig:
     """The :class:`Rig` of a character, checking the spec against its skeleton.
 
     Args:
       character: the skeleton and its characteristic joints.
       spec: a :class:`RigSpec`, a preset name (``"lafan1"``, ``"bandai_namco"``) or a dict
         for :meth:`RigSpec.from_dict`.
-      spine_iterations: FABRIK iterations for the spine (each costs two passes over it).
+      rest_quat_local: ``(joints, 4)`` local rotations (w, x, y, z) that the joints the rig
+        does not solve keep — clavicles, toes, fingers. Default: identity, the skeleton's
+        zero-rotation rest pose. A bind pose helps skeletons whose zero rotation is not a
+        natural pose: LaFAN1's and Bandai-Namco's clavicles point up along the neck at
+        zero rotation. Entries of the solved joints are ignored; joints above the hips
+        must be identity (a :class:`~bezmotion.ik.protocol.Pose` holds them there).
+      spine_iterations: FABRIK iterations for spine targets that the first guess cannot
+        reach (each costs two passes over the spine).
     Raises:
       ValueError: an unknown joint name (the message names it), a chain that is not
         parent → child, chain ends that are not the character's characteristic joints,
-        or a limb that does not hang off the spine.
+        a limb that does not hang off the spine, or a bad ``rest_quat_local``.
     """
     if isinstance(spec, str):
         spec = RigSpec.preset(spec)
@@ -251,7 +268,25 @@ def make_rig(character: Character, spec: RigSpec | str | Mapping[str, Sequence[s
             raise ValueError(f"RigSpec.{field}: {skeleton.names[limb[0]]!r} hangs off the head; limbs must hang off the hips or the spine")
         limb_bases.append((spine.index(j), tuple(reversed(path))))
     toes = tuple(next(iter(skeleton.children(limb[-1])), -1) for limb in limbs[2:])
-    return Rig(skeleton, spine, limbs, tuple(limb_bases), toes, spine_iterations)  # type: ignore[arg-type]
+
+    offsets = jnp.asarray(skeleton.offsets)
+    if rest_quat_local is None:
+        rest = quat_identity((skeleton.num_joints,), offsets.dtype)
+    else:
+        rest = np.asarray(rest_quat_local, np.float64)
+        if rest.shape != (skeleton.num_joints, 4):
+            raise ValueError(f"rest_quat_local must have shape ({skeleton.num_joints}, 4), got {rest.shape}")
+        norms = np.linalg.norm(rest, axis=-1)
+        if not np.all(np.abs(norms - 1.0) < 1e-3):
+            bad = [skeleton.names[j] for j in np.flatnonzero(~(np.abs(norms - 1.0) < 1e-3))]
+            raise ValueError(f"rest_quat_local must hold unit quaternions; joints {bad} do not")
+        above = [j for j in character.ancestors_of_hips() if abs(abs(rest[j, 0]) - 1.0) > 1e-6]
+        if above:
+            raise ValueError(
+                f"rest_quat_local must be identity above the hips; joints {[skeleton.names[j] for j in above]} are not"
+            )
+        rest = jnp.asarray(rest / norms[:, None], offsets.dtype)
+    return Rig(skeleton, rest, spine, limbs, tuple(limb_bases), toes, spine_iterations)  # type: ignore[arg-type]
 
 
 # ------------------------------------------------------------------------------ solving
@@ -275,11 +310,65 @@ def _any_perpendicular(axis: Float[Array, "3"]) -> Float[Array, "3"]:
     return normalize(jnp.cross(axis, basis))
 
 
-def _fabrik(points: Float[Array, "n 3"], lengths: Float[Array, "n-1"], target: Float[Array, "3"], iterations: int) -> Float[Array, "n 3"]:
-    """FABRIK (Aristidou & Lasenby 2011) with the first point pinned; a fixed number of iterations."""
+def _bend(
+    p_root: Float[Array, "3"], len_a: Float[Array, ""], len_b: Float[Array, ""], target: Float[Array, "3"],
+    hint: Float[Array, "3"], fallback: Float[Array, "3"],
+) -> tuple[Float[Array, "3"], Float[Array, "3"]]:
+    """Where the middle and the end of a two-bone chain go to reach ``target`` (law of cosines).
+
+    Args:
+      p_root: the chain's fixed root (cm).
+      len_a, len_b: the two bones' lengths (cm).
+      target: where the end should be (cm); its distance from the root is clamped to the
+        reachable ``[|len_a - len_b|, len_a + len_b]``, keeping the direction.
+      hint: world direction the middle joint bends towards (its part across the reach
+        axis counts; a hint along the axis falls back to some perpendicular).
+      fallback: the reach direction when ``target`` sits on the root.
+    Returns:
+      ``(p_mid, p_end)``: ``|p_mid - p_root| = len_a``, ``|p_end - p_mid| = len_b``.
+    """
+    to_target = target - p_root
+    axis = _where_normalize(to_target, fallback)
+    reach = jnp.clip(safe_norm(to_target), jnp.abs(len_a - len_b), len_a + len_b)
+    # cos of the angle at the root between the reach axis and the first bone.
+    num = len_a * len_a + reach * reach - len_b * len_b
+    den = 2.0 * len_a * reach
+    ok = den > _EPS
+    cos_root = jnp.clip(jnp.where(ok, num / jnp.where(ok, den, 1.0), 0.0), -1.0, 1.0)
+    sin_sq = 1.0 - cos_root * cos_root
+    bent = sin_sq > _EPS * _EPS
+    sin_root = jnp.where(bent, jnp.sqrt(jnp.where(bent, sin_sq, 1.0)), 0.0)
+    across = _where_normalize(_perpendicular(hint, axis), _any_perpendicular(axis))
+    return p_root + len_a * (cos_root * axis + sin_root * across), p_root + reach * axis
+
+
+def _close(points: Float[Array, "n 3"], target: Float[Array, "3"]) -> Float[Array, "n 3"]:
+    """Bend a chain at its middle point, as two rigid halves, so its end reaches ``target``.
+
+    The law of cosines gives the bend exactly; the halves are swung as little as possible
+    (in the plane of the chain's current bend), so the chain keeps its shape.
+    """
+    mid = points.shape[0] // 2
+    base = points[0]
+    first, second = points[mid] - base, points[-1] - points[mid]
+    p_mid, p_end = _bend(base, safe_norm(first), safe_norm(second), target, first, normalize(points[-1] - base))
+    points = base + quat_rotate(quat_between(first, p_mid - base), points - base)
+    tail = p_mid + quat_rotate(quat_between(points[-1] - p_mid, p_end - p_mid), points[mid:] - p_mid)
+    return jnp.concatenate([points[:mid], tail], axis=0)
+
+
+def _reach(points: Float[Array, "n 3"], lengths: Float[Array, "n-1"], target: Float[Array, "3"], iterations: int) -> Float[Array, "n 3"]:
+    """Bend a chain (first point pinned) so its end reaches ``target``, keeping its shape where it can.
+
+    A two-half bend (:func:`_close`) reaches most targets exactly from a good first guess.
+    When the halves are too short or too long for the target, FABRIK (Aristidou & Lasenby
+    2011) reshapes the chain, and a second two-half bend removes what FABRIK's slow
+    convergence near full reach leaves. FABRIK leaves a chain that already reaches its
+    target unchanged, so a reached target stays reached.
+    """
     count = points.shape[0]
 
-    def iteration(_, points):
+    def fabrik(_, points):
         # Backward from the target, then forward from the pinned base; each step keeps
         # one bone's length exactly.
         base = points[0]
@@ -291,7 +380,9 @@ def _fabrik(points: Float[Array, "n 3"], lengths: Float[Array, "n-1"], target: F
             points = points.at[k + 1].set(points[k] + lengths[k] * normalize(points[k + 1] - points[k]))
         return points
 
-    return jax.lax.fori_loop(0, iterations, iteration, points)
+    points = _close(points, target)
+    points = jax.lax.fori_loop(0, iterations, fabrik, points)
+    return _close(points, target)
 
 
 def _two_bone(
@@ -314,29 +405,13 @@ def _two_bone(
     Returns:
       ``(quat_upper, quat_lower)`` global rotations of the root and middle joints.
     """
-    len_upper = safe_norm(bone_upper)
-    len_lower = safe_norm(bone_lower)
-    to_target = target - p_root
-    dist = safe_norm(to_target)
     # The limb's straight direction under the end rotation: the reach direction when the
     # target sits on the root (any direction would do; this one is continuous in quat_end).
-    rest_dir = normalize(quat_rotate(quat_end, bone_upper + bone_lower))
-    axis = _where_normalize(to_target, _where_normalize(rest_dir, jnp.asarray([0.0, 1.0, 0.0], p_root.dtype)))
-    reach = jnp.clip(dist, jnp.abs(len_upper - len_lower), len_upper + len_lower)
-    end = p_root + reach * axis
-    # Law of cosines for the angle at the root between the reach axis and the upper bone.
-    num = len_upper * len_upper + reach * reach - len_lower * len_lower
-    den = 2.0 * len_upper * reach
-    ok = den > _EPS
-    cos_root = jnp.clip(jnp.where(ok, num / jnp.where(ok, den, 1.0), 0.0), -1.0, 1.0)
-    sin_sq = 1.0 - cos_root * cos_root
-    bent = sin_sq > _EPS * _EPS
-    sin_root = jnp.where(bent, jnp.sqrt(jnp.where(bent, sin_sq, 1.0)), 0.0)
-    bend = _where_normalize(_perpendicular(hint, axis), _any_perpendicular(axis))
-    p_mid = p_root + len_upper * (cos_root * axis + sin_root * bend)
+    fallback = _where_normalize(quat_rotate(quat_end, bone_upper + bone_lower), jnp.asarray([0.0, 1.0, 0.0], p_root.dtype))
+    p_mid, p_end = _bend(p_root, safe_norm(bone_upper), safe_norm(bone_lower), target, hint, fallback)
     # Lower bone: the least swing from the end rotation (so the wrist / ankle does not
     # twist); upper bone: the least swing from the lower one (a hinge in the bend plane).
-    quat_lower = quat_mul(quat_between(quat_rotate(quat_end, bone_lower), end - p_mid), quat_end)
+    quat_lower = quat_mul(quat_between(quat_rotate(quat_end, bone_lower), p_end - p_mid), quat_end)
     quat_upper = quat_mul(quat_between(quat_rotate(quat_lower, bone_upper), p_mid - p_root), quat_lower)
     return quat_upper, quat_lower
 
@@ -353,11 +428,12 @@ def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
         :data:`~bezmotion.data.characteristic.CHARACTERISTIC_JOINTS` order.
     Returns:
       The pose: hips at the target position; hips, head, hands and feet at their target
-      orientations; hands and feet at their targets when reachable (else as close as the
-      limb reaches along the same direction); the head as close as the spine reaches.
+      orientations; hands, feet and head at their targets when the chains reach them,
+      else as close as the chain reaches along the same direction.
     """
     dtype = targets.position.dtype
     offsets = jnp.asarray(rig.skeleton.offsets, dtype)
+    rest = jnp.asarray(rig.rest_quat_local, dtype)
     quat_target = quat_from_rot6d(targets.rot6d)
     pos_target = targets.position
     spine = rig.spine
@@ -365,7 +441,7 @@ def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
 
     quat_hips = quat_target[0]
     # First guess: every joint from spine[1] to the head takes the same share of the
-    # hips-to-head rotation, so the twist spreads along the spine.
+    # hips-to-head rotation, so the twist and the bend spread along the spine.
     step = slerp(quat_identity((), dtype), quat_mul(quat_conjugate(quat_hips), quat_target[_HEAD]), 1.0 / n)
     guess = [quat_hips]
     for _ in range(1, n):
@@ -374,47 +450,44 @@ def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
     for k in range(1, n):
         points.append(points[-1] + quat_rotate(guess[k], offsets[spine[k + 1]]))
     lengths = safe_norm(offsets[np.asarray(spine[2:])])
-    points = _fabrik(jnp.stack(points), lengths, pos_target[_HEAD], rig.spine_iterations)
+    points = _reach(jnp.stack(points), lengths, pos_target[_HEAD], rig.spine_iterations)
+    # Each spine joint takes the least swing from its guess onto the bent chain.
     quat_spine = [quat_hips]
     pos_spine = [pos_target[0], points[0]]
     for k in range(1, n):
-        bone = points[k] - points[k - 1]
-        quat_spine.append(quat_mul(quat_between(quat_rotate(guess[k], offsets[spine[k + 1]]), bone), guess[k]))
+        bone = quat_rotate(guess[k], offsets[spine[k + 1]])
+        quat_spine.append(quat_mul(quat_between(bone, points[k] - points[k - 1]), guess[k]))
         pos_spine.append(pos_spine[-1] + quat_rotate(quat_spine[k], offsets[spine[k + 1]]))
     quat_spine.append(quat_target[_HEAD])
 
-    # Limb roots hang off the posed spine through joints held at rest.
-    roots = []
+    # Limb roots hang off the posed spine through joints held at their rest rotations.
+    roots, root_parents = [], []
     for k, path in rig.limb_bases:
-        roots.append(pos_spine[k] + quat_rotate(quat_spine[k], offsets[np.asarray(path)].sum(axis=0)))
-    up = normalize(pos_target[_HEAD] - pos_target[0])
-    pelvis_left = _where_normalize(roots[2] - roots[3], quat_rotate(quat_hips, jnp.asarray([0.0, 0.0, 1.0], dtype)))
-    chest_left = _where_normalize(roots[0] - roots[1], pelvis_left)
+        pos, quat = pos_spine[k], quat_spine[k]
+        for j in path[:-1]:
+            pos = pos + quat_rotate(quat, offsets[j])
+            quat = quat_mul(quat, rest[j])
+        roots.append(pos + quat_rotate(quat, offsets[path[-1]]))
+        root_parents.append(quat)
+
+    # Body axes from bone directions in world space (no assumed joint axes): up from the
+    # hips to the head target, left from the right to the left limb root.
+    up = _where_normalize(pos_target[_HEAD] - pos_target[0], quat_rotate(quat_hips, offsets[spine[1]]))
+    pelvis_left = normalize(roots[2] - roots[3])
+    chest_left = normalize(roots[0] - roots[1])
     pelvis_forward = normalize(jnp.cross(pelvis_left, up))
     chest_forward = normalize(jnp.cross(chest_left, up))
+    hints = [-chest_forward - _ELBOW_DOWN_WEIGHT * up + _ELBOW_OUT_WEIGHT * side * chest_left for side in (1.0, -1.0)]
+    for foot, toe in zip(_LIMB_TARGET[2:], rig.toes):
+        toes = normalize(quat_rotate(quat_target[foot], offsets[toe])) if toe >= 0 else jnp.zeros(3, dtype)
+        hints.append(toes + _KNEE_FORWARD_WEIGHT * pelvis_forward)
 
-    hints = [-chest_forward - _ELBOW_DOWN_WEIGHT * up + side * _ELBOW_OUT_WEIGHT * chest_left for side in (1.0, -1.0)]
-    for leg, toe in zip(rig.limbs[2:], rig.toes):
-        toe_dir = normalize(quat_rotate(quat_target[_LIMB_TARGET[len(hints)]], offsets[toe])) if toe >= 0 else 0.0
-        hints.append(toe_dir + _KNEE_FORWARD_WEIGHT * pelvis_forward)
-
-    quat_global = {spine[k]: quat_spine[k] for k in range(n + 1)}
-    parent_global = {}
-    for limb, (k, path), root, hint, t in zip(rig.limbs, rig.limb_bases, roots, hints, _LIMB_TARGET):
+    quat_local = rest.at[spine[0]].set(quat_hips)
+    for k in range(1, n + 1):
+        quat_local = quat_local.at[spine[k]].set(quat_mul(quat_conjugate(quat_spine[k - 1]), quat_spine[k]))
+    for limb, root, parent, hint, t in zip(rig.limbs, roots, root_parents, hints, _LIMB_TARGET):
         upper, lower = _two_bone(root, offsets[limb[1]], offsets[limb[2]], pos_target[t], quat_target[t], hint)
-        quat_global.update({limb[0]: upper, limb[1]: lower, limb[2]: quat_target[t]})
-        parent_global[limb[0]] = quat_spine[k]
-
-    parents = rig.skeleton.parents
-    quat_local = quat_identity((rig.num_joints,), dtype)
-    for j, q in quat_global.items():
-        p = parents[j]
-        if j == spine[0]:
-            parent_q = None
-        elif p in quat_global:
-            parent_q = quat_global[p]
-        else:  # the limb root's parent is a rest joint (a clavicle) carried by the spine
-            parent_q = parent_global[j]
-        local = q if parent_q is None else quat_mul(quat_conjugate(parent_q), q)
-        quat_local = quat_local.at[j].set(local)
+        quat_local = quat_local.at[limb[0]].set(quat_mul(quat_conjugate(parent), upper))
+        quat_local = quat_local.at[limb[1]].set(quat_mul(quat_conjugate(upper), lower))
+        quat_local = quat_local.at[limb[2]].set(quat_mul(quat_conjugate(lower), quat_target[t]))
     return Pose(pos_target[0], quat_local)

@@ -50,9 +50,17 @@ from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
-from bezmotion.geometry.rotations import quat_from_rot6d, rot6d_from_quat, safe_norm
+from bezmotion.geometry.rotations import rot6d_from_quat, safe_norm
 from bezmotion.ik.protocol import Character, Pose, pose_fk
-from bezmotion.ik.protores import Effectors, ProtoResConfig, ProtoResModel, apply_protores, init_protores, solve_effectors
+from bezmotion.ik.protores import (
+    Effectors,
+    ProtoResConfig,
+    ProtoResModel,
+    apply_protores,
+    init_protores,
+    pose_from_output,
+    solve_effectors,
+)
 from bezmotion.train import TrainState, stack_seeds
 
 #: Joints beyond the characteristic six that Table 2 uses, by role, for the bundled skeletons.
@@ -201,23 +209,26 @@ def init_ik_train_states(
 
 
 def ik_loss_terms(
-    character: Character,
-    prediction: Pose,
+    rot6d_pred: Float[Array, "*batch joints 6"],
     pos_pred: Float[Array, "*batch joints 3"],
-    truth: Pose,
+    rot6d_true: Float[Array, "*batch joints 6"],
     pos_true: Float[Array, "*batch joints 3"],
     body: Sequence[int],
 ) -> dict[str, Float[Array, "*batch"]]:
     """Unweighted loss terms of predicted poses against the truth.
 
+    Args:
+      rot6d_pred, rot6d_true: 6D local rotations (the prediction orthonormalised).
+      pos_pred, pos_true: global joint positions (cm).
+      body: the joints that count (:func:`body_joints`).
     Returns:
       ``{"pos": MPJPE over the body joints (cm), "rot": mean over body joints of the L1
       distance of 6D local rotations}``.
     """
     idx = np.asarray(body)
     pos = jnp.mean(safe_norm(pos_pred[..., idx, :] - pos_true[..., idx, :]), axis=-1)
-    rot = jnp.abs(rot6d_from_quat(prediction.quat_local[..., idx, :]) - rot6d_from_quat(truth.quat_local[..., idx, :]))
-    return {"pos": pos, "rot": jnp.mean(jnp.sum(rot, axis=-1), axis=-1)}
+    rot = jnp.sum(jnp.abs(rot6d_pred[..., idx, :] - rot6d_true[..., idx, :]), axis=-1)
+    return {"pos": pos, "rot": jnp.mean(rot, axis=-1)}
 
 
 # ---------------------------------------------------------------------------- sampling
@@ -329,9 +340,8 @@ def make_ik_train_step(
         mask, rotation = draw(key)
         effectors = _effectors_from_mask(jnp.asarray(body_arr), mask, rotation, pos_global, rot6d_from_quat(quat_global), n_slots)
         out = apply_protores(graphdef, params, character, effectors)
-        prediction = Pose(out.root_pos, quat_from_rot6d(out.rot6d_local))
-        _, pos_pred = pose_fk(character, prediction)
-        return ik_loss_terms(character, prediction, pos_pred, truth, pos_global, body)
+        _, pos_pred = pose_fk(character, pose_from_output(out))
+        return ik_loss_terms(out.rot6d_local, pos_pred, rot6d_from_quat(truth.quat_local), pos_global, body)
 
     def group_terms(params, poses, keys, draw, n_slots):
         return jax.vmap(lambda p, k: example(params, p, k, draw, n_slots))(poses, keys)

@@ -1,0 +1,126 @@
+"""What the Δ-interpolator experiment scripts share: their command-line options, one
+training run per Δ-mode with a self-describing, resume-safe checkpoint directory, and
+averaging over seeds (``experiments/delta_lafan1.py``, ``experiments/delta_anidance.py``)."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from bezmotion.checkpoint import CONFIG_FILE, CheckpointStore
+from bezmotion.data.cache import cache_dir
+from bezmotion.delta_train import DeltaTrainConfig, init_delta_train_states, make_delta_train_step, run_delta_training
+from bezmotion.models.delta import DeltaConfig
+from bezmotion.train import compile_train_step
+
+MODE_NAMES = {"last": "Last", "none": "No", "interpolation": "I"}
+"""How the paper's tables name the Δ-modes."""
+
+
+def mode_label(mode: tuple[str, str]) -> str:
+    """``(input Δ-mode, output Δ-mode)`` → the run's name, e.g. ``"last-interpolation"``."""
+    return f"{mode[0]}-{mode[1]}"
+
+
+def add_delta_arguments(
+    parser: argparse.ArgumentParser,
+    *,
+    configs: Mapping[str, Callable[..., DeltaConfig]],
+    lengths: Sequence[int],
+    default_data: Path,
+    data_help: str,
+    run_name: str,
+) -> None:
+    """The options both Δ experiment scripts take (``--out``, data, model size, training, run directory)."""
+    parser.add_argument("--out", required=True, help="output JSON (a .md report is written beside it)")
+    parser.add_argument("--data", default=str(default_data), help=data_help)
+    parser.add_argument("--config", choices=tuple(configs), default="cpu", help="model size (default cpu; paper: width 1024, 6 blocks; tiny: smoke tests)")
+    parser.add_argument("--steps", type=int, default=3000, help="training steps per Δ-mode (default 3000)")
+    parser.add_argument("--batch-size", type=int, default=64)
+    parser.add_argument("--learning-rate", type=float, default=2e-4, help="peak learning rate (paper: 2e-4)")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="seeds trained together (vmapped)")
+    parser.add_argument("--run-dir", default=str(cache_dir() / "runs" / "{name}_{config}"), help=f"checkpoints (default: <cache>/runs/{run_name}_<config>)")
+    parser.add_argument("--checkpoint-every", type=int, default=500)
+    parser.add_argument("--eval-batch", type=int, default=256, help="test windows per vectorised chunk at evaluation")
+    parser.add_argument("--lengths", type=int, nargs="+", default=list(lengths), help=f"transition lengths (default {' '.join(map(str, lengths))})")
+    parser.add_argument("--no-cache", action="store_true", help="re-parse the corpus instead of using the cache")
+    parser.add_argument("--no-progress", action="store_true")
+    parser.set_defaults(run_name=run_name)
+
+
+def resolve_run_dir(args: argparse.Namespace) -> None:
+    """Fill the ``{name}`` and ``{config}`` placeholders of ``--run-dir``."""
+    args.run_dir = args.run_dir.format(name=args.run_name, config=args.config)
+
+
+def check_resumable(directory: Path, config: dict) -> None:
+    """Refuse to resume a run trained with other settings (the schedule depends on ``--steps``
+    too), naming the settings that differ."""
+    path = directory / CONFIG_FILE
+    if not path.exists():
+        return
+    saved = json.loads(path.read_text())
+    new = json.loads(json.dumps(config, sort_keys=True, default=str))  # as the store writes it
+    differ = [
+        f"{section}.{key}: {saved.get(section, {}).get(key)!r} → {new[section].get(key)!r}"
+        for section in new
+        for key in sorted(set(new[section]) | set(saved.get(section, {})))
+        if saved.get(section, {}).get(key) != new[section].get(key)
+    ]
+    if differ:
+        raise ValueError(f"{directory} holds a run with other settings ({'; '.join(differ)}); use another --run-dir")
+
+
+@dataclasses.dataclass(frozen=True)
+class ModeRun:
+    """Where one Δ-mode trains and the configuration saved beside its checkpoints."""
+
+    directory: Path
+    config: dict[str, Any]
+
+    @classmethod
+    def plan(
+        cls, args: argparse.Namespace, model_config: DeltaConfig, train_config: DeltaTrainConfig, *, data: dict | None = None, suffix: str = ""
+    ) -> ModeRun:
+        label = mode_label((model_config.input_delta, model_config.output_delta)) + suffix
+        config = {
+            **({"data": data} if data else {}),
+            "model": dataclasses.asdict(model_config),
+            "train": {**dataclasses.asdict(train_config), "seeds": list(args.seeds), "num_steps": args.steps},
+        }
+        return cls(Path(args.run_dir) / label / "checkpoints", config)
+
+
+def train_delta_mode(args: argparse.Namespace, run: ModeRun, model_config: DeltaConfig, train_config: DeltaTrainConfig, data, *, window_frames: int):
+    """Train (or resume) one Δ-mode for all seeds at once; returns ``(graphdef, state, history, seconds)``."""
+    check_resumable(run.directory, run.config)
+    graphdef, state = init_delta_train_states(model_config, train_config, args.seeds)
+    step = compile_train_step(
+        make_delta_train_step(graphdef, model_config, train_config, window_frames=window_frames), num_seeds=len(args.seeds)
+    )
+    device = jax.devices()[0]
+    store = CheckpointStore(run.directory)
+    started = time.perf_counter()
+    # Restored checkpoints are device-committed; commit fresh states too (one compilation).
+    state, history = run_delta_training(
+        lambda s, d: step(jax.device_put(s, device), d), state, data, num_steps=args.steps, store=store,
+        checkpoint_every=args.checkpoint_every, config=run.config, progress=not args.no_progress,
+    )  # fmt: skip
+    store.close()
+    return graphdef, state, history, time.perf_counter() - started
+
+
+def mean_over_seeds(per_seed: list[Any]) -> Any:
+    """Average nested ``{name: {…: float}}`` metric dictionaries over seeds, leaf by leaf."""
+    first = per_seed[0]
+    if isinstance(first, Mapping):
+        return {k: mean_over_seeds([r[k] for r in per_seed]) for k in first}
+    return float(np.mean(per_seed))
