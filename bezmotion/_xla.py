@@ -15,6 +15,7 @@ A jaxlib that does not know an option gets none (checked once by compiling a sca
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable
 
 import jax
 
@@ -32,3 +33,21 @@ def inference_compiler_options() -> tuple[tuple[str, str], ...]:
     except Exception:  # noqa: BLE001 - an unknown or renamed flag: fall back to XLA's defaults
         return ()
     return tuple(sorted(CPU_INFERENCE_OPTIONS.items()))
+
+
+def call_with_inference_options(compiled: Callable[[tuple[tuple[str, str], ...]], Callable], *args, **kwargs):
+    """``compiled(options)(*args, **kwargs)`` with the backend's inference options.
+
+    ``compiled`` maps an options tuple to a jitted function (cache it). Inside a caller's
+    own ``jax.jit`` the call is traced into that computation, whose options are the
+    caller's, so none are passed; the same holds when a caller's jit traced the
+    function with constant inputs only (JAX then refuses per-call options).
+    """
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((args, kwargs))):
+        return compiled(())(*args, **kwargs)
+    try:
+        return compiled(inference_compiler_options())(*args, **kwargs)
+    except ValueError as error:
+        if "compiler_options" not in str(error):
+            raise
+        return compiled(())(*args, **kwargs)

@@ -31,6 +31,7 @@ def main(argv: list[str] | None = None) -> int:
     p_demo.add_argument("--steps", type=int, default=10, help="DDIM steps (default 10)")
     p_demo.add_argument("--seed", type=int, default=0)
     p_demo.add_argument("--bmm", type=Path, default=BUNDLED_BMM, help="a saved BMM (default: the bundled one)")
+    p_demo.add_argument("--bmm-corpus", default="bandai_namco", help="the corpus --bmm was trained on: bandai_namco (default) or lafan1 (transferred)")
     p_demo.add_argument("--ik-model", type=Path, default=BUNDLED_IK, help="a saved learned IK (default: the bundled one)")
     args = parser.parse_args(argv)
 
@@ -38,7 +39,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "demo":
             demo(
                 args.out, joint=args.joint, frame=args.frame, offset=tuple(args.offset), ik=args.ik, steps=args.steps,
-                seed=args.seed, bmm_dir=args.bmm, ik_dir=args.ik_model,
+                seed=args.seed, bmm_dir=args.bmm, bmm_corpus=args.bmm_corpus, ik_dir=args.ik_model,
             )  # fmt: skip
     except (ValueError, FileNotFoundError) as e:
         print(f"bezmotion: error: {e}", file=sys.stderr)

@@ -110,6 +110,7 @@ def demo(
     steps: int = 10,
     seed: int = 0,
     bmm_dir: Path = BUNDLED_BMM,
+    bmm_corpus: str = "bandai_namco",
     ik_dir: Path = BUNDLED_IK,
     clip: Path = DEMO_CLIP,
 ) -> dict:
@@ -121,6 +122,9 @@ def demo(
         ``offset`` (cm) from where the mocap has it at ``frame`` (a multiple of 6 in 6…24).
       ik: ``"learned"`` (the bundled ProtoRes-style IK) or ``"rig"`` (analytic, no data).
       steps, seed: DDIM steps and PRNG seed of the sampler.
+      bmm_dir, bmm_corpus: the BMM and the corpus it was trained on (one with a profile in
+        :data:`~bezmotion.assets.PROFILES_DIR`; another skeleton's curves are transferred).
+      ik_dir: the learned IK (for ``ik="learned"``).
     """
     if ik not in IK_CHOICES:
         raise ValueError(f"--ik must be one of {IK_CHOICES}, got {ik!r}")
@@ -128,6 +132,9 @@ def demo(
         raise ValueError(f"--joint must be one of {list(CHARACTERISTIC_JOINTS)}, got {joint!r}")
     if not (steps >= 1):
         raise ValueError(f"--steps must be at least 1, got {steps}")
+    if not (PROFILES_DIR / f"{bmm_corpus}.json").exists():
+        known = sorted(p.stem for p in PROFILES_DIR.glob("*.json"))
+        raise ValueError(f"--bmm-corpus must be one of {known}, got {bmm_corpus!r}")
     started = time.perf_counter()
     motion = read_bvh(clip)
     bmm = load_model(bmm_dir)
@@ -146,10 +153,11 @@ def demo(
     j = CHARACTERISTIC_JOINTS.index(joint)
     handle_pos = np.asarray(true_pos[frame, character.characteristic[j]]) + np.asarray(offset, np.float32)
     handles = Handles.from_frames([joint], [frame], handle_pos[None], config=bmm.config)
-    bmm_profile = json.loads((Path(bmm_dir) / "profile.json").read_text()) if (Path(bmm_dir) / "profile.json").exists() else None
     transfer = None
-    if bmm_profile is not None and bmm_profile.get("corpus") != "bandai_namco":
-        transfer = Transfer.between(CharacterProfile.from_json(bmm_profile), CharacterProfile.load(PROFILES_DIR / "bandai_namco.json"))
+    if bmm_corpus != "bandai_namco":  # curves of another skeleton: move them over (BMM §5.2)
+        transfer = Transfer.between(
+            CharacterProfile.load(PROFILES_DIR / f"{bmm_corpus}.json"), CharacterProfile.load(PROFILES_DIR / "bandai_namco.json")
+        )
     start, end = jax.tree.map(lambda x: x[0], truth), jax.tree.map(lambda x: x[-1], truth)
     t0 = time.perf_counter()
     result = inbetween(bmm, ik_fn, ik_params, character, start, end, handles, key=jax.random.key(seed), transfer=transfer, steps=steps)

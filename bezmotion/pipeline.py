@@ -30,7 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from bezmotion._xla import inference_compiler_options
+from bezmotion._xla import call_with_inference_options
 from bezmotion.bezier import BezierLayout, reconstruct_dense
 from bezmotion.data.bvh import BvhMotion
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
@@ -117,6 +117,9 @@ class CharacterProfile:
         mean = np.asarray(data["mean_orientation"], np.float64)
         if mean.shape != (len(CHARACTERISTIC_JOINTS), 4) or not np.isfinite(mean).all():
             raise ValueError(f"mean_orientation must be a finite (6, 4) array, got {mean.shape}")
+        norms = np.linalg.norm(mean, axis=-1)
+        if np.any(np.abs(norms - 1.0) > 1e-3):
+            raise ValueError(f"mean_orientation must hold unit quaternions, got norms {norms.round(4).tolist()}")
         if not float(data["height"]) > 0:
             raise ValueError(f"height must be positive, got {data['height']}")
         return cls(float(data["height"]), mean)
@@ -222,8 +225,10 @@ def _inbetween(
         ctrl_pos=curves.ctrl_pos.at[ends].set(jnp.stack([first.position, last.position])),
         ctrl_rot6d=curves.ctrl_rot6d.at[ends].set(jnp.stack([first.rot6d, last.rot6d])),
     )
-    handle_target = jnp.where(handles.valid[:, None], handles.position, curves.ctrl_pos[handles.control, handles.joint])
-    curves = curves._replace(ctrl_pos=curves.ctrl_pos.at[handles.control, handles.joint].set(handle_target))
+    # Padding slots are sent out of range and dropped, so that one sharing a handle's place
+    # cannot write over it.
+    control = jnp.where(handles.valid, handles.control, cfg.num_controls)
+    curves = curves._replace(ctrl_pos=curves.ctrl_pos.at[control, handles.joint].set(handles.position, mode="drop"))
     layout = BezierLayout.from_controls(cfg.num_controls, cfg.stride)
     positions, rot6d = reconstruct_dense(layout, curves.ctrl_pos, curves.ctrl_tangent, curves.ctrl_rot6d)
     pose = jax.vmap(ik_fn, in_axes=(None, 0))(ik_params, IKTargets(positions, rot6d))
@@ -287,12 +292,15 @@ def inbetween(
     if handles.position.ndim != 2:
         raise ValueError(f"handles must describe one motion ((handles, 3) positions), got {handles.position.shape}")
     for name, pose in (("start", start), ("end", end)):
+        if any(isinstance(x, jax.core.Tracer) for x in pose):
+            continue  # inside a caller's jit: values are unknown until run time
         if not (np.isfinite(np.asarray(pose.root_pos)).all() and np.isfinite(np.asarray(pose.quat_local)).all()):
             raise ValueError(f"the {name} pose contains non-finite values")
     transfer = Transfer.identity() if transfer is None else transfer
-    args = (bmm, ik_params, character, start, end, handles, transfer, key)
-    kwargs = dict(ik_fn=ik_fn, steps=steps, guidance=guidance, foot_lock=foot_lock, keep_keyframes=keep_keyframes)
-    return _compiled(inference_compiler_options())(*args, **kwargs)
+    return call_with_inference_options(
+        _compiled, bmm, ik_params, character, start, end, handles, transfer, key,
+        ik_fn=ik_fn, steps=steps, guidance=guidance, foot_lock=foot_lock, keep_keyframes=keep_keyframes,
+    )  # fmt: skip
 
 
 # ----------------------------------------------------------------------------- metrics and export
@@ -342,6 +350,8 @@ def pose_to_bvh(
     :func:`~bezmotion.data.bvh.write_bvh` (float64; channels default :func:`default_channels`)."""
     if poses.quat_local.ndim != 3 or poses.quat_local.shape[1:] != (character.num_joints, 4):
         raise ValueError(f"poses must be (frames, {character.num_joints}, 4) for {character.name}, got {poses.quat_local.shape}")
+    if poses.root_pos.shape != (poses.quat_local.shape[0], 3):
+        raise ValueError(f"poses.root_pos must be ({poses.quat_local.shape[0]}, 3), got {poses.root_pos.shape}")
     if not fps > 0:
         raise ValueError(f"fps must be positive, got {fps}")
     channels = default_channels(character) if channels is None else tuple(tuple(c) for c in channels)

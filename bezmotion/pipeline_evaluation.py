@@ -84,6 +84,17 @@ def ground_truth_pose_metrics(
     return out
 
 
+@functools.partial(jax.jit, static_argnames=("ik_fn", "steps", "foot_lock"))
+def _run_chunk(bmm, ik_params, character, transfer, inputs, key, *, ik_fn, steps, foot_lock) -> Pose:
+    """:func:`~bezmotion.pipeline.inbetween` of a chunk of windows; one compilation per IK,
+    settings and shapes, shared by every call (evaluate_pipeline's in-distribution and OOD runs)."""
+    one = functools.partial(_inbetween, ik_fn=ik_fn, steps=steps, guidance=1.0, foot_lock=foot_lock, keep_keyframes=True)
+    start, end, handles = inputs
+    keys = jax.random.split(key, start.root_pos.shape[0])
+    run = lambda s, e, h, k: one(bmm, ik_params, character, s, e, h, transfer, k).pose  # noqa: E731
+    return jax.vmap(run)(start, end, handles, keys)
+
+
 def run_pipeline(
     bmm: BezierMotionModel,
     ik_fn: IKFn,
@@ -100,15 +111,7 @@ def run_pipeline(
 ) -> Pose:
     """In-between every window (start and end from ``truth``) through ``handles``; poses ``(windows, frames, …)``."""
     transfer = Transfer.identity() if transfer is None else transfer
-    one = functools.partial(_inbetween, ik_fn=ik_fn, steps=steps, guidance=1.0, foot_lock=foot_lock, keep_keyframes=True)
-
-    @jax.jit
-    def batch(inputs, key):
-        start, end, h = inputs
-        keys = jax.random.split(key, start.root_pos.shape[0])
-        run = lambda s, e, hh, k: one(bmm, ik_params, character, s, e, hh, transfer, k).pose  # noqa: E731
-        return jax.vmap(run)(start, end, h, keys)
-
+    batch = functools.partial(_run_chunk, bmm, ik_params, character, transfer, ik_fn=ik_fn, steps=steps, foot_lock=foot_lock)
     first = jax.tree.map(lambda x: x[:, 0], truth)
     last = jax.tree.map(lambda x: x[:, -1], truth)
     return map_in_chunks(batch, (first, last, handles), key=key, chunk=chunk)

@@ -21,7 +21,7 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
-from bezmotion._xla import inference_compiler_options
+from bezmotion._xla import call_with_inference_options
 from bezmotion.checkpoint import CheckpointStore
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.diffusion.ddim import ddim_sample
@@ -215,16 +215,9 @@ def sample_curves(
     compiler options (:mod:`bezmotion._xla`); inside a caller's own ``jax.jit`` it is
     simply traced into that computation.
     """
-    args = (model, start, end, handles)
-    kwargs = {"key": key, "steps": steps, "guidance": guidance, "overwrite": overwrite, "foot_lock": foot_lock}
-    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((*args, key))):
-        return _compiled_sampler(())(*args, **kwargs)  # inside a caller's jit: options are theirs
-    try:
-        return _compiled_sampler(inference_compiler_options())(*args, **kwargs)
-    except ValueError as error:  # traced by a caller's jit with only constant inputs
-        if "compiler_options" not in str(error):
-            raise
-        return _compiled_sampler(())(*args, **kwargs)
+    return call_with_inference_options(
+        _compiled_sampler, model, start, end, handles, key=key, steps=steps, guidance=guidance, overwrite=overwrite, foot_lock=foot_lock
+    )
 
 
 @functools.cache

@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Mapping
-from typing import Any, NamedTuple, Protocol
+from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 import jax
 import jax.numpy as jnp
@@ -59,6 +59,7 @@ class Pose(NamedTuple):
     quat_local: Float[Array, "*batch joints 4"]
 
 
+@runtime_checkable  # so that annotations with it can be checked at run time (jaxtyping/beartype)
 class IKFn(Protocol):
     """``ik_fn(params, targets) -> pose`` for one frame (unbatched; ``vmap`` it)."""
 

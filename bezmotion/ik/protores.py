@@ -85,6 +85,11 @@ class ProtoResConfig:
         orientation in the canonical frame, turned into local rotations by
         ``R_local = R_parentᵀ R_joint`` — an error in one joint then no longer rotates
         everything below it, and a given orientation can be passed straight through.
+      effector_skip: ``False`` (ProtoRes): the decoder sees the prototype alone. ``True``
+        (ours): it also reads the given effectors scattered onto their joints, and its
+        outputs are residuals over them — the hips position over the given hips, every
+        rotation the network outputs as global over its given orientation — so an
+        untrained network already reproduces its inputs.
     """
 
     num_joints: int
@@ -95,6 +100,7 @@ class ProtoResConfig:
     embedding_dim: int = 16
     position_scale: float = 0.01
     output_rotations: str = "local"
+    effector_skip: bool = False
 
     def __post_init__(self):
         for name in ("num_joints", "encoder_width", "stage_blocks", "decoder_width", "decoder_blocks", "embedding_dim"):
@@ -108,22 +114,25 @@ class ProtoResConfig:
 
     @classmethod
     def paper(cls, num_joints: int, **overrides) -> ProtoResConfig:
-        """A ProtoRes-scale network (width 1024, 3 blocks per stage and in the decoder,
-        ≈ 13 M parameters for 22 joints), for a GPU. BMM (C.4.1) trains ProtoRes
-        "without modifications" and lists no sizes; this is our reading of its scale."""
+        """A ProtoRes-scale network as published (local rotations, no effector skip;
+        width 1024, 3 blocks per stage and in the decoder, ≈ 22 M parameters for 22
+        joints), for a GPU. BMM (C.4.1) trains ProtoRes "without modifications" and lists
+        no sizes; the widths are our reading of its scale."""
         sizes = {"encoder_width": 1024, "stage_blocks": 3, "decoder_width": 1024, "decoder_blocks": 3, "embedding_dim": 32}
         return cls(num_joints, **{**sizes, **overrides})
 
     @classmethod
     def cpu(cls, num_joints: int, **overrides) -> ProtoResConfig:
-        """The shipped size (≈ 0.6 M parameters, ≈ 2.5 MB saved): trains in minutes on a 2-core CPU."""
-        return cls(num_joints, **overrides)
+        """The shipped model (≈ 0.75 M parameters, ≈ 3 MB saved; trains in minutes on a
+        2-core CPU): global rotations and the effector skip, which make a short training
+        run far more accurate (``experiments/train_ik.py`` comparisons in the notes)."""
+        return cls(num_joints, **{"output_rotations": "global", "effector_skip": True, **overrides})
 
     @classmethod
     def tiny(cls, num_joints: int, **overrides) -> ProtoResConfig:
-        """A size for tests (≈ 20 k parameters)."""
+        """A size for tests (≈ 40 k parameters), the shipped variant."""
         sizes = {"encoder_width": 32, "stage_blocks": 1, "decoder_width": 64, "decoder_blocks": 1, "embedding_dim": 8}
-        return cls(num_joints, **{**sizes, **overrides})
+        return cls(num_joints, **{**sizes, "output_rotations": "global", "effector_skip": True, **overrides})
 
 
 class Effectors(NamedTuple):
@@ -272,7 +281,8 @@ class ProtoRes(nnx.Module):
         self.stage1 = nnx.List([_ResidualBlock(w, rngs=rngs) for _ in range(config.stage_blocks)])
         self.stage2_in = nnx.Linear(2 * w, w, rngs=rngs)
         self.stage2 = nnx.List([_ResidualBlock(w, rngs=rngs) for _ in range(config.stage_blocks)])
-        self.decoder_in = nnx.Linear(w, d, rngs=rngs)
+        given = config.num_joints * (FEATURES_PER_EFFECTOR + 1) if config.effector_skip else 0
+        self.decoder_in = nnx.Linear(w + given, d, rngs=rngs)
         self.decoder = nnx.List([_ResidualBlock(d, rngs=rngs) for _ in range(config.decoder_blocks)])
         self.decoder_norm = nnx.LayerNorm(d, rngs=rngs)
         # Zero-initialised head: an untrained network outputs identity rotations.
@@ -294,15 +304,32 @@ class ProtoRes(nnx.Module):
         return proto1 + _masked_mean(h, valid)
 
     def __call__(
-        self, features: Float[Array, "E 10"], joint: Int[Array, "E"], valid: Bool[Array, "E"]
+        self, features: Float[Array, "E 10"], joint: Int[Array, "E"], valid: Bool[Array, "E"], hips: int
     ) -> tuple[Float[Array, "3"], Float[Array, "joints 6"]]:
-        """Canonical-frame hips position (network units) and raw 6D local rotations."""
-        z = self.decoder_in(self.prototype(features, joint, valid))
+        """Canonical-frame hips position (network units) and raw 6D rotations (local or
+        global per ``config.output_rotations``) of every joint; ``hips`` is the hips' index."""
+        cfg = self.config
+        features = jnp.where(valid[:, None], features, 0.0)
+        z = self.prototype(features, joint, valid)
+        identity = jnp.broadcast_to(jnp.asarray(_IDENTITY_6D, features.dtype), (cfg.num_joints, 6))
+        base_root, base6d = jnp.zeros(3, features.dtype), identity
+        if cfg.effector_skip:
+            # The given effectors scattered onto their joints (zeros where none is given):
+            # the decoder reads them directly, and outputs are residuals over them.
+            on = valid[:, None] & (joint[:, None] == jnp.arange(cfg.num_joints)[None, :])  # (E, joints)
+            given = jnp.einsum("ej,ef->jf", on.astype(features.dtype), features)  # (joints, 10)
+            given_mask = jnp.any(on, axis=0)
+            z = jnp.concatenate([z, given.reshape(-1), given_mask.astype(features.dtype)])
+            base_root = given[hips, :3]
+            has_rotation = given[:, 9] > 0.5
+            if cfg.output_rotations == "local":  # only the hips' local rotation is a global one
+                has_rotation = has_rotation & (jnp.arange(cfg.num_joints) == hips)
+            base6d = jnp.where(has_rotation[:, None], given[:, 3:9], identity)
+        z = self.decoder_in(z)
         for block in self.decoder:
             z = block(z)
         out = self.head(jax.nn.relu(self.decoder_norm(z)))
-        rot6d = out[3:].reshape(self.config.num_joints, 6) + jnp.asarray(_IDENTITY_6D, out.dtype)
-        return out[:3], rot6d
+        return base_root + out[:3], base6d + out[3:].reshape(cfg.num_joints, 6)
 
 
 class ProtoResOutput(NamedTuple):
@@ -357,7 +384,7 @@ def apply_protores(
     has_rotation = valid & effectors.has_rotation
     rot6d = jnp.where(has_rotation[:, None], _rotate_rot6d(yaw.T, jnp.where(has_rotation[:, None], effectors.rot6d, 0.0)), 0.0)
     features = jnp.concatenate([position * cfg.position_scale, rot6d, has_rotation[:, None].astype(dtype)], axis=-1)
-    root, raw6d = model(features, effectors.joint, valid)
+    root, raw6d = model(features, effectors.joint, valid, character.hips)
     matrix = matrix_from_rot6d(raw6d)
     hips = character.hips
     above = list(character.ancestors_of_hips())

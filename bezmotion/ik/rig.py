@@ -1,4 +1,4 @@
-"""A traditional IK rig that needs no data (BMM Appendix D.4): FABRIK spine, two-bone limbs.
+"""A traditional IK rig that needs no data (BMM Appendix D.4): bent spine, two-bone limbs.
 
 The rig turns :class:`~bezmotion.ik.protocol.IKTargets` into a full-body
 :class:`~bezmotion.ik.protocol.Pose` with geometry alone, so it drives any humanoid
@@ -6,19 +6,21 @@ skeleton whose chains are named in a :class:`RigSpec`:
 
 1. **Hips** take the target position and global orientation.
 2. **Spine** (hips → head): the hips-to-head rotation the targets ask for is shared
-   evenly by the spine joints (this sets the twist and a natural curve), FABRIK then bends
-   the chain so the head joint reaches its target as far as the bone lengths allow, and
-   each spine joint takes the smallest swing from its first guess onto the bent chain.
-   The head then takes its target orientation.
+   evenly by the spine joints (this sets the twist and a natural curve); the chain is
+   then bent at its middle joint, as two rigid halves, by the law of cosines so the head
+   joint reaches its target exactly. Targets the halves cannot reach are first reshaped
+   by a fixed number of FABRIK iterations. Each spine joint takes the smallest swing from
+   its first guess onto the bent chain, and the head takes its target orientation.
 3. **Arms and legs**: analytic two-bone IK (law of cosines) reaches the hand / ankle
    exactly when it can and the nearest reachable point along the same direction when it
    cannot. The bend plane comes from a pole hint built from bone directions in world
    space (never from assumed joint axes, so it works for LaFAN1's zero-rotation rest pose
    and for Bandai-Namco's alike): knees towards the toes and the pelvis' forward, elbows
-   behind and below the chest. The hand / foot then takes its target orientation; the
-   elbow / knee rotation is a pure swing in the bend plane and the wrist / ankle rotation
-   has no twist.
-4. Every other joint (clavicles, toes, joints above the hips) keeps its rest rotation.
+   behind, below and outside the chest. The hand / foot then takes its target
+   orientation; the elbow / knee rotation is a pure swing and the wrist / ankle rotation
+   has no twist about the forearm / shin.
+4. Every other joint (clavicles, toes, joints above the hips) keeps its rest local
+   rotation: identity, or a bind pose given to :func:`make_rig`.
 
 Everything is one frame, fixed iteration counts and no data-dependent Python control
 flow: ``jax.vmap(rig_ik, in_axes=(None, 0))`` solves a batch of frames, and divisions,
@@ -168,10 +170,11 @@ class Rig:
       limbs: ``(root, middle, end)`` joint indices of the left arm, right arm, left leg,
         right leg.
       limb_bases: per limb, ``(k, path)``: the limb hangs off ``spine[k]`` through the
-        joints ``path`` (the clavicle, …, the limb root), which stay at rest.
+        joints ``path`` (the clavicle, …, the limb root); all but the limb root keep
+        their ``rest_quat_local``.
       toes: per leg, a child joint of the foot whose bone gives the toes' direction, or
         ``-1`` when the foot has none.
-      spine_iterations: FABRIK iterations for the spine.
+      spine_iterations: FABRIK iterations for spine targets the first guess cannot reach.
     """
 
     skeleton: Skeleton
@@ -243,15 +246,15 @@ def make_rig(
     for field, limb in zip(_LIMBS, limbs):
         _check_chain(skeleton, limb, field)
 
-    def expect(joint: int, role: str, where: str) -> None:
+    def expect(joint: int, role: str, where: str, end: str = "ends") -> None:
         wanted = character.characteristic[CHARACTERISTIC_JOINTS.index(role)]
         if joint != wanted:
             raise ValueError(
-                f"RigSpec.{where} ends at {skeleton.names[joint]!r} but the character's {role} is "
+                f"RigSpec.{where} {end} at {skeleton.names[joint]!r} but the character's {role} is "
                 f"{skeleton.names[wanted]!r}"
             )
 
-    expect(spine[0], "hips", "spine")
+    expect(spine[0], "hips", "spine", "starts")
     expect(spine[-1], "head", "spine")
     for field, limb, role in zip(_LIMBS, limbs, ("left_hand", "right_hand", "left_foot", "right_foot")):
         expect(limb[-1], role, field)
@@ -292,29 +295,35 @@ def make_rig(
 # ------------------------------------------------------------------------------ solving
 
 
-def _where_normalize(v: Float[Array, "3"], fallback: Float[Array, "3"]) -> Float[Array, "3"]:
-    """``v / |v|``, or ``fallback`` when ``v`` (almost) vanishes; finite gradients either way."""
+def _where_normalize(v: Float[Array, "*batch 3"], fallback: Float[Array, "*#batch 3"]) -> Float[Array, "*batch 3"]:
+    """``v / |v|``, or ``fallback`` where ``v`` (almost) vanishes; finite gradients either way."""
     norm = safe_norm(v, keepdims=True)
     ok = norm > _EPS
     return jnp.where(ok, v / jnp.where(ok, norm, 1.0), fallback)
 
 
-def _perpendicular(v: Float[Array, "3"], axis: Float[Array, "3"]) -> Float[Array, "3"]:
+def _perpendicular(v: Float[Array, "*batch 3"], axis: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3"]:
     """The part of ``v`` perpendicular to the unit vector ``axis``."""
-    return v - jnp.dot(v, axis) * axis
+    return v - jnp.sum(v * axis, axis=-1, keepdims=True) * axis
 
 
-def _any_perpendicular(axis: Float[Array, "3"]) -> Float[Array, "3"]:
+def _any_perpendicular(axis: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3"]:
     """Some unit vector perpendicular to the unit vector ``axis`` (the last-resort bend direction)."""
-    basis = jnp.eye(3, dtype=axis.dtype)[jnp.argmin(jnp.abs(axis))]
+    # x unless the axis is close to x (then y): the cross product is at least 0.43 long.
+    near_x = jnp.abs(axis[..., :1]) > 0.9
+    basis = jnp.where(near_x, jnp.asarray([0.0, 1.0, 0.0], axis.dtype), jnp.asarray([1.0, 0.0, 0.0], axis.dtype))
     return normalize(jnp.cross(axis, basis))
 
 
 def _bend(
-    p_root: Float[Array, "3"], len_a: Float[Array, ""], len_b: Float[Array, ""], target: Float[Array, "3"],
-    hint: Float[Array, "3"], fallback: Float[Array, "3"],
-) -> tuple[Float[Array, "3"], Float[Array, "3"]]:
-    """Where the middle and the end of a two-bone chain go to reach ``target`` (law of cosines).
+    p_root: Float[Array, "*batch 3"],
+    len_a: Float[Array, "*batch"],
+    len_b: Float[Array, "*batch"],
+    target: Float[Array, "*batch 3"],
+    hint: Float[Array, "*batch 3"],
+    fallback: Float[Array, "*batch 3"],
+) -> tuple[Float[Array, "*batch 3"], Float[Array, "*batch 3"]]:
+    """Where the middle and the end of two-bone chains go to reach ``target`` (law of cosines).
 
     Args:
       p_root: the chain's fixed root (cm).
@@ -323,13 +332,14 @@ def _bend(
         reachable ``[|len_a - len_b|, len_a + len_b]``, keeping the direction.
       hint: world direction the middle joint bends towards (its part across the reach
         axis counts; a hint along the axis falls back to some perpendicular).
-      fallback: the reach direction when ``target`` sits on the root.
+      fallback: the unit reach direction when ``target`` sits on the root.
     Returns:
       ``(p_mid, p_end)``: ``|p_mid - p_root| = len_a``, ``|p_end - p_mid| = len_b``.
     """
+    len_a, len_b = len_a[..., None], len_b[..., None]
     to_target = target - p_root
     axis = _where_normalize(to_target, fallback)
-    reach = jnp.clip(safe_norm(to_target), jnp.abs(len_a - len_b), len_a + len_b)
+    reach = jnp.clip(safe_norm(to_target, keepdims=True), jnp.abs(len_a - len_b), len_a + len_b)
     # cos of the angle at the root between the reach axis and the first bone.
     num = len_a * len_a + reach * reach - len_b * len_b
     den = 2.0 * len_a * reach
@@ -367,33 +377,40 @@ def _reach(points: Float[Array, "n 3"], lengths: Float[Array, "n-1"], target: Fl
     target unchanged, so a reached target stays reached.
     """
     count = points.shape[0]
+    base = points[0]
 
-    def fabrik(_, points):
+    def fabrik(_, chain):
         # Backward from the target, then forward from the pinned base; each step keeps
         # one bone's length exactly.
-        base = points[0]
-        points = points.at[-1].set(target)
+        chain = list(chain)
+        chain[-1] = target
         for k in range(count - 2, -1, -1):
-            points = points.at[k].set(points[k + 1] + lengths[k] * normalize(points[k] - points[k + 1]))
-        points = points.at[0].set(base)
+            chain[k] = chain[k + 1] + lengths[k] * normalize(chain[k] - chain[k + 1])
+        chain[0] = base
         for k in range(count - 1):
-            points = points.at[k + 1].set(points[k] + lengths[k] * normalize(points[k + 1] - points[k]))
-        return points
+            chain[k + 1] = chain[k] + lengths[k] * normalize(chain[k + 1] - chain[k])
+        return tuple(chain)
 
-    points = _close(points, target)
-    points = jax.lax.fori_loop(0, iterations, fabrik, points)
-    return _close(points, target)
+    def close_then_fabrik(points, first):
+        # Traced once for both bends (XLA compile time grows with the graph): the FABRIK
+        # iterations only count after the first bend.
+        points = _close(points, target)
+        reshaped = jnp.stack(jax.lax.fori_loop(0, iterations, fabrik, tuple(points)))
+        return jnp.where(first, reshaped, points), None
+
+    points, _ = jax.lax.scan(close_then_fabrik, points, jnp.asarray([True, False]))
+    return points
 
 
 def _two_bone(
-    p_root: Float[Array, "3"],
-    bone_upper: Float[Array, "3"],
-    bone_lower: Float[Array, "3"],
-    target: Float[Array, "3"],
-    quat_end: Float[Array, "4"],
-    hint: Float[Array, "3"],
-) -> tuple[Float[Array, "4"], Float[Array, "4"]]:
-    """Global rotations of the upper and lower bone of a two-bone limb.
+    p_root: Float[Array, "*batch 3"],
+    bone_upper: Float[Array, "*batch 3"],
+    bone_lower: Float[Array, "*batch 3"],
+    target: Float[Array, "*batch 3"],
+    quat_end: Float[Array, "*batch 4"],
+    hint: Float[Array, "*batch 3"],
+) -> tuple[Float[Array, "*batch 4"], Float[Array, "*batch 4"]]:
+    """Global rotations of the upper and lower bones of two-bone limbs.
 
     Args:
       p_root: world position of the limb root (shoulder / hip joint), cm.
@@ -407,7 +424,8 @@ def _two_bone(
     """
     # The limb's straight direction under the end rotation: the reach direction when the
     # target sits on the root (any direction would do; this one is continuous in quat_end).
-    fallback = _where_normalize(quat_rotate(quat_end, bone_upper + bone_lower), jnp.asarray([0.0, 1.0, 0.0], p_root.dtype))
+    up = jnp.asarray([0.0, 1.0, 0.0], p_root.dtype)
+    fallback = _where_normalize(quat_rotate(quat_end, bone_upper + bone_lower), up)
     p_mid, p_end = _bend(p_root, safe_norm(bone_upper), safe_norm(bone_lower), target, hint, fallback)
     # Lower bone: the least swing from the end rotation (so the wrist / ankle does not
     # twist); upper bone: the least swing from the lower one (a hinge in the bend plane).
@@ -438,27 +456,24 @@ def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
     pos_target = targets.position
     spine = rig.spine
     n = len(spine) - 1  # spine[n] is the head; spine[1:n] bend the chain
-
     quat_hips = quat_target[0]
+
     # First guess: every joint from spine[1] to the head takes the same share of the
     # hips-to-head rotation, so the twist and the bend spread along the spine.
     step = slerp(quat_identity((), dtype), quat_mul(quat_conjugate(quat_hips), quat_target[_HEAD]), 1.0 / n)
     guess = [quat_hips]
     for _ in range(1, n):
         guess.append(quat_mul(guess[-1], step))
-    points = [pos_target[0] + quat_rotate(quat_hips, offsets[spine[1]])]
-    for k in range(1, n):
-        points.append(points[-1] + quat_rotate(guess[k], offsets[spine[k + 1]]))
-    lengths = safe_norm(offsets[np.asarray(spine[2:])])
-    points = _reach(jnp.stack(points), lengths, pos_target[_HEAD], rig.spine_iterations)
+    guess = jnp.stack(guess[1:])  # spine[1:n]
+    bones = quat_rotate(guess, offsets[np.asarray(spine[2:])])  # spine[k] → spine[k + 1], k = 1..n-1
+    start = pos_target[0] + quat_rotate(quat_hips, offsets[spine[1]])
+    points = jnp.concatenate([start[None], start + jnp.cumsum(bones, axis=0)])
+    points = _reach(points, safe_norm(bones), pos_target[_HEAD], rig.spine_iterations)
     # Each spine joint takes the least swing from its guess onto the bent chain.
-    quat_spine = [quat_hips]
-    pos_spine = [pos_target[0], points[0]]
-    for k in range(1, n):
-        bone = quat_rotate(guess[k], offsets[spine[k + 1]])
-        quat_spine.append(quat_mul(quat_between(bone, points[k] - points[k - 1]), guess[k]))
-        pos_spine.append(pos_spine[-1] + quat_rotate(quat_spine[k], offsets[spine[k + 1]]))
-    quat_spine.append(quat_target[_HEAD])
+    quat_spine = jnp.concatenate(
+        [quat_hips[None], quat_mul(quat_between(bones, points[1:] - points[:-1]), guess), quat_target[_HEAD][None]]
+    )
+    pos_spine = jnp.concatenate([pos_target[:1], points])
 
     # Limb roots hang off the posed spine through joints held at their rest rotations.
     roots, root_parents = [], []
@@ -469,25 +484,33 @@ def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
             quat = quat_mul(quat, rest[j])
         roots.append(pos + quat_rotate(quat, offsets[path[-1]]))
         root_parents.append(quat)
+    roots, root_parents = jnp.stack(roots), jnp.stack(root_parents)
 
     # Body axes from bone directions in world space (no assumed joint axes): up from the
     # hips to the head target, left from the right to the left limb root.
     up = _where_normalize(pos_target[_HEAD] - pos_target[0], quat_rotate(quat_hips, offsets[spine[1]]))
-    pelvis_left = normalize(roots[2] - roots[3])
-    chest_left = normalize(roots[0] - roots[1])
-    pelvis_forward = normalize(jnp.cross(pelvis_left, up))
-    chest_forward = normalize(jnp.cross(chest_left, up))
-    hints = [-chest_forward - _ELBOW_DOWN_WEIGHT * up + _ELBOW_OUT_WEIGHT * side * chest_left for side in (1.0, -1.0)]
-    for foot, toe in zip(_LIMB_TARGET[2:], rig.toes):
-        toes = normalize(quat_rotate(quat_target[foot], offsets[toe])) if toe >= 0 else jnp.zeros(3, dtype)
-        hints.append(toes + _KNEE_FORWARD_WEIGHT * pelvis_forward)
+    left = normalize(roots[np.asarray([0, 2])] - roots[np.asarray([1, 3])])  # chest, pelvis
+    forward = normalize(jnp.cross(left, up))
+    outward = left[0] * jnp.asarray([[1.0], [-1.0]], dtype)
+    elbows = -forward[0] - _ELBOW_DOWN_WEIGHT * up + _ELBOW_OUT_WEIGHT * outward
+    toes = jnp.stack(
+        [quat_rotate(quat_target[t], offsets[toe]) if toe >= 0 else jnp.zeros(3, dtype) for t, toe in zip(_LIMB_TARGET[2:], rig.toes)]
+    )
+    knees = normalize(toes) + _KNEE_FORWARD_WEIGHT * forward[1]
 
-    quat_local = rest.at[spine[0]].set(quat_hips)
-    for k in range(1, n + 1):
-        quat_local = quat_local.at[spine[k]].set(quat_mul(quat_conjugate(quat_spine[k - 1]), quat_spine[k]))
-    for limb, root, parent, hint, t in zip(rig.limbs, roots, root_parents, hints, _LIMB_TARGET):
-        upper, lower = _two_bone(root, offsets[limb[1]], offsets[limb[2]], pos_target[t], quat_target[t], hint)
-        quat_local = quat_local.at[limb[0]].set(quat_mul(quat_conjugate(parent), upper))
-        quat_local = quat_local.at[limb[1]].set(quat_mul(quat_conjugate(upper), lower))
-        quat_local = quat_local.at[limb[2]].set(quat_mul(quat_conjugate(lower), quat_target[t]))
+    limbs = np.asarray(rig.limbs)
+    ends = np.asarray(_LIMB_TARGET)
+    quat_end = quat_target[ends]
+    upper, lower = _two_bone(
+        roots, offsets[limbs[:, 1]], offsets[limbs[:, 2]], pos_target[ends], quat_end, jnp.concatenate([elbows, knees])
+    )
+    local = {spine[0]: quat_hips}
+    spine_local = quat_mul(quat_conjugate(quat_spine[:-1]), quat_spine[1:])
+    local.update({j: spine_local[k] for k, j in enumerate(spine[1:])})
+    limb_local = jnp.stack(
+        [quat_mul(quat_conjugate(root_parents), upper), quat_mul(quat_conjugate(upper), lower), quat_mul(quat_conjugate(lower), quat_end)],
+        axis=1,
+    )  # (limb, joint in limb, 4)
+    local.update({int(j): limb_local[i, m] for i, limb in enumerate(limbs) for m, j in enumerate(limb)})
+    quat_local = jnp.stack([local.get(j, rest[j]) for j in range(rig.num_joints)])
     return Pose(pos_target[0], quat_local)
