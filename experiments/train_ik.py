@@ -58,7 +58,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--config", choices=sorted(CONFIGS), default="cpu")
     parser.add_argument("--batch-size", type=int, default=IKTrainConfig.batch_size)
     parser.add_argument("--learning-rate", type=float, default=IKTrainConfig.learning_rate)
-    parser.add_argument("--output-rotations", choices=("local", "global"), default="local")
+    parser.add_argument("--output-rotations", choices=("local", "global"), default=None, help="override the preset's")
+    parser.add_argument("--effector-skip", action=argparse.BooleanOptionalAction, default=None, help="override the preset's")
     parser.add_argument("--rot-weight", type=float, default=IKTrainConfig.rot_weight)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--frame-step", type=int, default=1, help="train on every n-th frame (default 1)")
@@ -74,7 +75,8 @@ def train_ik(args: argparse.Namespace) -> dict:
     started = time.perf_counter()
     character, poses = load_frames(args.corpus, "train", source=args.data, frame_step=args.frame_step, progress=not args.no_progress)
     print(f"{args.corpus}: {poses.root_pos.shape[0]} training frames of {character.num_joints} joints ({time.perf_counter() - started:.1f} s)")
-    model_config = CONFIGS[args.config](character.num_joints, output_rotations=args.output_rotations)
+    overrides = {k: v for k, v in (("output_rotations", args.output_rotations), ("effector_skip", args.effector_skip)) if v is not None}
+    model_config = CONFIGS[args.config](character.num_joints, **overrides)
     train_config = IKTrainConfig(
         num_steps=args.steps, batch_size=args.batch_size, learning_rate=args.learning_rate, rot_weight=args.rot_weight,
         dense_batch_size=min(IKTrainConfig.dense_batch_size, args.batch_size // 8),

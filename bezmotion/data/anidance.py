@@ -7,8 +7,9 @@ parent), and caches the parsed corpus on disk.
 Each CSV row is one frame at 25 fps: ``center_x, center_y, center_z`` then
 ``bone_0_x … bone_22_z`` — 24 points × 3 = 72 values, no rotations. Values are returned
 exactly as stored, as ``(frames, 24, 3)`` float64 with the center as point 0. (In the
-files the center moves around the room while the 23 bones stay within ~±72 cm of the
-origin in X and Z: the bones look expressed relative to the center horizontally.)
+files the center moves around the room while the 23 bones stay near the origin: the bones
+are stored relative to the center in all three axes;
+:func:`bezmotion.anidance_evaluation.anidance_to_world` adds it back.)
 
 ``split.json`` lists the benchmark's 61 files; the published archive holds 49 of them.
 Listed files that are absent are dropped with one warning that names them all; files

@@ -40,13 +40,11 @@ from jaxtyping import Array, Float
 
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.geometry.rotations import (
+    matrix_from_quat,
+    matrix_from_rot6d,
     normalize,
-    quat_between,
-    quat_conjugate,
-    quat_from_rot6d,
+    quat_from_matrix,
     quat_identity,
-    quat_mul,
-    quat_rotate,
     safe_norm,
     slerp,
 )
@@ -86,11 +84,12 @@ class RigSpec:
       left_leg, right_leg: ``(upper leg, lower leg, foot)`` — the foot is the ankle joint.
     """
 
+    # Plain ``tuple[str, ...]`` so that a wrong length reaches the ValueError below.
     spine: tuple[str, ...]
-    left_arm: tuple[str, str, str]
-    right_arm: tuple[str, str, str]
-    left_leg: tuple[str, str, str]
-    right_leg: tuple[str, str, str]
+    left_arm: tuple[str, ...]
+    right_arm: tuple[str, ...]
+    left_leg: tuple[str, ...]
+    right_leg: tuple[str, ...]
 
     def __post_init__(self) -> None:
         for field in ("spine", *_LIMBS):
@@ -295,6 +294,22 @@ def make_rig(
 # ------------------------------------------------------------------------------ solving
 
 
+# Levi-Civita symbol: cross products and skew matrices as single contractions, which keeps
+# the traced graph (and XLA's compile time, under grad too) small.
+_LEVI_CIVITA = np.zeros((3, 3, 3))
+for _i, _j, _k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
+    _LEVI_CIVITA[_i, _j, _k], _LEVI_CIVITA[_i, _k, _j] = 1.0, -1.0
+
+
+def _cross(u: Float[Array, "*#batch 3"], v: Float[Array, "*#batch 3"]) -> Float[Array, "*batch 3"]:
+    return jnp.einsum("ijk,...j,...k->...i", jnp.asarray(_LEVI_CIVITA, u.dtype), u, v)
+
+
+def _apply(m: Float[Array, "*#batch 3 3"], v: Float[Array, "*#batch 3"]) -> Float[Array, "*batch 3"]:
+    """``m @ v`` for rotation matrices ``m`` and vectors ``v``."""
+    return jnp.einsum("...ij,...j->...i", m, v)
+
+
 def _where_normalize(v: Float[Array, "*batch 3"], fallback: Float[Array, "*#batch 3"]) -> Float[Array, "*batch 3"]:
     """``v / |v|``, or ``fallback`` where ``v`` (almost) vanishes; finite gradients either way."""
     norm = safe_norm(v, keepdims=True)
@@ -308,11 +323,31 @@ def _perpendicular(v: Float[Array, "*batch 3"], axis: Float[Array, "*batch 3"]) 
 
 
 def _any_perpendicular(axis: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3"]:
-    """Some unit vector perpendicular to the unit vector ``axis`` (the last-resort bend direction)."""
+    """Some unit vector perpendicular to the unit vector ``axis`` (the last-resort direction)."""
     # x unless the axis is close to x (then y): the cross product is at least 0.43 long.
     near_x = jnp.abs(axis[..., :1]) > 0.9
     basis = jnp.where(near_x, jnp.asarray([0.0, 1.0, 0.0], axis.dtype), jnp.asarray([1.0, 0.0, 0.0], axis.dtype))
-    return normalize(jnp.cross(axis, basis))
+    return normalize(_cross(axis, basis))
+
+
+def _swing(u: Float[Array, "*batch 3"], v: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3 3"]:
+    """The least rotation (matrix) taking direction ``u`` to direction ``v``.
+
+    Identity when either vanishes; a half turn about an axis perpendicular to ``u`` when
+    they are opposite. Built from the half-way quaternion ``(1 + u·v, u × v)``, which
+    stays accurate for nearly opposite directions.
+    """
+    u, v = normalize(u), normalize(v)
+    half = jnp.concatenate([1.0 + jnp.sum(u * v, axis=-1, keepdims=True), _cross(u, v)], axis=-1)
+    norm = safe_norm(half, keepdims=True)
+    opposite = norm < 64.0 * float(jnp.finfo(u.dtype).eps)
+    flip = jnp.concatenate([jnp.zeros_like(half[..., :1]), _any_perpendicular(u)], axis=-1)
+    q = jnp.where(opposite, flip, half / jnp.where(opposite, 1.0, norm))
+    w, xyz = q[..., :1, None], q[..., 1:]
+    eye = jnp.eye(3, dtype=u.dtype)
+    skew = jnp.einsum("ijk,...j->...ik", jnp.asarray(_LEVI_CIVITA, u.dtype), xyz)
+    outer = xyz[..., :, None] * xyz[..., None, :]
+    return (w * w - jnp.sum(xyz * xyz, axis=-1)[..., None, None]) * eye + 2.0 * outer + 2.0 * w * skew
 
 
 def _bend(
@@ -362,8 +397,8 @@ def _close(points: Float[Array, "n 3"], target: Float[Array, "3"]) -> Float[Arra
     base = points[0]
     first, second = points[mid] - base, points[-1] - points[mid]
     p_mid, p_end = _bend(base, safe_norm(first), safe_norm(second), target, first, normalize(points[-1] - base))
-    points = base + quat_rotate(quat_between(first, p_mid - base), points - base)
-    tail = p_mid + quat_rotate(quat_between(points[-1] - p_mid, p_end - p_mid), points[mid:] - p_mid)
+    points = base + _apply(_swing(first, p_mid - base), points - base)
+    tail = p_mid + _apply(_swing(points[-1] - p_mid, p_end - p_mid), points[mid:] - p_mid)
     return jnp.concatenate([points[:mid], tail], axis=0)
 
 
@@ -407,31 +442,31 @@ def _two_bone(
     bone_upper: Float[Array, "*batch 3"],
     bone_lower: Float[Array, "*batch 3"],
     target: Float[Array, "*batch 3"],
-    quat_end: Float[Array, "*batch 4"],
+    rot_end: Float[Array, "*batch 3 3"],
     hint: Float[Array, "*batch 3"],
-) -> tuple[Float[Array, "*batch 4"], Float[Array, "*batch 4"]]:
-    """Global rotations of the upper and lower bones of two-bone limbs.
+) -> tuple[Float[Array, "*batch 3 3"], Float[Array, "*batch 3 3"]]:
+    """Global rotations (matrices) of the upper and lower bones of two-bone limbs.
 
     Args:
       p_root: world position of the limb root (shoulder / hip joint), cm.
       bone_upper: rest offset of the middle joint in the root's frame (cm).
       bone_lower: rest offset of the end joint in the middle joint's frame (cm).
       target: where the end joint should be (cm); clamped to the reachable shell.
-      quat_end: the end joint's target global rotation (sets the limb's twist).
+      rot_end: the end joint's target global rotation (sets the limb's twist).
       hint: world direction towards which the middle joint should bend.
     Returns:
-      ``(quat_upper, quat_lower)`` global rotations of the root and middle joints.
+      ``(rot_upper, rot_lower)`` global rotations of the root and middle joints.
     """
     # The limb's straight direction under the end rotation: the reach direction when the
-    # target sits on the root (any direction would do; this one is continuous in quat_end).
+    # target sits on the root (any direction would do; this one is continuous in rot_end).
     up = jnp.asarray([0.0, 1.0, 0.0], p_root.dtype)
-    fallback = _where_normalize(quat_rotate(quat_end, bone_upper + bone_lower), up)
+    fallback = _where_normalize(_apply(rot_end, bone_upper + bone_lower), up)
     p_mid, p_end = _bend(p_root, safe_norm(bone_upper), safe_norm(bone_lower), target, hint, fallback)
     # Lower bone: the least swing from the end rotation (so the wrist / ankle does not
     # twist); upper bone: the least swing from the lower one (a hinge in the bend plane).
-    quat_lower = quat_mul(quat_between(quat_rotate(quat_end, bone_lower), p_end - p_mid), quat_end)
-    quat_upper = quat_mul(quat_between(quat_rotate(quat_lower, bone_upper), p_mid - p_root), quat_lower)
-    return quat_upper, quat_lower
+    rot_lower = _swing(_apply(rot_end, bone_lower), p_end - p_mid) @ rot_end
+    rot_upper = _swing(_apply(rot_lower, bone_upper), p_mid - p_root) @ rot_lower
+    return rot_upper, rot_lower
 
 
 def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
@@ -452,65 +487,64 @@ def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
     dtype = targets.position.dtype
     offsets = jnp.asarray(rig.skeleton.offsets, dtype)
     rest = jnp.asarray(rig.rest_quat_local, dtype)
-    quat_target = quat_from_rot6d(targets.rot6d)
+    rot_target = matrix_from_rot6d(targets.rot6d)
     pos_target = targets.position
     spine = rig.spine
     n = len(spine) - 1  # spine[n] is the head; spine[1:n] bend the chain
-    quat_hips = quat_target[0]
+    rot_hips = rot_target[0]
 
     # First guess: every joint from spine[1] to the head takes the same share of the
     # hips-to-head rotation, so the twist and the bend spread along the spine.
-    step = slerp(quat_identity((), dtype), quat_mul(quat_conjugate(quat_hips), quat_target[_HEAD]), 1.0 / n)
-    guess = [quat_hips]
-    for _ in range(1, n):
-        guess.append(quat_mul(guess[-1], step))
-    guess = jnp.stack(guess[1:])  # spine[1:n]
-    bones = quat_rotate(guess, offsets[np.asarray(spine[2:])])  # spine[k] → spine[k + 1], k = 1..n-1
-    start = pos_target[0] + quat_rotate(quat_hips, offsets[spine[1]])
+    hips_to_head = quat_from_matrix(rot_hips.T @ rot_target[_HEAD])  # w >= 0: the short way
+    shares = jnp.arange(1, n, dtype=dtype) / n
+    guess = rot_hips @ matrix_from_quat(slerp(quat_identity((), dtype), hips_to_head, shares))  # spine[1:n]
+    bones = _apply(guess, offsets[np.asarray(spine[2:])])  # spine[k] → spine[k + 1], k = 1..n-1
+    start = pos_target[0] + rot_hips @ offsets[spine[1]]
     points = jnp.concatenate([start[None], start + jnp.cumsum(bones, axis=0)])
     points = _reach(points, safe_norm(bones), pos_target[_HEAD], rig.spine_iterations)
     # Each spine joint takes the least swing from its guess onto the bent chain.
-    quat_spine = jnp.concatenate(
-        [quat_hips[None], quat_mul(quat_between(bones, points[1:] - points[:-1]), guess), quat_target[_HEAD][None]]
-    )
+    bent = _swing(bones, points[1:] - points[:-1]) @ guess
+    rot_spine = jnp.concatenate([rot_hips[None], bent, rot_target[_HEAD][None]])
     pos_spine = jnp.concatenate([pos_target[:1], points])
 
     # Limb roots hang off the posed spine through joints held at their rest rotations.
+    rest_rot = matrix_from_quat(rest)
     roots, root_parents = [], []
     for k, path in rig.limb_bases:
-        pos, quat = pos_spine[k], quat_spine[k]
+        pos, rot = pos_spine[k], rot_spine[k]
         for j in path[:-1]:
-            pos = pos + quat_rotate(quat, offsets[j])
-            quat = quat_mul(quat, rest[j])
-        roots.append(pos + quat_rotate(quat, offsets[path[-1]]))
-        root_parents.append(quat)
+            pos = pos + rot @ offsets[j]
+            rot = rot @ rest_rot[j]
+        roots.append(pos + rot @ offsets[path[-1]])
+        root_parents.append(rot)
     roots, root_parents = jnp.stack(roots), jnp.stack(root_parents)
 
     # Body axes from bone directions in world space (no assumed joint axes): up from the
     # hips to the head target, left from the right to the left limb root.
-    up = _where_normalize(pos_target[_HEAD] - pos_target[0], quat_rotate(quat_hips, offsets[spine[1]]))
+    up = _where_normalize(pos_target[_HEAD] - pos_target[0], rot_hips @ offsets[spine[1]])
     left = normalize(roots[np.asarray([0, 2])] - roots[np.asarray([1, 3])])  # chest, pelvis
-    forward = normalize(jnp.cross(left, up))
+    forward = normalize(_cross(left, up))
     outward = left[0] * jnp.asarray([[1.0], [-1.0]], dtype)
     elbows = -forward[0] - _ELBOW_DOWN_WEIGHT * up + _ELBOW_OUT_WEIGHT * outward
     toes = jnp.stack(
-        [quat_rotate(quat_target[t], offsets[toe]) if toe >= 0 else jnp.zeros(3, dtype) for t, toe in zip(_LIMB_TARGET[2:], rig.toes)]
+        [rot_target[t] @ offsets[toe] if toe >= 0 else jnp.zeros(3, dtype) for t, toe in zip(_LIMB_TARGET[2:], rig.toes)]
     )
     knees = normalize(toes) + _KNEE_FORWARD_WEIGHT * forward[1]
 
     limbs = np.asarray(rig.limbs)
     ends = np.asarray(_LIMB_TARGET)
-    quat_end = quat_target[ends]
+    rot_end = rot_target[ends]
     upper, lower = _two_bone(
-        roots, offsets[limbs[:, 1]], offsets[limbs[:, 2]], pos_target[ends], quat_end, jnp.concatenate([elbows, knees])
+        roots, offsets[limbs[:, 1]], offsets[limbs[:, 2]], pos_target[ends], rot_end, jnp.concatenate([elbows, knees])
     )
-    local = {spine[0]: quat_hips}
-    spine_local = quat_mul(quat_conjugate(quat_spine[:-1]), quat_spine[1:])
-    local.update({j: spine_local[k] for k, j in enumerate(spine[1:])})
-    limb_local = jnp.stack(
-        [quat_mul(quat_conjugate(root_parents), upper), quat_mul(quat_conjugate(upper), lower), quat_mul(quat_conjugate(lower), quat_end)],
-        axis=1,
-    )  # (limb, joint in limb, 4)
-    local.update({int(j): limb_local[i, m] for i, limb in enumerate(limbs) for m, j in enumerate(limb)})
-    quat_local = jnp.stack([local.get(j, rest[j]) for j in range(rig.num_joints)])
+
+    # Local rotations: parentᵀ · child, converted to quaternions in one batch.
+    spine_local = jnp.swapaxes(rot_spine[:-1], -1, -2) @ rot_spine[1:]
+    limb_parents = jnp.stack([root_parents, upper, lower], axis=1)  # (limb, joint in limb, 3, 3)
+    limb_local = jnp.swapaxes(limb_parents, -1, -2) @ jnp.stack([upper, lower, rot_end], axis=1)
+    solved = quat_from_matrix(jnp.concatenate([rot_hips[None], spine_local, limb_local.reshape(-1, 3, 3)]))
+    solved_joints = [spine[0], *spine[1:], *limbs.reshape(-1).tolist()]
+    source = np.arange(rig.num_joints)  # rest rotations by default ...
+    source[solved_joints] = rig.num_joints + np.arange(len(solved_joints))  # ... solved ones after them
+    quat_local = jnp.concatenate([rest, solved])[source]
     return Pose(pos_target[0], quat_local)
