@@ -143,12 +143,13 @@ def demo(
         ik_model = load_ik_model(ik_dir)
         character, ik_fn, ik_params = ik_model.character, protores_ik_fn, ik_model
     else:
-        character = clip_character
-        ik_fn, ik_params = rig_ik, make_rig(character, "bandai_namco")
+        character, ik_fn = clip_character, rig_ik
     frames = bmm.config.num_frames
     if motion.num_frames < frames:
         raise ValueError(f"{clip}: the demo needs {frames} frames, the clip has {motion.num_frames}")
     truth = _window(motion, clip_character, frames)
+    if ik == "rig":  # joints the rig does not solve (clavicles, toes) keep the start pose's rotations
+        ik_params = make_rig(character, "bandai_namco", rest_quat_local=np.asarray(truth.quat_local[0]))
     _, true_pos = pose_fk(character, truth)
     j = CHARACTERISTIC_JOINTS.index(joint)
     handle_pos = np.asarray(true_pos[frame, character.characteristic[j]]) + np.asarray(offset, np.float32)

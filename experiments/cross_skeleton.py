@@ -21,6 +21,7 @@ import time
 from pathlib import Path
 
 import jax
+import numpy as np
 
 from bezmotion._io import write_results
 from bezmotion.assets import PROFILES_DIR
@@ -47,10 +48,11 @@ def evaluate_target(args, target: str, bmms: dict, profiles: dict) -> dict:
     clips = clips_of(source, "validation")
     ik_model = load_ik_model(Path(args.ik_dir.format(corpus=target)))
     character = ik_model.character
-    rig = make_rig(character, target)
-    iks = {"learned IK": (protores_ik_fn, ik_model), "analytic rig": (rig_ik, rig)}
     eval_set = make_eval_set(val_set, key=jax.random.key(1234), num_windows=args.windows or None)
     truth = window_poses(character, clips, val_set, eval_set.rows)
+    # The joints the rig does not solve (clavicles, toes) keep one real pose's rotations.
+    rig = make_rig(character, target, rest_quat_local=np.asarray(truth.quat_local[0, 0]))
+    iks = {"learned IK": (protores_ik_fn, ik_model), "analytic rig": (rig_ik, rig)}
     config = PipelineMetricsConfig(val_set.layout.stride, val_set.fps, floor_height_from(val_set))
     out = {
         "windows": int(truth.root_pos.shape[0]),

@@ -14,15 +14,21 @@ from bezmotion.ik.protocol import (
     pose_local,
     targets_from_pose,
 )
+from bezmotion.ik.rig import RIG_PRESETS, Rig, RigSpec, make_rig, rig_ik
 
 __all__ = [
+    "RIG_PRESETS",
     "Character",
     "IKFn",
     "IKTargets",
     "Pose",
+    "Rig",
+    "RigSpec",
+    "make_rig",
     "pose_fk",
     "pose_from_global",
     "pose_from_motion",
     "pose_local",
+    "rig_ik",
     "targets_from_pose",
 ]

@@ -158,10 +158,16 @@ class Effectors(NamedTuple):
         cls,
         character: Character,
         names: Sequence[str],
-        position: Float[Array | np.ndarray, "E 3"],
-        rot6d: Float[Array | np.ndarray, "E 6"] | None = None,
+        position: Float[Array | np.ndarray, "..."],
+        rot6d: Float[Array | np.ndarray, "..."] | None = None,
     ) -> Effectors:
         """Effectors on the named joints of ``character`` (orientations given when ``rot6d`` is).
+
+        Args:
+          character: the skeleton.
+          names: ``E`` joint names.
+          position: ``(E, 3)`` world positions (cm).
+          rot6d: ``(E, 6)`` global orientations, or ``None`` for positions only.
 
         Raises:
           ValueError: an unknown joint name, a joint given twice, or arrays of the wrong shape.

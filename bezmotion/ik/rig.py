@@ -8,17 +8,18 @@ skeleton whose chains are named in a :class:`RigSpec`:
 2. **Spine** (hips → head): the hips-to-head rotation the targets ask for is shared
    evenly by the spine joints (this sets the twist and a natural curve); the chain is
    then bent at its middle joint, as two rigid halves, by the law of cosines so the head
-   joint reaches its target exactly. Targets the halves cannot reach are first reshaped
-   by a fixed number of FABRIK iterations. Each spine joint takes the smallest swing from
-   its first guess onto the bent chain, and the head takes its target orientation.
+   joint reaches its target exactly. When the halves cannot reach it, a fixed number of
+   FABRIK iterations reshapes the chain (they leave a chain that reaches unchanged) and
+   a second bend finishes. Each spine joint takes the smallest swing from its first
+   guess onto the bent chain, and the head takes its target orientation.
 3. **Arms and legs**: analytic two-bone IK (law of cosines) reaches the hand / ankle
    exactly when it can and the nearest reachable point along the same direction when it
    cannot. The bend plane comes from a pole hint built from bone directions in world
    space (never from assumed joint axes, so it works for LaFAN1's zero-rotation rest pose
-   and for Bandai-Namco's alike): knees towards the toes and the pelvis' forward, elbows
-   behind, below and outside the chest. The hand / foot then takes its target
-   orientation; the elbow / knee rotation is a pure swing and the wrist / ankle rotation
-   has no twist about the forearm / shin.
+   and for Bandai-Namco's alike): knees in the plane across the foot's lateral axis, on
+   the side of the toes and the pelvis' forward; elbows behind, below and outside the
+   chest. The hand / foot then takes its target orientation; the elbow / knee rotation
+   is a pure swing and the wrist / ankle rotation has no twist about the forearm / shin.
 4. Every other joint (clavicles, toes, joints above the hips) keeps its rest local
    rotation: identity, or a bind pose given to :func:`make_rig`.
 
@@ -31,6 +32,7 @@ at full extension, at zero target distance and at collinear pole hints.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from collections.abc import Mapping, Sequence
 
 import jax
@@ -57,11 +59,16 @@ _HEAD, _LEFT_HAND, _RIGHT_HAND, _LEFT_FOOT, _RIGHT_FOOT = (
 _LIMBS: tuple[str, ...] = ("left_arm", "right_arm", "left_leg", "right_leg")
 _LIMB_TARGET: tuple[int, ...] = (_LEFT_HAND, _RIGHT_HAND, _LEFT_FOOT, _RIGHT_FOOT)
 
-# Pole hints, sums of unit vectors in world space. Knees: towards the toes (the foot's
-# bone carries the leg's rotation about its axis) and the pelvis' forward (which keeps
-# the hint defined when the toes point along the leg: tiptoe, a straight kick). Elbows:
-# behind the chest, and a little down and out.
+# Pole hints. Knees bend about the shin's lateral axis, and the ankle hardly turns about
+# the shin, so the knee's plane is the one across the foot's lateral axis (the rest pose's
+# right-to-left hip direction carried by the foot's target rotation). Which way along it
+# the knee goes comes from a rougher hint, towards the toes and the pelvis' forward
+# (sums of unit vectors), which also stands in when the foot's lateral axis lies along
+# the leg. This assumes only that the zero-rotation rest pose does not twist a leg about
+# its own axis (a half turn is fine: LaFAN1's legs point up at rest, Bandai-Namco's left
+# leg up and its right leg down). Elbows: behind the chest, and a little down and out.
 _KNEE_FORWARD_WEIGHT = 1.0
+_KNEE_PLANE_MIN = 0.2  # |lateral × leg axis| below this: the plane is ill-defined
 _ELBOW_DOWN_WEIGHT = 0.5
 _ELBOW_OUT_WEIGHT = 0.5
 
@@ -121,7 +128,7 @@ class RigSpec:
 
     @classmethod
     def from_dict(cls, mapping: Mapping[str, Sequence[str]]) -> RigSpec:
-        """A spec from ``{"spine": [...], "left_arm": [...], "right_arm": [...], "left_leg": [...], "right_leg": [...]}``."""
+        """A spec from a dict with the keys ``spine``, ``left_arm``, ``right_arm``, ``left_leg``, ``right_leg``."""
         fields = ("spine", *_LIMBS)
         missing = [f for f in fields if f not in mapping]
         unknown = [k for k in mapping if k not in fields]
@@ -196,7 +203,7 @@ def _joint(skeleton: Skeleton, name: str, where: str) -> int:
 
 
 def _check_chain(skeleton: Skeleton, chain: Sequence[int], where: str) -> None:
-    for parent, child in zip(chain[:-1], chain[1:]):
+    for parent, child in itertools.pairwise(chain):
         if skeleton.parents[child] != parent:
             actual = skeleton.parents[child]
             actual_name = skeleton.names[actual] if actual >= 0 else None
@@ -265,9 +272,14 @@ def make_rig(
             path.append(j)
             j = skeleton.parents[j]
         if j < 0:
-            raise ValueError(f"RigSpec.{field}: {skeleton.names[limb[0]]!r} does not hang off the spine chain {spec.spine}")
+            raise ValueError(
+                f"RigSpec.{field}: {skeleton.names[limb[0]]!r} does not hang off the spine chain {spec.spine}"
+            )
         if spine.index(j) == len(spine) - 1:
-            raise ValueError(f"RigSpec.{field}: {skeleton.names[limb[0]]!r} hangs off the head; limbs must hang off the hips or the spine")
+            raise ValueError(
+                f"RigSpec.{field}: {skeleton.names[limb[0]]!r} hangs off the head; "
+                "limbs must hang off the hips or the spine"
+            )
         limb_bases.append((spine.index(j), tuple(reversed(path))))
     toes = tuple(next(iter(skeleton.children(limb[-1])), -1) for limb in limbs[2:])
 
@@ -402,7 +414,9 @@ def _close(points: Float[Array, "n 3"], target: Float[Array, "3"]) -> Float[Arra
     return jnp.concatenate([points[:mid], tail], axis=0)
 
 
-def _reach(points: Float[Array, "n 3"], lengths: Float[Array, "n-1"], target: Float[Array, "3"], iterations: int) -> Float[Array, "n 3"]:
+def _reach(
+    points: Float[Array, "n 3"], lengths: Float[Array, "n-1"], target: Float[Array, "3"], iterations: int
+) -> Float[Array, "n 3"]:
     """Bend a chain (first point pinned) so its end reaches ``target``, keeping its shape where it can.
 
     A two-half bend (:func:`_close`) reaches most targets exactly from a good first guess.
@@ -526,10 +540,16 @@ def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
     forward = normalize(_cross(left, up))
     outward = left[0] * jnp.asarray([[1.0], [-1.0]], dtype)
     elbows = -forward[0] - _ELBOW_DOWN_WEIGHT * up + _ELBOW_OUT_WEIGHT * outward
-    toes = jnp.stack(
-        [rot_target[t] @ offsets[toe] if toe >= 0 else jnp.zeros(3, dtype) for t, toe in zip(_LIMB_TARGET[2:], rig.toes)]
-    )
-    knees = normalize(toes) + _KNEE_FORWARD_WEIGHT * forward[1]
+    feet = np.asarray(_LIMB_TARGET[2:])
+    toes = jnp.stack([rot_target[t] @ offsets[toe] if toe >= 0 else jnp.zeros(3, dtype) for t, toe in zip(feet, rig.toes)])
+    toward = normalize(toes) + _KNEE_FORWARD_WEIGHT * forward[1]
+    # At zero rotation every joint frame is the world frame, so the legs' rest positions
+    # are sums of offsets and their difference is the lateral axis in every joint's frame.
+    rest_hip = [offsets[np.asarray([*spine[1 : k + 1], *path])].sum(axis=0) for k, path in rig.limb_bases[2:]]
+    lateral = _apply(rot_target[feet], normalize(rest_hip[0] - rest_hip[1]))
+    across = _cross(lateral, _where_normalize(pos_target[feet] - roots[2:], normalize(toward)))
+    side = jnp.where(jnp.sum(across * toward, axis=-1, keepdims=True) < 0.0, -1.0, 1.0)
+    knees = jnp.where(safe_norm(across, keepdims=True) > _KNEE_PLANE_MIN, side * across, toward)
 
     limbs = np.asarray(rig.limbs)
     ends = np.asarray(_LIMB_TARGET)
