@@ -77,7 +77,7 @@ def _plot(
     curves_ax.plot(along(truth_joint), truth_joint[:, 1], "--", color=colours[joint], alpha=0.6, label=f"{CHARACTERISTIC_JOINTS[joint]} (mocap)")
     curves_ax.plot(along(handle), handle[1], "*", color="purple", ms=16, label="handle")
     curves_ax.set(title="BMM curves (dots: control points)", xlabel="along the walk (cm)", ylabel="height (cm)", aspect="equal")
-    curves_ax.legend(fontsize=7, loc="upper left", ncol=2)
+    curves_ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=4)
     hidden = set(character.ancestors_of_hips())  # static joints under the floor origin
     spacing = 45.0  # cm between drawn poses, so that they do not overlap
     origin = along(pos[0, character.hips])
