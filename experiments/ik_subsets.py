@@ -35,7 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bezmotion._io import atomic_path, atomic_write_text
+from bezmotion._io import atomic_path, write_results
 from bezmotion.bezier import BezierLayout, fit_curves, reconstruct_dense
 from bezmotion.data import lafan1
 from bezmotion.data.cache import cache_dir
@@ -224,12 +224,9 @@ def main(argv: list[str] | None = None) -> dict:
         "eval_s": time.perf_counter() - started,
     }
     out = Path(args.out)
-    report = format_report(results)
-    print(report)
-    atomic_write_text(out, json.dumps(results, indent=2) + "\n")
-    atomic_write_text(out.with_suffix(".md"), report + "\n")
+    write_results(out, results, format_report(results))
     plot(results, out.with_suffix(".png"))
-    print(f"wrote {out}, {out.with_suffix('.md')}, {out.with_suffix('.png')} in {time.perf_counter() - started:.1f} s")
+    print(f"wrote {out.with_suffix('.png')}; {time.perf_counter() - started:.1f} s in all")
     return results
 
 

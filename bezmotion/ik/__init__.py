@@ -14,21 +14,37 @@ from bezmotion.ik.protocol import (
     pose_local,
     targets_from_pose,
 )
+from bezmotion.ik.protores import (
+    Effectors,
+    ProtoResConfig,
+    ProtoResModel,
+    load_ik_model,
+    protores_ik_fn,
+    save_ik_model,
+    solve_effectors,
+)
 from bezmotion.ik.rig import RIG_PRESETS, Rig, RigSpec, make_rig, rig_ik
 
 __all__ = [
     "RIG_PRESETS",
     "Character",
+    "Effectors",
     "IKFn",
     "IKTargets",
     "Pose",
+    "ProtoResConfig",
+    "ProtoResModel",
     "Rig",
     "RigSpec",
+    "load_ik_model",
     "make_rig",
     "pose_fk",
     "pose_from_global",
     "pose_from_motion",
     "pose_local",
+    "protores_ik_fn",
     "rig_ik",
+    "save_ik_model",
+    "solve_effectors",
     "targets_from_pose",
 ]

@@ -9,7 +9,7 @@ one skeleton:
 
 - LaFAN1: the offsets of the first training file (``corpus.files_of(TRAIN_SUBJECTS)[0]``).
   Files differ only in the root's OFFSET line (replaced by the animated root) and by
-  ~1e-5 cm elsewhere, so every frame keeps its global joint positions to that accuracy.
+  ≤ 3.3e-5 cm elsewhere, so every frame keeps its global joint positions to that accuracy.
 - Bandai-Namco: the offsets of the first clip. Clips differ only in the ``Hips`` OFFSET
   (a session origin), which the animated ``Hips`` translation overrides; the static
   ``joint_Root`` above it is held at identity, as in every :class:`Pose`.
