@@ -27,7 +27,10 @@ def main(argv: list[str] | None = None) -> int:
     p_demo.add_argument("--frame", type=int, default=12, help="the handle's frame, a multiple of 6 in 6…24 (default 12)")
     p_demo.add_argument("--offset", type=float, nargs=3, default=(0.0, 25.0, 0.0), metavar=("X", "Y", "Z"),
                         help="how far the handle moves the joint from the mocap (cm; default 0 25 0)")  # fmt: skip
-    p_demo.add_argument("--ik", choices=IK_CHOICES, default="learned", help="learned IK (default) or the analytic rig")
+    p_demo.add_argument(
+        "--ik", choices=IK_CHOICES, default="refined",
+        help="refined: the learned IK then exact two-bone limbs (default); learned: the learned IK alone; rig: analytic, no data",
+    )  # fmt: skip
     p_demo.add_argument("--steps", type=int, default=10, help="DDIM steps (default 10)")
     p_demo.add_argument("--seed", type=int, default=0)
     p_demo.add_argument("--bmm", type=Path, default=BUNDLED_BMM, help="a saved BMM (default: the bundled one)")

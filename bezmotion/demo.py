@@ -28,12 +28,12 @@ from bezmotion.data.bvh import BvhMotion, read_bvh, write_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.geometry.skeleton import forward_kinematics
 from bezmotion.ik.protocol import Character, Pose, pose_fk, pose_from_motion
-from bezmotion.ik.protores import load_ik_model, protores_ik_fn
+from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik
 from bezmotion.pipeline import CharacterProfile, InbetweenResult, Transfer, full_body_handles_error, inbetween, pose_to_bvh
 from bezmotion.sampling import Handles, load_model
 
-IK_CHOICES = ("learned", "rig")
+IK_CHOICES = ("refined", "learned", "rig")
 
 
 def _window(motion: BvhMotion, character: Character, frames: int) -> Pose:
@@ -106,7 +106,7 @@ def demo(
     joint: str = "right_hand",
     frame: int = 12,
     offset: tuple[float, float, float] = (0.0, 25.0, 0.0),
-    ik: str = "learned",
+    ik: str = "refined",
     steps: int = 10,
     seed: int = 0,
     bmm_dir: Path = BUNDLED_BMM,
@@ -120,7 +120,8 @@ def demo(
       out: output folder (created).
       joint, frame, offset: the handle: ``joint`` (a characteristic joint) is moved by
         ``offset`` (cm) from where the mocap has it at ``frame`` (a multiple of 6 in 6…24).
-      ik: ``"learned"`` (the bundled ProtoRes-style IK) or ``"rig"`` (analytic, no data).
+      ik: ``"refined"`` (default: the bundled learned IK, then exact two-bone arms and legs),
+        ``"learned"`` (the learned IK alone) or ``"rig"`` (analytic, no data).
       steps, seed: DDIM steps and PRNG seed of the sampler.
       bmm_dir, bmm_corpus: the BMM and the corpus it was trained on (one with a profile in
         :data:`~bezmotion.assets.PROFILES_DIR`; another skeleton's curves are transferred).
@@ -139,17 +140,19 @@ def demo(
     motion = read_bvh(clip)
     bmm = load_model(bmm_dir)
     clip_character = Character.from_bvh(motion, "bandai_namco")
-    if ik == "learned":
-        ik_model = load_ik_model(ik_dir)
-        character, ik_fn, ik_params = ik_model.character, protores_ik_fn, ik_model
-    else:
+    if ik == "rig":
         character, ik_fn = clip_character, rig_ik
+    else:
+        ik_model = load_ik_model(ik_dir)
+        character, ik_params = ik_model.character, ik_model
+        ik_fn = protores_ik_fn if ik == "learned" else protores_refined_ik_fn
     frames = bmm.config.num_frames
     if motion.num_frames < frames:
         raise ValueError(f"{clip}: the demo needs {frames} frames, the clip has {motion.num_frames}")
     truth = _window(motion, clip_character, frames)
-    if ik == "rig":  # joints the rig does not solve (clavicles, toes) keep the start pose's rotations
-        ik_params = make_rig(character, "bandai_namco", rest_quat_local=np.asarray(truth.quat_local[0]))
+    if ik != "learned":  # joints the rig does not solve (clavicles, toes) keep the start pose's rotations
+        rig = make_rig(character, "bandai_namco", rest_quat_local=np.asarray(truth.quat_local[0]))
+        ik_params = rig if ik == "rig" else (ik_model, rig)
     _, true_pos = pose_fk(character, truth)
     j = CHARACTERISTIC_JOINTS.index(joint)
     handle_pos = np.asarray(true_pos[frame, character.characteristic[j]]) + np.asarray(offset, np.float32)

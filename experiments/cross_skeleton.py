@@ -8,7 +8,9 @@ and handles of ``experiments/bmm_lafan1.py``: same draws, OOD = ±16 cm noise). 
 from a BMM trained on the *same* skeleton, and from the BMM trained on the *other*
 skeleton moved over by :class:`bezmotion.pipeline.Transfer` (hip-height ratio, fixed
 orientation offsets), drive the target skeleton through its own learned IK
-(``experiments/train_ik.py``) and through the analytic rig (:mod:`bezmotion.ik.rig`).
+(``experiments/train_ik.py``), the same followed by the rig's exact two-bone arms and legs
+(ours, :func:`bezmotion.ik.protores.protores_refined_ik_fn`), and the analytic rig alone
+(:mod:`bezmotion.ik.rig`).
 Reported after IK, on the full skeleton: handles error in distribution and OOD, foot
 skating, MPJPE against the mocap window. The same-skeleton LaFAN1 row with the learned
 IK is the analogue of the paper's Table 1 BMM row (0.8914 / 1.7090 cm, skating 0.2176).
@@ -28,7 +30,7 @@ from bezmotion.assets import PROFILES_DIR
 from bezmotion.bmm_evaluation import floor_height_from, make_eval_set
 from bezmotion.data.cache import cache_dir
 from bezmotion.data.curves import bandai_namco_clips, bandai_namco_curve_dataset, lafan1_clips, lafan1_curve_dataset
-from bezmotion.ik.protores import load_ik_model, protores_ik_fn
+from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik
 from bezmotion.pipeline import CharacterProfile, Transfer
 from bezmotion.pipeline_evaluation import PipelineMetricsConfig, evaluate_pipeline, ground_truth_pose_metrics, window_poses
@@ -52,7 +54,11 @@ def evaluate_target(args, target: str, bmms: dict, profiles: dict) -> dict:
     truth = window_poses(character, clips, val_set, eval_set.rows)
     # The joints the rig does not solve (clavicles, toes) keep one real pose's rotations.
     rig = make_rig(character, target, rest_quat_local=np.asarray(truth.quat_local[0, 0]))
-    iks = {"learned IK": (protores_ik_fn, ik_model), "analytic rig": (rig_ik, rig)}
+    iks = {
+        "learned IK": (protores_ik_fn, ik_model),
+        "learned IK + exact limbs (ours)": (protores_refined_ik_fn, (ik_model, rig)),
+        "analytic rig": (rig_ik, rig),
+    }
     config = PipelineMetricsConfig(val_set.layout.stride, val_set.fps, floor_height_from(val_set))
     out = {
         "windows": int(truth.root_pos.shape[0]),

@@ -328,3 +328,26 @@ def test_wrong_skeleton_preset_and_bad_rest_raise(bandai_character):
         make_rig(bandai_character, "bandai_namco", rest_quat_local=rest)
     with pytest.raises(ValueError, match="spine_iterations must be a non-negative int"):
         make_rig(bandai_character, "bandai_namco", spine_iterations=-1)
+
+
+def test_refine_limbs_puts_hands_and_feet_on_their_targets_and_keeps_the_rest(bandai):
+    """``refine_limbs`` after another IK (here: the truth with every limb joint bent off):
+    hands and feet land on moved targets exactly, only the 12 limb joints change."""
+    from bezmotion.ik.rig import refine_limbs
+
+    c = bandai
+    limbs = np.asarray(c.rig.limbs).reshape(-1)
+    # A perturbed starting pose: each limb joint turned by ~17° about a fixed axis.
+    turn = jnp.asarray([np.cos(0.15), np.sin(0.15), 0.0, 0.0], jnp.float32)
+    start = c.truth._replace(quat_local=c.truth.quat_local.at[:, limbs].set(quat_mul(c.truth.quat_local[:, limbs], turn)))
+    targets = c.targets._replace(position=c.targets.position.at[:, 2:].add(jnp.asarray([2.0, 3.0, -1.0], jnp.float32)))
+    refined = jax.jit(jax.vmap(refine_limbs, in_axes=(None, 0, 0)))(c.rig, start, targets)
+    _, pos = fk(c.character, refined)
+    ends = np.asarray(c.character.characteristic[2:])
+    reach = np.linalg.norm(np.asarray(pos[:, ends] - targets.position[:, 2:]), axis=-1)
+    assert reach.max() < END_TOL_CM * 10, reach.max()
+    others = np.setdiff1d(np.arange(c.character.num_joints), limbs)
+    np.testing.assert_array_equal(np.asarray(refined.quat_local[:, others]), np.asarray(start.quat_local[:, others]))
+    np.testing.assert_array_equal(np.asarray(refined.root_pos), np.asarray(start.root_pos))
+    quat_global, _ = fk(c.character, refined)
+    assert _angle(quat_global[:, ends], quat_from_rot6d(targets.rot6d[:, 2:])).max() < ANGLE_TOL_RAD

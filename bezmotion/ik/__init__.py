@@ -20,10 +20,11 @@ from bezmotion.ik.protores import (
     ProtoResModel,
     load_ik_model,
     protores_ik_fn,
+    protores_refined_ik_fn,
     save_ik_model,
     solve_effectors,
 )
-from bezmotion.ik.rig import RIG_PRESETS, Rig, RigSpec, make_rig, rig_ik
+from bezmotion.ik.rig import RIG_PRESETS, Rig, RigSpec, make_rig, refine_limbs, rig_ik
 
 __all__ = [
     "RIG_PRESETS",
@@ -43,6 +44,8 @@ __all__ = [
     "pose_from_motion",
     "pose_local",
     "protores_ik_fn",
+    "protores_refined_ik_fn",
+    "refine_limbs",
     "rig_ik",
     "save_ik_model",
     "solve_effectors",

@@ -71,6 +71,7 @@ from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.geometry.rotations import matrix_from_rot6d, quat_from_matrix, rot6d_from_matrix, safe_norm
 from bezmotion.geometry.skeleton import Skeleton
 from bezmotion.ik.protocol import Character, IKTargets, Pose
+from bezmotion.ik.rig import Rig, refine_limbs
 
 LEFT_ROLES: tuple[str, str] = ("left_hand", "left_foot")
 RIGHT_ROLES: tuple[str, str] = ("right_hand", "right_foot")
@@ -476,6 +477,17 @@ def protores_ik_fn(model: ProtoResModel, targets: IKTargets) -> Pose:
             f"{targets.position.shape} and {targets.rot6d.shape} (vmap over frames)"
         )
     return solve_effectors(model, Effectors.from_targets(model.character, targets))
+
+
+def protores_refined_ik_fn(params: tuple[ProtoResModel, Rig], targets: IKTargets) -> Pose:
+    """The learned IK, then the rig's exact two-bone arms and legs (ours; :func:`~bezmotion.ik.rig.refine_limbs`).
+
+    ``params`` is ``(model, rig)`` for the same character. The learned pose keeps its
+    hips, spine, head and the sides its elbows and knees bend to; hands and feet land on
+    their targets exactly when reachable, which a frame-based network alone does not do.
+    """
+    model, rig = params
+    return refine_limbs(rig, protores_ik_fn(model, targets), targets)
 
 
 # ---------------------------------------------------------------------------- save/load

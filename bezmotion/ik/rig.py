@@ -51,7 +51,7 @@ from bezmotion.geometry.rotations import (
     slerp,
 )
 from bezmotion.geometry.skeleton import Skeleton
-from bezmotion.ik.protocol import Character, IKTargets, Pose
+from bezmotion.ik.protocol import Character, IKTargets, Pose, pose_fk
 
 _HEAD, _LEFT_HAND, _RIGHT_HAND, _LEFT_FOOT, _RIGHT_FOOT = (
     CHARACTERISTIC_JOINTS.index(role) for role in ("head", "left_hand", "right_hand", "left_foot", "right_foot")
@@ -568,3 +568,31 @@ def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
     source[solved_joints] = rig.num_joints + np.arange(len(solved_joints))  # ... solved ones after them
     quat_local = jnp.concatenate([rest, solved])[source]
     return Pose(pos_target[0], quat_local)
+
+
+def refine_limbs(rig: Rig, pose: Pose, targets: IKTargets) -> Pose:
+    """Re-solve the arms and legs of one frame's ``pose`` (e.g. a learned IK's) with the
+    rig's two-bone IK, so hands and feet reach their targets exactly when they can and take
+    their target orientations.
+
+    The limb roots stay where ``pose`` puts them and each elbow and knee keeps the side
+    ``pose`` bends it to; the hips, spine, head and every other joint are unchanged.
+    Satisfies nothing by itself: compose it after an ``ik_fn``
+    (:func:`bezmotion.ik.protores.protores_refined_ik_fn`).
+    """
+    dtype = targets.position.dtype
+    limbs = np.asarray(rig.limbs)
+    character = Character(rig.skeleton, (rig.spine[0], rig.spine[-1], *limbs[:, 2].tolist()))
+    quat_global, pos_global = pose_fk(character, pose)
+    offsets = jnp.asarray(rig.skeleton.offsets, dtype)
+    ends = np.asarray(_LIMB_TARGET)
+    rot_end = matrix_from_rot6d(targets.rot6d[ends])
+    roots = pos_global[limbs[:, 0]]
+    upper, lower = _two_bone(
+        roots, offsets[limbs[:, 1]], offsets[limbs[:, 2]], targets.position[ends], rot_end, pos_global[limbs[:, 1]] - roots
+    )
+    root_parents = matrix_from_quat(quat_global[np.asarray([rig.skeleton.parents[r] for r in limbs[:, 0]])])
+    limb_parents = jnp.stack([root_parents, upper, lower], axis=1)
+    limb_local = jnp.swapaxes(limb_parents, -1, -2) @ jnp.stack([upper, lower, rot_end], axis=1)
+    quat_local = pose.quat_local.at[limbs.reshape(-1)].set(quat_from_matrix(limb_local.reshape(-1, 3, 3)).astype(pose.quat_local.dtype))
+    return Pose(pose.root_pos, quat_local)
