@@ -144,13 +144,16 @@ def pose_fk(character: Character, pose: Pose) -> tuple[Float[Array, "*batch join
 
 
 def pose_from_motion(
-    character: Character, quat_local: Float[Array, "*batch joints 4"], pos_local: Float[Array, "*batch joints 3"]
+    character: Character,
+    quat_local: Float[Array | np.ndarray, "*batch joints 4"],
+    pos_local: Float[Array | np.ndarray, "*batch joints 3"],
 ) -> Pose:
     """Re-express motion frames (local rotations and per-joint translations) as :class:`Pose`.
 
     Global positions are unchanged as long as only the hips and its ancestors are
     translated away from their rest offsets (true of LaFAN1 and Bandai-Namco).
     """
+    quat_local, pos_local = jnp.asarray(quat_local), jnp.asarray(pos_local)
     quat_global, pos_global = forward_kinematics(character.skeleton.parents, quat_local, pos_local)
     above = list(character.ancestors_of_hips())
     quat = quat_local.at[..., character.hips, :].set(quat_global[..., character.hips, :])
