@@ -59,3 +59,9 @@ def write_results(out: str | os.PathLike, results: dict, report: str) -> None:
     atomic_write_text(out, json.dumps(results, indent=2) + "\n")
     atomic_write_text(out.with_suffix(".md"), report + "\n")
     print(f"wrote {out} and {out.with_suffix('.md')}")
+
+
+def save_figure(fig, path: str | os.PathLike, **savefig_kwargs) -> None:
+    """Save a Matplotlib figure as PNG to ``path`` atomically."""
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, format="png", **savefig_kwargs)

@@ -57,7 +57,7 @@ from bezmotion.models.delta import (
     apply_delta_positions,
     init_delta,
 )
-from bezmotion.train import TrainState, run_training, stack_seeds
+from bezmotion.train import TrainState, fresh_train_state, run_training, stack_seeds
 
 
 @dataclasses.dataclass(frozen=True)
@@ -384,10 +384,7 @@ def init_delta_train_state(
     model_config: DeltaConfig, train_config: DeltaTrainConfig, *, key: Array
 ) -> tuple[nnx.GraphDef, TrainState]:
     """Fresh parameters and Adam state for one seed (``ema`` is ``None``)."""
-    init_key, state_key = jax.random.split(key)
-    graphdef, params = init_delta(model_config, key=init_key)
-    opt_state = make_optimizer(train_config).init(params)
-    return graphdef, TrainState(params, opt_state, None, jnp.zeros((), jnp.int32), state_key)
+    return fresh_train_state(lambda k: init_delta(model_config, key=k), make_optimizer(train_config), key=key, ema=False)
 
 
 def init_delta_train_states(

@@ -13,7 +13,6 @@ of the curves and poses, and a JSON summary.
 
 from __future__ import annotations
 
-import io
 import json
 import time
 from pathlib import Path
@@ -22,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bezmotion._io import atomic_write_bytes, atomic_write_text
+from bezmotion._io import atomic_write_text, save_figure
 from bezmotion.assets import BUNDLED_BMM, BUNDLED_IK, DEMO_CLIP, DEMO_CLIP_ATTRIBUTION, PROFILES_DIR
 from bezmotion.data.bvh import BvhMotion, read_bvh, write_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
@@ -94,10 +93,8 @@ def _plot(
     poses_ax.set(title="poses every 6 frames, spaced apart (solid: in-between, dashed: mocap)", aspect="equal")
     poses_ax.set_xticks([])
     fig.tight_layout()
-    buffer = io.BytesIO()
-    fig.savefig(buffer, format="png", dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
-    atomic_write_bytes(path, buffer.getvalue())
 
 
 def demo(

@@ -148,14 +148,26 @@ def make_optimizer(config: TrainConfig) -> optax.GradientTransformation:
     )
 
 
+def fresh_train_state(
+    init_model: Callable[[Array], tuple[nnx.GraphDef, nnx.State]],
+    optimizer: optax.GradientTransformation,
+    *,
+    key: Array,
+    ema: bool,
+) -> tuple[nnx.GraphDef, TrainState]:
+    """Fresh parameters (``init_model(key)``), optimiser state and step 0 for one seed;
+    ``ema`` starts as a copy of the parameters, or is ``None`` for models that keep none."""
+    init_key, state_key = jax.random.split(key)
+    graphdef, params = init_model(init_key)
+    return graphdef, TrainState(params, optimizer.init(params), params if ema else None, jnp.zeros((), jnp.int32), state_key)
+
+
 def init_train_state(
     model_config: BMMConfig, train_config: TrainConfig, *, key: Array
 ) -> tuple[nnx.GraphDef, TrainState]:
     """Fresh parameters and optimiser state for one seed."""
-    init_key, state_key = jax.random.split(key)
-    graphdef, params = init_denoiser(model_config, key=init_key)
-    opt_state = make_optimizer(train_config).init(params)
-    return graphdef, TrainState(params, opt_state, params, jnp.zeros((), jnp.int32), state_key)
+    init = lambda k: init_denoiser(model_config, key=k)  # noqa: E731
+    return fresh_train_state(init, make_optimizer(train_config), key=key, ema=True)
 
 
 def init_train_states(

@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bezmotion._io import atomic_path, write_results
+from bezmotion._io import save_figure, write_results
 from bezmotion.bezier import BezierLayout, evaluate, fit_curves
 from bezmotion.data import lafan1
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
@@ -88,8 +88,7 @@ def plot(results: dict, strides: list[int], path: Path) -> None:
     ax.grid(alpha=0.3)
     ax.legend(title="control positions")
     fig.tight_layout()
-    with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, format="png")
+    save_figure(fig, path)
     plt.close(fig)
 
 

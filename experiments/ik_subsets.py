@@ -35,7 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bezmotion._io import atomic_path, write_results
+from bezmotion._io import save_figure, write_results
 from bezmotion.bezier import BezierLayout, fit_curves, reconstruct_dense
 from bezmotion.data import lafan1
 from bezmotion.data.cache import cache_dir
@@ -165,8 +165,7 @@ def plot(results: dict, path: Path) -> None:
     ax.grid(alpha=0.3)
     ax.legend()
     fig.tight_layout()
-    with atomic_path(path, suffix=".png") as tmp:
-        fig.savefig(tmp, format="png")
+    save_figure(fig, path)
     plt.close(fig)
 
 

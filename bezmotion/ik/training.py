@@ -60,7 +60,7 @@ from bezmotion.ik.protores import (
     pose_from_output,
     solve_effectors,
 )
-from bezmotion.train import TrainState, stack_seeds
+from bezmotion.train import TrainState, fresh_train_state, stack_seeds
 
 #: Joints beyond the characteristic six that Table 2 uses, by role, for the bundled skeletons.
 EXTRA_ROLES: Mapping[str, Mapping[str, str]] = {
@@ -191,10 +191,7 @@ def init_ik_train_state(
     model_config: ProtoResConfig, train_config: IKTrainConfig, *, key: Array
 ) -> tuple[nnx.GraphDef, TrainState]:
     """Fresh parameters and Adam state for one seed (``ema`` is ``None``)."""
-    init_key, state_key = jax.random.split(key)
-    graphdef, params = init_protores(model_config, key=init_key)
-    opt_state = make_optimizer(train_config).init(params)
-    return graphdef, TrainState(params, opt_state, None, jnp.zeros((), jnp.int32), state_key)
+    return fresh_train_state(lambda k: init_protores(model_config, key=k), make_optimizer(train_config), key=key, ema=False)
 
 
 def init_ik_train_states(
