@@ -92,7 +92,8 @@ def handles_error(
     picked = jnp.take_along_axis(flat, slot[..., None], axis=-2)
     error = jnp.linalg.norm(picked - handle_position, axis=-1)
     valid = handle_valid.astype(error.dtype)
-    return jnp.sum(valid * error) / jnp.maximum(jnp.sum(valid), 1.0)
+    # where, not a product: padding slots may hold anything, NaN included.
+    return jnp.sum(jnp.where(handle_valid, error, 0.0)) / jnp.maximum(jnp.sum(valid), 1.0)
 
 
 def foot_skating_ratio(

@@ -43,6 +43,7 @@ from bezmotion.geometry.rotations import (
     rot6d_from_quat,
 )
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, pose_fk, pose_local, targets_from_pose
+from bezmotion.metrics import handles_error, mean_position_error
 from bezmotion.sampling import BezierMotionModel, Handles, SampledCurves, sample_curves
 
 LEFT = tuple(CHARACTERISTIC_JOINTS.index(j) for j in ("left_hand", "left_foot"))
@@ -311,24 +312,15 @@ def full_body_handles_error(
 ) -> Float[Array, ""]:
     """Mean distance (cm) between each valid handle and the IK'd skeleton's joint at its
     frame (BMM Table 1, measured after IK). ``pose`` is ``(*batch, frames, …)``, handles
-    ``(*batch, handles)``."""
+    ``(*batch, handles)``; handles sit on control frames, every ``stride`` frames."""
     _, pos = pose_fk(character, pose)
-    idx = jnp.asarray(character.characteristic)
-    joint_pos = pos[..., idx, :]  # (*batch, frames, 6, 3)
-    frame = jnp.clip(handles.control * stride, 0, joint_pos.shape[-3] - 1)
-    picked = jnp.take_along_axis(
-        joint_pos.reshape(*joint_pos.shape[:-3], -1, 3),
-        (frame * len(CHARACTERISTIC_JOINTS) + handles.joint)[..., None],
-        axis=-2,
-    )
-    error = jnp.linalg.norm(picked - handles.position, axis=-1)
-    valid = handles.valid.astype(error.dtype)
-    return jnp.sum(jnp.where(handles.valid, error, 0.0)) / jnp.maximum(jnp.sum(valid), 1.0)
+    at_controls = pos[..., ::stride, :, :][..., np.asarray(character.characteristic), :]  # (*batch, controls, 6, 3)
+    return handles_error(at_controls, handles.control, handles.joint, handles.position, handles.valid)
 
 
 def mpjpe(character: Character, pose: Pose, true: Pose) -> Float[Array, ""]:
     """Mean per-joint position error (cm) over every joint and frame."""
-    return jnp.mean(jnp.linalg.norm(pose_fk(character, pose)[1] - pose_fk(character, true)[1], axis=-1))
+    return mean_position_error(pose_fk(character, pose)[1], pose_fk(character, true)[1])
 
 
 def default_channels(character: Character) -> tuple[tuple[str, ...], ...]:

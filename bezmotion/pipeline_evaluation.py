@@ -19,7 +19,7 @@ import numpy as np
 from bezmotion.bmm_evaluation import EvalSet, map_in_chunks
 from bezmotion.data.curves import CurveDataset, MotionClips
 from bezmotion.ik.protocol import Character, IKFn, Pose, pose_fk, pose_from_motion, targets_from_pose
-from bezmotion.metrics import foot_skating_ratio
+from bezmotion.metrics import foot_skating_ratio, mean_position_error
 from bezmotion.pipeline import Transfer, _inbetween, full_body_handles_error
 from bezmotion.sampling import BezierMotionModel, Handles
 
@@ -61,7 +61,7 @@ def pose_metrics(
     return {
         "handles_error_cm": float(full_body_handles_error(character, pose, handles, config.stride)),
         "foot_skating_ratio": float(foot_skating_ratio(pos[..., feet, :], config.fps, floor_height=config.floor_height)),
-        "mpjpe_cm": float(jnp.mean(jnp.linalg.norm(pos - true_pos, axis=-1))),
+        "mpjpe_cm": float(mean_position_error(pos, true_pos)),
     }
 
 
@@ -77,7 +77,7 @@ def ground_truth_pose_metrics(
         ik = jax.jit(jax.vmap(jax.vmap(ik_fn, in_axes=(None, 0)), in_axes=(None, 0)))
         recon = map_in_chunks(lambda t, _: ik(ik_params, t), targets_from_pose(character, truth), key=jax.random.key(0))
         _, rpos = pose_fk(character, recon)
-        out["ik_of_mocap_mpjpe_cm"] = float(jnp.mean(jnp.linalg.norm(rpos - pos, axis=-1)))
+        out["ik_of_mocap_mpjpe_cm"] = float(mean_position_error(rpos, pos))
         out["ik_of_mocap_foot_skating_ratio"] = float(
             foot_skating_ratio(rpos[..., feet, :], config.fps, floor_height=config.floor_height)
         )
