@@ -26,9 +26,9 @@ import numpy as np
 
 from _common import machine_info, report, time_jitted
 from bezmotion._xla import inference_compiler_options
-from bezmotion.models.bmm import BMMConfig, count_parameters, init_denoiser
-from bezmotion.models.bmm_data import FeatureStats
-from bezmotion.sampling import BezierMotionModel, Handles, sample_curves
+from bezmotion.bmm.denoiser import BMMConfig, count_parameters, init_denoiser
+from bezmotion.bmm.features import FeatureStats
+from bezmotion.bmm.sampling import BezierMotionModel, Handles, sample_curves
 
 PAPER_LATENCY_S = 0.08  # BMM §6: 10 steps on an RTX 3090
 

@@ -25,7 +25,7 @@ import numpy as np
 from _common import machine_info, report, time_jitted
 from bezmotion._xla import inference_compiler_options
 from bezmotion.data.lafan1 import N_PAST
-from bezmotion.models.delta import DeltaConfig, count_parameters, delta_inbetweener, init_delta
+from bezmotion.delta.model import DeltaConfig, count_parameters, delta_inbetweener, init_delta
 
 CONFIGS = {"paper": DeltaConfig.paper, "cpu": DeltaConfig.cpu}
 

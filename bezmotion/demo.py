@@ -30,7 +30,7 @@ from bezmotion.ik.protocol import Character, Pose, pose_fk, pose_from_motion
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik
 from bezmotion.pipeline import CharacterProfile, InbetweenResult, Transfer, full_body_handles_error, inbetween, pose_to_bvh
-from bezmotion.sampling import Handles, load_model
+from bezmotion.bmm.sampling import Handles, load_model
 
 IK_CHOICES = ("refined", "learned", "rig")
 

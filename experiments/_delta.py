@@ -15,11 +15,11 @@ from typing import Any
 import jax
 import numpy as np
 
-from bezmotion.checkpoint import CONFIG_FILE, CheckpointStore
+from bezmotion.training.checkpoint import CONFIG_FILE, CheckpointStore
 from bezmotion.data.cache import cache_dir
-from bezmotion.delta_train import DeltaTrainConfig, init_delta_train_states, make_delta_train_step, run_delta_training
-from bezmotion.models.delta import DeltaConfig
-from bezmotion.train import compile_train_step
+from bezmotion.delta.train import DeltaTrainConfig, init_delta_train_states, make_delta_train_step, run_delta_training
+from bezmotion.delta.model import DeltaConfig
+from bezmotion.training import compile_train_step
 
 MODE_NAMES = {"last": "Last", "none": "No", "interpolation": "I"}
 """How the paper's tables name the Δ-modes."""

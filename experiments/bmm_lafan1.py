@@ -34,7 +34,7 @@ import jax
 import numpy as np
 
 from bezmotion._io import write_results
-from bezmotion.bmm_evaluation import (
+from bezmotion.bmm.evaluation import (
     CurveMetricsConfig,
     curve_metrics,
     floor_height_from,
@@ -44,13 +44,14 @@ from bezmotion.bmm_evaluation import (
     sample_in_chunks,
 )
 from bezmotion.bezier import BezierLayout
-from bezmotion.checkpoint import CheckpointStore
+from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.data.cache import cache_dir
 from bezmotion.data.curves import CurveDataset, bandai_namco_curve_dataset, lafan1_curve_dataset
-from bezmotion.models.bmm import PREDICTIONS, BMMConfig, count_parameters
-from bezmotion.models.bmm_data import FeatureStats
-from bezmotion.sampling import BezierMotionModel, sample_curves, save_model
-from bezmotion.train import CurveArrays, TrainConfig, compile_train_step, data_mesh, init_train_states, make_train_step, run_training
+from bezmotion.bmm.denoiser import PREDICTIONS, BMMConfig, count_parameters
+from bezmotion.bmm.features import FeatureStats
+from bezmotion.bmm.sampling import BezierMotionModel, sample_curves, save_model
+from bezmotion.bmm.train import CurveArrays, BMMTrainConfig, init_bmm_train_states, make_bmm_train_step
+from bezmotion.training import compile_train_step, data_mesh, run_training
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 DEFAULT_DATA = {
@@ -71,9 +72,9 @@ def concat_datasets(parts: list[CurveDataset]) -> CurveDataset:
     return dataclasses.replace(first, **{k: np.concatenate([getattr(p, k) for p in parts]) for k in CurveDataset._ARRAYS})
 
 
-def train(args, model_config: BMMConfig, train_config: TrainConfig, train_set: CurveDataset, stats: FeatureStats):
-    graphdef, state = init_train_states(model_config, train_config, args.seeds)
-    step = compile_train_step(make_train_step(graphdef, model_config, train_config, stats, mesh=data_mesh()), num_seeds=len(args.seeds))
+def train(args, model_config: BMMConfig, train_config: BMMTrainConfig, train_set: CurveDataset, stats: FeatureStats):
+    graphdef, state = init_bmm_train_states(model_config, train_config, args.seeds)
+    step = compile_train_step(make_bmm_train_step(graphdef, model_config, train_config, stats, mesh=data_mesh()), num_seeds=len(args.seeds))
     store = CheckpointStore(Path(args.run_dir) / "checkpoints")
     config = {
         "model": dataclasses.asdict(model_config),
@@ -189,7 +190,7 @@ def main(argv: list[str] | None = None) -> dict:
     val_set = curve_dataset(args.data, "validation", progress=not args.no_progress)
     stats = FeatureStats.from_dataset(train_set)
     model_config = CONFIGS[args.config](prediction=args.prediction)
-    train_config = TrainConfig(
+    train_config = BMMTrainConfig(
         batch_size=args.batch_size, learning_rate=args.learning_rate, min_snr_gamma=args.min_snr_gamma or None
     )
 

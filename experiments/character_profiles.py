@@ -4,7 +4,7 @@
 
 For LaFAN1 and Bandai-Namco: the height measure (bone lengths hips→head + hips→foot) and
 each characteristic joint's mean global orientation relative to the facing, over every
-10th training frame. Writes ``<corpus>.json`` (:class:`bezmotion.pipeline.CharacterProfile`).
+10th training frame. Writes ``<corpus>.json`` (:class:`bezmotion.pipeline.inbetweening.CharacterProfile`).
 """
 
 from __future__ import annotations

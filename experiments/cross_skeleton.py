@@ -6,7 +6,7 @@ For each target skeleton (LaFAN1 subject 5, Bandai-Namco validation takes) the s
 end poses and 1–4 intermediate handles of each window come from the mocap (the windows
 and handles of ``experiments/bmm_lafan1.py``: same draws, OOD = ±16 cm noise). Curves
 from a BMM trained on the *same* skeleton, and from the BMM trained on the *other*
-skeleton moved over by :class:`bezmotion.pipeline.Transfer` (hip-height ratio, fixed
+skeleton moved over by :class:`bezmotion.pipeline.inbetweening.Transfer` (hip-height ratio, fixed
 orientation offsets), drive the target skeleton through its own learned IK
 (``experiments/train_ik.py``), the same followed by the rig's exact two-bone arms and legs
 (ours, :func:`bezmotion.ik.protores.protores_refined_ik_fn`), and the analytic rig alone
@@ -27,14 +27,14 @@ import numpy as np
 
 from bezmotion._io import write_results
 from bezmotion.assets import PROFILES_DIR
-from bezmotion.bmm_evaluation import floor_height_from, make_eval_set
+from bezmotion.bmm.evaluation import floor_height_from, make_eval_set
 from bezmotion.data.cache import cache_dir
 from bezmotion.data.curves import bandai_namco_clips, bandai_namco_curve_dataset, lafan1_clips, lafan1_curve_dataset
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik
 from bezmotion.pipeline import CharacterProfile, Transfer
-from bezmotion.pipeline_evaluation import PipelineMetricsConfig, evaluate_pipeline, ground_truth_pose_metrics, window_poses
-from bezmotion.sampling import load_model
+from bezmotion.pipeline.evaluation import PipelineMetricsConfig, evaluate_pipeline, ground_truth_pose_metrics, window_poses
+from bezmotion.bmm.sampling import load_model
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 CORPORA = {

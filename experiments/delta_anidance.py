@@ -9,7 +9,7 @@ added to the LERP baseline (or the last frame, or nothing), and the loss is
 ``10·L1(positions)`` on the missing frames plus the same on the key frames. One past key
 frame (the paper: "the number of the start key-frames ... 1 for Anidance").
 
-The files store the bones relative to the center (see :mod:`bezmotion.anidance_evaluation`).
+The files store the bones relative to the center (see :mod:`bezmotion.evaluation.anidance`).
 With ``--points world`` (default) the model trains and predicts on world positions, where
 its root-relative input is translation-invariant and still shows the pose, and its output
 is converted back to the stored layout for the metric; ``--points stored`` feeds the
@@ -25,7 +25,7 @@ command resumes there; a run directory holding a different configuration is refu
 too, as the paper trains on Anidance; ``gap`` never does; ``mixed`` (default) does so for
 half of the examples, so that one model serves both benchmark variants below.
 
-Evaluation (:mod:`bezmotion.anidance_evaluation`): the validation files' 128-frame windows;
+Evaluation (:mod:`bezmotion.evaluation.anidance`): the validation files' 128-frame windows;
 L2P normalised by the 72-d training std at n = 5, 15, 30, where ``n`` counts frames from
 the past key frame (window frame 0) to the target (frame ``n``), as the reference code
 does, so ``n − 1`` frames are predicted:
@@ -52,7 +52,7 @@ from pathlib import Path
 import jax
 
 from bezmotion._io import write_results
-from bezmotion.anidance_evaluation import (
+from bezmotion.evaluation.anidance import (
     ANIDANCE_LENGTHS,
     KEYFRAME_PERIOD,
     PROTOCOLS,
@@ -64,7 +64,7 @@ from bezmotion.anidance_evaluation import (
     in_stored_layout,
 )
 from bezmotion.data.anidance import anidance_statistics, anidance_windows, load_anidance
-from bezmotion.delta_experiment import (
+from _delta import (
     MODE_NAMES,
     ModeRun,
     add_delta_arguments,
@@ -74,8 +74,8 @@ from bezmotion.delta_experiment import (
     resolve_run_dir,
     train_delta_mode,
 )
-from bezmotion.delta_train import DeltaPositionArrays, DeltaTrainConfig
-from bezmotion.models.delta import TABLE3_MODES, DeltaConfig, count_parameters, delta_position_inbetweener
+from bezmotion.delta.train import DeltaPositionArrays, DeltaTrainConfig
+from bezmotion.delta.model import TABLE3_MODES, DeltaConfig, count_parameters, delta_position_inbetweener
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "anidance" / "anidance.tar.xz"
 TRAIN_WINDOW = 128

@@ -33,7 +33,7 @@ import jax
 
 from bezmotion._io import write_results
 from bezmotion.data.lafan1 import TEST_SUBJECTS, TRAIN_SUBJECTS, lafan1_statistics, lafan1_windows, load_lafan1
-from bezmotion.delta_experiment import (
+from _delta import (
     MODE_NAMES,
     ModeRun,
     add_delta_arguments,
@@ -42,8 +42,8 @@ from bezmotion.delta_experiment import (
     resolve_run_dir,
     train_delta_mode,
 )
-from bezmotion.delta_train import DeltaArrays, DeltaTrainConfig
-from bezmotion.evaluation import (
+from bezmotion.delta.train import DeltaArrays, DeltaTrainConfig
+from bezmotion.evaluation.lafan1 import (
     METRIC_VARIANTS,
     TEST_OFFSET,
     TEST_WINDOW,
@@ -53,7 +53,7 @@ from bezmotion.evaluation import (
     evaluate_transitions,
     format_table,
 )
-from bezmotion.models.delta import TABLE3_MODES, DeltaConfig, count_parameters, delta_inbetweener
+from bezmotion.delta.model import TABLE3_MODES, DeltaConfig, count_parameters, delta_inbetweener
 
 DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lafan1" / "lafan1-subset.zip"
 TRAIN_WINDOW, TRAIN_OFFSET = 50, 20

@@ -17,7 +17,7 @@ import json
 import time
 
 from bezmotion._io import atomic_write_text
-from bezmotion.evaluation import TRANSITION_LENGTHS, evaluate_baselines, format_table, lafan1_benchmark
+from bezmotion.evaluation.lafan1 import TRANSITION_LENGTHS, evaluate_baselines, format_table, lafan1_benchmark
 
 
 def main(argv: list[str] | None = None) -> dict:

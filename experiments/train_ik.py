@@ -28,7 +28,7 @@ import jax
 import numpy as np
 
 from bezmotion._io import atomic_write_text
-from bezmotion.checkpoint import CheckpointStore
+from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.data.cache import cache_dir
 from bezmotion.ik.frames import CORPORA, load_frames
 from bezmotion.ik.protores import ProtoResConfig, ProtoResModel, character_to_json, count_parameters, save_ik_model
@@ -40,7 +40,7 @@ from bezmotion.ik.training import (
     init_ik_train_state,
     make_ik_train_step,
 )
-from bezmotion.train import compile_train_step, run_training
+from bezmotion.training import compile_train_step, run_training
 
 CONFIGS = {"cpu": ProtoResConfig.cpu, "paper": ProtoResConfig.paper, "tiny": ProtoResConfig.tiny}
 

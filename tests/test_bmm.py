@@ -29,26 +29,26 @@ from helpers import SHARED_DATA, assert_trees_close, assert_trees_identical, req
 
 from bezmotion.assets import DEMO_CLIP
 from bezmotion.bezier import BezierLayout, evaluate
-from bezmotion.bmm_evaluation import (
+from bezmotion.bmm.evaluation import (
     CurveMetricsConfig,
     curve_metrics,
     make_eval_set,
     reference_curves,
     sample_in_chunks,
 )
-from bezmotion.checkpoint import CheckpointStore
+from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.data.bvh import read_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, FEET, HIPS
 from bezmotion.data.curves import MotionClips, build_curve_dataset
 from bezmotion.diffusion.ddim import ddim_sample
 from bezmotion.diffusion.schedule import DiffusionSchedule, cosine_schedule, respaced_timesteps
-from bezmotion.losses import LossWeights, bmm_loss_terms, dense_velocity, min_snr_weight
+from bezmotion.bmm.losses import LossWeights, bmm_loss_terms, dense_velocity, min_snr_weight
 from bezmotion.metrics import contact_accuracy, foot_skating_ratio, handles_error, mean_position_error
-from bezmotion.models.baselines import handle_interpolation
+from bezmotion.baselines import handle_interpolation
 from bezmotion._xla import inference_compiler_options
 from flax import nnx
 
-from bezmotion.models.bmm import (
+from bezmotion.bmm.denoiser import (
     BMMConfig,
     BMMDenoiser,
     Conditions,
@@ -57,7 +57,7 @@ from bezmotion.models.bmm import (
     init_denoiser,
     sinusoidal_encoding,
 )
-from bezmotion.models.bmm_data import (
+from bezmotion.bmm.features import (
     FeatureStats,
     control_features,
     draw_intermediate_slots,
@@ -69,18 +69,10 @@ from bezmotion.models.bmm_data import (
     split_features,
     to_tokens,
 )
-from bezmotion.sampling import BezierMotionModel, Handles, SampledCurves, load_model, sample_curves, save_model
-from bezmotion.train import (
-    CurveArrays,
-    TrainConfig,
-    compile_train_step,
-    data_mesh,
-    init_train_state,
-    init_train_states,
-    make_optimizer,
-    make_train_step,
-    run_training,
-)
+from bezmotion.bmm.sampling import BezierMotionModel, Handles, SampledCurves, load_model, sample_curves, save_model
+from bezmotion.bmm.train import CurveArrays, BMMTrainConfig, init_bmm_train_state, init_bmm_train_states, make_bmm_train_step
+from bezmotion.training import compile_train_step, data_mesh, run_training
+from bezmotion.training.optim import adamw_amsgrad_torch
 
 K, J = 6, 6  # control points per 31-frame window at stride 6; characteristic joints
 F = J * 12  # frame-token features
@@ -653,7 +645,7 @@ def test_min_snr_weight_and_dense_velocity(rng):
 
 # ============================================================================== training
 
-TRAIN = TrainConfig(batch_size=8, learning_rate=1e-3, ema_decay=0.9)
+TRAIN = BMMTrainConfig(batch_size=8, learning_rate=1e-3, ema_decay=0.9)
 
 
 def committed(step):
@@ -667,8 +659,8 @@ def committed(step):
 def kit(demo_dataset, stats) -> SimpleNamespace:
     """The tiny model's compiled training step on the DEMO_CLIP curves (compiled once)."""
     assert len(demo_dataset) == 10
-    graphdef, state0 = init_train_state(TINY, TRAIN, key=jax.random.key(0))
-    step_fn = make_train_step(graphdef, TINY, TRAIN, stats)
+    graphdef, state0 = init_bmm_train_state(TINY, TRAIN, key=jax.random.key(0))
+    step_fn = make_bmm_train_step(graphdef, TINY, TRAIN, stats)
     step = committed(compile_train_step(step_fn, num_seeds=None))
     data = CurveArrays.from_dataset(demo_dataset)
     return SimpleNamespace(graphdef=graphdef, state0=state0, step_fn=step_fn, step=step, data=data)
@@ -686,13 +678,13 @@ def trajectory(kit) -> list:
 def test_train_config_validation():
     for bad in ({"batch_size": 0}, {"learning_rate": 0.0}, {"weight_decay": -1.0}, {"condition_dropout": 1.0}, {"ema_decay": 1.0}):
         with pytest.raises(ValueError):
-            TrainConfig(**bad)
-    assert TrainConfig().learning_rate == 1e-4 and TrainConfig().batch_size == 64 and TrainConfig().min_snr_gamma == 5.0
+            BMMTrainConfig(**bad)
+    assert BMMTrainConfig().learning_rate == 1e-4 and BMMTrainConfig().batch_size == 64 and BMMTrainConfig().min_snr_gamma == 5.0
 
 
 def test_optimizer_is_adamw_with_amsgrad_and_decoupled_decay():
-    config = TrainConfig(learning_rate=0.1, weight_decay=0.5)
-    opt = make_optimizer(config)
+    config = BMMTrainConfig(learning_rate=0.1, weight_decay=0.5)
+    opt = adamw_amsgrad_torch(config.learning_rate, config.weight_decay)
     params = {"w": jnp.asarray([1.0, -2.0, 3.0])}
     grads = {"w": jnp.asarray([0.5, -0.1, 0.0])}
     updates, _ = opt.update(grads, opt.init(params), params)
@@ -764,7 +756,7 @@ def test_checkpoint_resume_is_bit_identical(kit, trajectory, tmp_path):
     assert_trees_identical(half, trajectory[3])
     assert [h["step"] for h in history] == [1, 2, 3]
     assert store.latest_step() == 3 and store.config() == config
-    fresh = init_train_state(TINY, TRAIN, key=jax.random.key(99))[1]  # another seed: restore must replace it all
+    fresh = init_bmm_train_state(TINY, TRAIN, key=jax.random.key(99))[1]  # another seed: restore must replace it all
     assert_trees_identical(store.restore(fresh, step=2), trajectory[2])
     restored = store.restore(fresh)
     assert_trees_identical(restored, trajectory[3])
@@ -797,7 +789,7 @@ def test_ctrl_c_saves_the_held_state_and_resume_completes_identically(kit, traje
     with pytest.raises(KeyboardInterrupt):
         run_training(interrupted_at(4), kit.state0, kit.data, num_steps=6, store=store, checkpoint_every=1000, progress=False)
     assert store.latest_step() == 4
-    fresh = init_train_state(TINY, TRAIN, key=jax.random.key(98))[1]
+    fresh = init_bmm_train_state(TINY, TRAIN, key=jax.random.key(98))[1]
     assert_trees_identical(store.restore(fresh), trajectory[4])
     resumed, _ = run_training(kit.step, fresh, kit.data, num_steps=6, store=store, progress=False)
     assert_trees_identical(resumed, trajectory[6])
@@ -820,7 +812,7 @@ def test_sigterm_checkpoints_at_a_step_boundary_like_ctrl_c(kit, trajectory, tmp
         run_training(terminated_after(3), kit.state0, kit.data, num_steps=6, store=store, checkpoint_every=1000, progress=False)
     assert signal.getsignal(signal.SIGTERM) == before  # the handler is gone again
     assert store.latest_step() == 3
-    fresh = init_train_state(TINY, TRAIN, key=jax.random.key(98))[1]
+    fresh = init_bmm_train_state(TINY, TRAIN, key=jax.random.key(98))[1]
     resumed, _ = run_training(kit.step, fresh, kit.data, num_steps=6, store=store, progress=False)
     assert_trees_identical(resumed, trajectory[6])
     store.close()
@@ -828,7 +820,7 @@ def test_sigterm_checkpoints_at_a_step_boundary_like_ctrl_c(kit, trajectory, tmp
 
 def test_vmapped_seeds_match_single_seed_runs(kit, tmp_path):
     seeds = (5, 6)
-    graphdef, stacked = init_train_states(TINY, TRAIN, list(seeds))
+    graphdef, stacked = init_bmm_train_states(TINY, TRAIN, list(seeds))
     assert graphdef == kit.graphdef
     vstep = committed(compile_train_step(kit.step_fn, num_seeds=len(seeds)))
     store = CheckpointStore(tmp_path / "seeds")
@@ -838,7 +830,7 @@ def test_vmapped_seeds_match_single_seed_runs(kit, tmp_path):
     assert len(history) == 1 and np.isfinite(history[0]["loss"])
     singles = []
     for i, seed in enumerate(seeds):
-        _, single = init_train_state(TINY, TRAIN, key=jax.random.key(seed))
+        _, single = init_bmm_train_state(TINY, TRAIN, key=jax.random.key(seed))
         assert_trees_identical(jax.tree.map(lambda a, i=i: a[i], stacked), single)
         single, metrics = kit.step(single, kit.data)
         # One step matches to float rounding. (Not more steps: Adam's m̂/(√v̂ + ε) turns
@@ -854,7 +846,7 @@ def test_vmapped_seeds_match_single_seed_runs(kit, tmp_path):
     assert_trees_identical(store.restore(stacked), multi)
     store.close()
     with pytest.raises(ValueError, match="seed"):
-        init_train_states(TINY, TRAIN, [])
+        init_bmm_train_states(TINY, TRAIN, [])
 
 
 # ============================================================================== sampling
@@ -1068,7 +1060,7 @@ def test_contact_accuracy_and_mean_position_error():
 
 
 def test_ground_truth_metrics_report_the_mocap_and_its_fitted_curves(demo_dataset, eval_set):
-    from bezmotion.bmm_evaluation import ground_truth_metrics
+    from bezmotion.bmm.evaluation import ground_truth_metrics
 
     config = CurveMetricsConfig(BezierLayout.from_controls(K, 6), demo_dataset.fps, 0.0)
     gt = ground_truth_metrics(config, eval_set)
@@ -1303,7 +1295,7 @@ def test_sample_curves_composes_inside_a_callers_jit(model, motions, sampled):
 
 
 def test_lock_feet_pins_each_contact_run_and_leaves_everything_else(rng):
-    from bezmotion.foot_lock import lock_feet
+    from bezmotion.bmm.foot_lock import lock_feet
 
     pos = jnp.asarray(rng.normal(scale=20.0, size=(K, J, 3)), jnp.float32)
     tangent = jnp.asarray(rng.normal(scale=5.0, size=(K, J, 3)), jnp.float32)

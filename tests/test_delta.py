@@ -20,9 +20,9 @@ from flax import nnx
 
 from helpers import assert_trees_identical, leaves, trees_differ
 
-from bezmotion.checkpoint import CheckpointStore
+from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.data import lafan1
-from bezmotion.delta_train import (
+from bezmotion.delta.train import (
     DeltaArrays,
     DeltaTrainConfig,
     draw_layout,
@@ -32,10 +32,10 @@ from bezmotion.delta_train import (
     make_delta_train_step,
     run_delta_training,
 )
-from bezmotion.evaluation import TEST_OFFSET, TEST_WINDOW, Lafan1Benchmark, evaluate_transitions, interpolation_inbetweener
+from bezmotion.evaluation.lafan1 import TEST_OFFSET, TEST_WINDOW, Lafan1Benchmark, evaluate_transitions, interpolation_inbetweener
 from bezmotion.geometry.skeleton import forward_kinematics
-from bezmotion.models.baselines import interpolation
-from bezmotion.models.delta import (
+from bezmotion.baselines import interpolation
+from bezmotion.delta.model import (
     DeltaConfig,
     DeltaInterpolator,
     KeyFrames,
@@ -45,7 +45,7 @@ from bezmotion.models.delta import (
     init_delta,
     transition_layout,
 )
-from bezmotion.train import compile_train_step
+from bezmotion.training import compile_train_step
 
 N_PAST, MAX_GAP, WINDOW = 10, 39, 50
 SIZES = {"width": 32, "num_heads": 2, "mlp_layers": 2, "embedding_dim": 8}

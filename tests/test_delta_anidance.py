@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 from flax import nnx
 
-from bezmotion.anidance_evaluation import (
+from bezmotion.evaluation.anidance import (
     AnidanceBenchmark,
     anidance_benchmark,
     anidance_from_world,
@@ -32,9 +32,9 @@ from bezmotion.anidance_evaluation import (
     interpolation_position_inbetweener,
     zero_velocity_position_inbetweener,
 )
-from bezmotion.checkpoint import CheckpointStore
+from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.data.anidance import COLUMNS, AnidanceStatistics, AnidanceWindows
-from bezmotion.delta_train import (
+from bezmotion.delta.train import (
     DeltaArrays,
     DeltaPositionArrays,
     DeltaTrainConfig,
@@ -43,7 +43,7 @@ from bezmotion.delta_train import (
     make_delta_train_step,
     run_delta_training,
 )
-from bezmotion.models.delta import (
+from bezmotion.delta.model import (
     DeltaConfig,
     KeyFrames,
     KeyPositions,
@@ -53,7 +53,7 @@ from bezmotion.models.delta import (
     position_interpolation_baseline,
     position_zero_velocity_baseline,
 )
-from bezmotion.train import compile_train_step
+from bezmotion.training import compile_train_step
 from helpers import SHARED_DATA, requires_shared
 
 P, N_PAST, MAX_GAP, PERIOD = 24, 1, 39, 6

@@ -22,7 +22,7 @@ from flax import nnx
 from helpers import assert_trees_identical, leaves, np_axis_matrix, np_matrix_from_quat
 
 from bezmotion.assets import DEMO_CLIP
-from bezmotion.checkpoint import CheckpointStore
+from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.data.bvh import read_bvh
 from bezmotion.geometry.rotations import rot6d_from_quat
 from bezmotion.geometry.skeleton import Skeleton
@@ -52,7 +52,7 @@ from bezmotion.ik.training import (
     init_ik_train_state,
     make_ik_train_step,
 )
-from bezmotion.train import compile_train_step, run_training
+from bezmotion.training import compile_train_step, run_training
 
 SIX = ("Hips", "Head", "Hand_L", "Hand_R", "Foot_L", "Foot_R")
 _solve = jax.jit(jax.vmap(solve_effectors, in_axes=(None, 0)))

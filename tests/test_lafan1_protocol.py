@@ -17,7 +17,7 @@ import pytest
 
 from bezmotion.data import lafan1
 from bezmotion.data.windows import facing_rotation, sliding_window_starts
-from bezmotion.evaluation import (
+from bezmotion.evaluation.lafan1 import (
     evaluate_baselines,
     evaluate_transitions,
     format_table,

@@ -89,7 +89,7 @@ def reference() -> dict:
 
 @pytest.fixture(scope="module")
 def library_bench():
-    from bezmotion.evaluation import lafan1_benchmark
+    from bezmotion.evaluation.lafan1 import lafan1_benchmark
 
     return lafan1_benchmark(ZIP_PATH)
 
@@ -98,7 +98,7 @@ def library_bench():
 @requires_lafan1
 @pytest.mark.parametrize("variant", VARIANTS)
 def test_library_baselines_match_reference(variant, reference, library_bench):
-    from bezmotion.evaluation import evaluate_baselines
+    from bezmotion.evaluation.lafan1 import evaluate_baselines
 
     got = evaluate_baselines(library_bench, variant=variant)
     want = reference[variant]

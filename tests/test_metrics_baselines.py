@@ -9,7 +9,7 @@ import pytest
 
 from bezmotion.geometry import quat_from_axis_angle, quat_mul
 from bezmotion.metrics import align_to_context, l2p, l2q, npss
-from bezmotion.models.baselines import interpolation, transition_weights, zero_velocity
+from bezmotion.baselines import interpolation, transition_weights, zero_velocity
 
 
 def test_l2q_by_hand():

@@ -33,7 +33,7 @@ from helpers import (
 )
 
 from bezmotion.assets import DEMO_CLIP
-from bezmotion.bmm_evaluation import floor_height_from, make_eval_set
+from bezmotion.bmm.evaluation import floor_height_from, make_eval_set
 from bezmotion.data.bvh import read_bvh, write_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.data.curves import MotionClips, build_curve_dataset
@@ -48,8 +48,8 @@ from bezmotion.ik.protocol import (
     pose_from_motion,
     targets_from_pose,
 )
-from bezmotion.models.bmm import BMMConfig, init_denoiser
-from bezmotion.models.bmm_data import FeatureStats
+from bezmotion.bmm.denoiser import BMMConfig, init_denoiser
+from bezmotion.bmm.features import FeatureStats
 from bezmotion.pipeline import (
     CharacterProfile,
     Transfer,
@@ -63,7 +63,7 @@ from bezmotion.pipeline import (
     pose_to_bvh,
     to_source_space,
 )
-from bezmotion.pipeline_evaluation import (
+from bezmotion.pipeline.evaluation import (
     PipelineMetricsConfig,
     evaluate_pipeline,
     ground_truth_pose_metrics,
@@ -71,7 +71,7 @@ from bezmotion.pipeline_evaluation import (
     run_pipeline,
     window_poses,
 )
-from bezmotion.sampling import BezierMotionModel, Handles, SampledCurves
+from bezmotion.bmm.sampling import BezierMotionModel, Handles, SampledCurves
 
 TINY = BMMConfig.cpu(width=32, ff_width=64, num_heads=2, num_layers=1, dropout=0.0)
 FRAMES, STRIDE, K = TINY.num_frames, TINY.stride, TINY.num_controls  # 31, 6, 6

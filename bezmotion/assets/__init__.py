@@ -10,7 +10,7 @@ DEMO_CLIP_ATTRIBUTION = (
     "(c) 2022 Bandai Namco Research Inc., CC BY-NC 4.0 (non-commercial)"
 )
 PROFILES_DIR = ASSETS_DIR / "profiles"
-"""Character profiles (:class:`bezmotion.pipeline.CharacterProfile`) of the bundled
+"""Character profiles (:class:`bezmotion.pipeline.inbetweening.CharacterProfile`) of the bundled
 corpora's skeletons, measured by ``experiments/character_profiles.py``."""
 MODELS_DIR = ASSETS_DIR / "models"
 BUNDLED_BMM = MODELS_DIR / "bmm_bandai_namco"

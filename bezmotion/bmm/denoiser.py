@@ -56,7 +56,7 @@ class BMMConfig:
       prediction: what the decoder outputs. ``"x0"`` (the paper): x̂₀ itself.
         ``"residual"`` (ours, after the Δ-interpolator's residual over SLERP): x̂₀ minus
         the non-learned reference curves through the conditions
-        (:func:`~bezmotion.models.bmm_data.interpolation_prior`), with the decoder
+        (:func:`~bezmotion.bmm.features.interpolation_prior`), with the decoder
         zero-initialised so training starts from the reference.
     """
 
@@ -235,12 +235,12 @@ class BMMDenoiser(nnx.Module):
           x_t: ``(controls, 6·12)`` the noisy normalised frame tokens.
           t: the diffusion timestep (original numbering, 0…T−1).
           conditions: condition slots with positions already normalised (see
-            :class:`~bezmotion.models.bmm_data.FeatureStats`).
+            :class:`~bezmotion.bmm.features.FeatureStats`).
           key: dropout key; ``None`` runs deterministically (evaluation, sampling).
         Returns:
           ``(x̂₀ (controls, features), contact logits (controls, 2))``; with
           ``prediction="residual"`` the first is x̂₀ minus the interpolation prior, and
-          :func:`~bezmotion.models.bmm_data.predict_x0` adds the prior back.
+          :func:`~bezmotion.bmm.features.predict_x0` adds the prior back.
         """
         cfg = self.config
         w = cfg.width

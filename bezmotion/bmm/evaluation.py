@@ -28,9 +28,9 @@ from bezmotion.bezier import BezierLayout, evaluate
 from bezmotion.data.characteristic import FEET
 from bezmotion.data.curves import CurveDataset
 from bezmotion.metrics import contact_accuracy, foot_skating_ratio, handles_error, mean_position_error
-from bezmotion.models.baselines import handle_interpolation
-from bezmotion.models.bmm_data import MAX_INTERMEDIATE_HANDLES, draw_intermediate_slots
-from bezmotion.sampling import Handles, SampledCurves
+from bezmotion.baselines import handle_interpolation
+from bezmotion.bmm.features import MAX_INTERMEDIATE_HANDLES, draw_intermediate_slots
+from bezmotion.bmm.sampling import Handles, SampledCurves
 
 OOD_NOISE_CM = 16.0  # BMM §5.1: uniform noise of ±16 cm per axis on the handles
 
@@ -143,7 +143,7 @@ def curve_metrics(
 
 
 def reference_curves(eval_set: EvalSet, handles: Handles, num_controls: int) -> SampledCurves:
-    """The non-learned reference (:func:`~bezmotion.models.baselines.handle_interpolation`)
+    """The non-learned reference (:func:`~bezmotion.baselines.handle_interpolation`)
     for every window; no orientations, contacts all 0.5 (unknown)."""
     pos, tangent = _reference_controls(eval_set.start, eval_set.end, handles, num_controls=num_controls)
     n = pos.shape[0]

@@ -17,8 +17,8 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from bezmotion.data.curves import CurveDataset
-from bezmotion.models.baselines import handle_interpolation
-from bezmotion.models.bmm import FEATURES_PER_JOINT, BMMDenoiser, Conditions
+from bezmotion.baselines import handle_interpolation
+from bezmotion.bmm.denoiser import FEATURES_PER_JOINT, BMMDenoiser, Conditions
 
 MAX_INTERMEDIATE_HANDLES = 4  # BMM §5.2: zero to four uniformly sampled intermediate handles
 STD_FLOOR = 1e-3  # features that never vary (e.g. a constant) must not divide by zero
@@ -132,7 +132,7 @@ def normalize_conditions(stats: FeatureStats, conditions: Conditions, translatio
 def interpolation_prior(stats: FeatureStats, conditions: Conditions, num_controls: int) -> Float[Array, "controls features"]:
     """The reference curves through the conditions, as normalised frame tokens (one motion).
 
-    Positions and tangents are :func:`~bezmotion.models.baselines.handle_interpolation`
+    Positions and tangents are :func:`~bezmotion.baselines.handle_interpolation`
     of the conditioned positions; orientations are the training mean (0 once
     normalised). A joint whose first or last control point is not conditioned (e.g. all
     conditions dropped for classifier-free guidance) gets the mean everywhere.

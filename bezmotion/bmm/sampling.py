@@ -22,13 +22,13 @@ from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
 from bezmotion._xla import call_with_inference_options
-from bezmotion.checkpoint import CheckpointStore
+from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.diffusion.ddim import ddim_sample
-from bezmotion.foot_lock import lock_feet
+from bezmotion.bmm.foot_lock import lock_feet
 from bezmotion.diffusion.schedule import cosine_schedule
-from bezmotion.models.bmm import BMMConfig, init_denoiser
-from bezmotion.models.bmm_data import (
+from bezmotion.bmm.denoiser import BMMConfig, init_denoiser
+from bezmotion.bmm.features import (
     FeatureStats,
     from_tokens,
     inbetween_conditions,
@@ -205,7 +205,7 @@ def sample_curves(
       overwrite: replace the constrained control positions in x̂₀ at every step and after
         the last (BMM); ``False`` reproduces the paper's "w/o overwrite" ablation.
       foot_lock: afterwards, hold each foot still in the ground plane while its
-        predicted contact lasts (:func:`~bezmotion.foot_lock.lock_feet`; ours, not the
+        predicted contact lasts (:func:`~bezmotion.bmm.foot_lock.lock_feet`; ours, not the
         paper's). Constrained points do not move.
     Returns:
       :class:`SampledCurves` in the world frame; constrained control points equal their

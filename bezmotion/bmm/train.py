@@ -1,4 +1,4 @@
-"""Training the Bézier Motion Model: explicit state, one jitted step, several seeds at once.
+"""Training the Bézier Motion Model: its data, its loss and its jitted step.
 
 ``train_step(state, data) -> (state, metrics)`` is pure: it draws its batch (window
 indices, timesteps, noise, conditions, dropout) from ``state.key``, so a run is fully
@@ -14,30 +14,23 @@ classifier-free guidance.
 
 from __future__ import annotations
 
-import contextlib
 import dataclasses
-import signal
-import threading
-import time
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 import optax
 from flax import nnx
-from jax.sharding import Mesh, NamedSharding, PartitionSpec
-from jaxtyping import Array, Bool, Float, Int
-from tqdm.auto import tqdm
+from jax.sharding import Mesh
+from jaxtyping import Array, Bool, Float
 
 from bezmotion.bezier import BezierLayout
-from bezmotion.checkpoint import CheckpointStore
 from bezmotion.data.curves import CurveDataset
 from bezmotion.diffusion.schedule import DiffusionSchedule, cosine_schedule
-from bezmotion.losses import LossWeights, bmm_loss_terms, min_snr_weight
-from bezmotion.models.bmm import BMMConfig, init_denoiser
-from bezmotion.models.bmm_data import (
+from bezmotion.bmm.losses import LossWeights, bmm_loss_terms, min_snr_weight
+from bezmotion.bmm.denoiser import BMMConfig, init_denoiser
+from bezmotion.bmm.features import (
     MAX_INTERMEDIATE_HANDLES,
     FeatureStats,
     control_features,
@@ -49,10 +42,13 @@ from bezmotion.models.bmm_data import (
     split_features,
     to_tokens,
 )
+from bezmotion.training.loop import shard_batch
+from bezmotion.training.optim import adamw_amsgrad_torch
+from bezmotion.training.state import TrainState, fresh_train_state, stack_seeds
 
 
 @dataclasses.dataclass(frozen=True)
-class TrainConfig:
+class BMMTrainConfig:
     """Optimisation settings (defaults: the paper's)."""
 
     batch_size: int = 64
@@ -66,7 +62,7 @@ class TrainConfig:
 
     def __post_init__(self):
         if self.batch_size < 1 or self.learning_rate <= 0 or self.weight_decay < 0:
-            raise ValueError(f"invalid TrainConfig: {self}")
+            raise ValueError(f"invalid BMMTrainConfig: {self}")
         if not 0.0 <= self.condition_dropout < 1.0 or not 0.0 <= self.ema_decay < 1.0:
             raise ValueError(f"condition_dropout and ema_decay must be in [0, 1), got {self}")
 
@@ -85,119 +81,25 @@ class CurveArrays(NamedTuple):
         return cls(*(jnp.asarray(getattr(dataset, f)) for f in cls._fields))
 
 
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
-class TrainState:
-    """Everything that changes during training (one seed; stacked on axis 0 for several).
-
-    Attributes:
-      params, ema: model parameters and their exponential moving average.
-      opt_state: optimiser state.
-      step: number of steps taken.
-      key: PRNG key for the next step.
-    """
-
-    params: Any
-    opt_state: Any
-    ema: Any
-    step: Int[Array, "*seeds"]
-    key: Array
-
-
-class AmsgradState(NamedTuple):
-    count: Int[Array, ""]
-    mu: Any
-    nu: Any
-    nu_max: Any
-
-
-def scale_by_amsgrad_torch(b1: float = 0.9, b2: float = 0.999, eps: float = 1e-8) -> optax.GradientTransformation:
-    """Adam with AMSGrad exactly as PyTorch computes it (the paper trained with PyTorch).
-
-    PyTorch keeps the running maximum of the *raw* second moment and bias-corrects it
-    afterwards: ``m̂ / (√(max_s ν_s / (1 − β₂ᵗ)) + ε)``. ``optax.scale_by_amsgrad`` takes the
-    maximum of the already corrected moment instead, so one large early gradient — when
-    the correction multiplies ν by up to 1/(1 − β₂) — damps that parameter for good.
-    """
-
-    def init(params):
-        zeros = lambda: jax.tree.map(jnp.zeros_like, params)  # noqa: E731
-        return AmsgradState(jnp.zeros((), jnp.int32), zeros(), zeros(), zeros())
-
-    def update(grads, state, params=None):
-        del params
-        count = state.count + 1
-        mu = jax.tree.map(lambda m, g: b1 * m + (1.0 - b1) * g, state.mu, grads)
-        nu = jax.tree.map(lambda v, g: b2 * v + (1.0 - b2) * g * g, state.nu, grads)
-        nu_max = jax.tree.map(jnp.maximum, state.nu_max, nu)
-        c1 = 1.0 - b1 ** count.astype(jnp.float32)
-        c2 = 1.0 - b2 ** count.astype(jnp.float32)
-        updates = jax.tree.map(lambda m, v: (m / c1) / (jnp.sqrt(v / c2) + eps), mu, nu_max)
-        return updates, AmsgradState(count, mu, nu, nu_max)
-
-    return optax.GradientTransformation(init, update)
-
-
-def make_optimizer(config: TrainConfig) -> optax.GradientTransformation:
-    """AdamW with AMSGrad as PyTorch's ``AdamW(amsgrad=True)``: decoupled weight decay
-    ``lr·wd·θ`` added to the AMSGrad direction, then scaled by the learning rate."""
-    return optax.chain(
-        scale_by_amsgrad_torch(),
-        optax.add_decayed_weights(config.weight_decay),
-        optax.scale_by_learning_rate(config.learning_rate),
-    )
-
-
-def fresh_train_state(
-    init_model: Callable[[Array], tuple[nnx.GraphDef, nnx.State]],
-    optimizer: optax.GradientTransformation,
-    *,
-    key: Array,
-    ema: bool,
-) -> tuple[nnx.GraphDef, TrainState]:
-    """Fresh parameters (``init_model(key)``), optimiser state and step 0 for one seed;
-    ``ema`` starts as a copy of the parameters, or is ``None`` for models that keep none."""
-    init_key, state_key = jax.random.split(key)
-    graphdef, params = init_model(init_key)
-    return graphdef, TrainState(params, optimizer.init(params), params if ema else None, jnp.zeros((), jnp.int32), state_key)
-
-
-def init_train_state(
-    model_config: BMMConfig, train_config: TrainConfig, *, key: Array
+def init_bmm_train_state(
+    model_config: BMMConfig, train_config: BMMTrainConfig, *, key: Array
 ) -> tuple[nnx.GraphDef, TrainState]:
     """Fresh parameters and optimiser state for one seed."""
     init = lambda k: init_denoiser(model_config, key=k)  # noqa: E731
-    return fresh_train_state(init, make_optimizer(train_config), key=key, ema=True)
+    return fresh_train_state(init, adamw_amsgrad_torch(train_config.learning_rate, train_config.weight_decay), key=key, ema=True)
 
 
-def init_train_states(
-    model_config: BMMConfig, train_config: TrainConfig, seeds: list[int] | tuple[int, ...]
+def init_bmm_train_states(
+    model_config: BMMConfig, train_config: BMMTrainConfig, seeds: list[int] | tuple[int, ...]
 ) -> tuple[nnx.GraphDef, TrainState]:
     """States for several seeds, stacked on a leading axis (for the vmapped step)."""
-    return stack_seeds(lambda key: init_train_state(model_config, train_config, key=key), seeds)
+    return stack_seeds(lambda key: init_bmm_train_state(model_config, train_config, key=key), seeds)
 
 
-def stack_seeds(
-    init_one: Callable[[Array], tuple[nnx.GraphDef, TrainState]], seeds: list[int] | tuple[int, ...]
-) -> tuple[nnx.GraphDef, TrainState]:
-    """``init_one(key)`` for every seed, states stacked on a leading axis (any model)."""
-    if not seeds:
-        raise ValueError("need at least one seed")
-    states = [init_one(jax.random.key(s)) for s in seeds]
-    return states[0][0], jax.tree.map(lambda *xs: jnp.stack(xs), *(s for _, s in states))
-
-
-def _sharded(x: Array, mesh: Mesh | None) -> Array:
-    """Split the batch axis over the mesh's devices (no-op on one device)."""
-    if mesh is None:
-        return x
-    return jax.lax.with_sharding_constraint(x, NamedSharding(mesh, PartitionSpec("data")))
-
-
-def make_train_step(
+def make_bmm_train_step(
     graphdef: nnx.GraphDef,
     model_config: BMMConfig,
-    train_config: TrainConfig,
+    train_config: BMMTrainConfig,
     stats: FeatureStats,
     *,
     schedule: DiffusionSchedule | None = None,
@@ -206,7 +108,7 @@ def make_train_step(
     """The (un-jitted) single-seed training step; see :func:`compile_train_step`."""
     schedule = cosine_schedule(model_config.num_timesteps) if schedule is None else schedule
     layout = BezierLayout.from_controls(model_config.num_controls, model_config.stride)
-    optimizer = make_optimizer(train_config)
+    optimizer = adamw_amsgrad_torch(train_config.learning_rate, train_config.weight_decay)
     weights = train_config.weights
     k_ctrl, k_joints = model_config.num_controls, model_config.num_joints
 
@@ -237,7 +139,7 @@ def make_train_step(
     def step(state: TrainState, data: CurveArrays) -> tuple[TrainState, dict[str, Array]]:
         key, index_key, example_key = jax.random.split(state.key, 3)
         index = jax.random.randint(index_key, (train_config.batch_size,), 0, data.ctrl_pos.shape[0])
-        batch = jax.tree.map(lambda a: _sharded(a[index], mesh), tuple(data))
+        batch = jax.tree.map(lambda a: shard_batch(a[index], mesh), tuple(data))
         rngs = jax.random.split(example_key, train_config.batch_size)
         (loss, terms), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params, batch, rngs)
         updates, opt_state = optimizer.update(grads, state.opt_state, state.params)
@@ -250,103 +152,10 @@ def make_train_step(
     return step
 
 
-def compile_train_step(step_fn: Callable, *, num_seeds: int | None) -> Callable:
-    """``jax.jit`` the step, vmapped over stacked seeds when ``num_seeds`` is given.
-
-    The state is not donated: if Ctrl-C lands mid-step, the previous state must still be
-    intact so it can be checkpointed."""
-    fn = jax.vmap(step_fn, in_axes=(0, None)) if num_seeds is not None else step_fn
-    return jax.jit(fn)
-
-
-def data_mesh() -> Mesh | None:
-    """A 1-D mesh over all local devices named ``"data"``, or ``None`` with one device."""
-    devices = jax.local_devices()
-    return Mesh(np.asarray(devices), ("data",)) if len(devices) > 1 else None
-
-
-@contextlib.contextmanager
-def _terminate_requests():
-    """Record SIGTERM (``kill``, a scheduler's pre-emption) instead of dying, so the loop
-    can stop at a step boundary and checkpoint as on Ctrl-C. Background jobs of a
-    non-interactive shell ignore SIGINT, so for them SIGTERM is the polite way to stop.
-    Yields a list that gets the signal number; a no-op outside the main thread."""
-    received: list[int] = []
-    if threading.current_thread() is not threading.main_thread():
-        yield received
-        return
-    previous = signal.signal(signal.SIGTERM, lambda signum, frame: received.append(signum))
-    try:
-        yield received
-    finally:
-        signal.signal(signal.SIGTERM, previous)
-
-
-def run_training(
-    step_fn: Callable[[TrainState, Any], tuple[TrainState, dict[str, Array]]],
-    state: TrainState,
-    data: Any,
-    *,
-    num_steps: int,
-    store: CheckpointStore | None = None,
-    checkpoint_every: int = 1000,
-    config: dict[str, Any] | None = None,
-    progress: bool = True,
-    log_every: int = 25,
-) -> tuple[TrainState, list[dict[str, float | int]]]:
-    """Run a compiled step until ``state.step`` reaches ``num_steps``, resuming from ``store``.
-
-    Model-agnostic: ``data`` is whatever the step takes (BMM's :class:`CurveArrays`, the
-    Δ-interpolator's windows).
-
-    Checkpoints every ``checkpoint_every`` steps, at the end and on Ctrl-C or SIGTERM
-    (then raises ``KeyboardInterrupt``). Returns the final state and the logged metrics (every ``log_every``
-    steps, averaged over seeds).
-    """
-    if store is not None and store.latest_step() is not None:
-        state = store.restore(state)
-    done = int(np.max(np.asarray(state.step)))
-    history: list[dict[str, float]] = []
-    bar = tqdm(total=num_steps, initial=done, desc="training", unit="step", disable=not progress)
-    started, started_step = time.perf_counter(), done
-    with _terminate_requests() as terminate:
-        try:
-            while done < num_steps:
-                if terminate:  # a SIGTERM arrived during the last step: stop here, cleanly
-                    raise KeyboardInterrupt(f"signal {terminate[0]}")
-                state, metrics = step_fn(state, data)
-                done += 1
-                if done % log_every == 0 or done == num_steps:
-                    logged = {k: float(np.mean(np.asarray(v))) for k, v in metrics.items()}
-                    rate = (done - started_step) / max(time.perf_counter() - started, 1e-9)
-                    history.append({"step": done, "steps_per_s": rate, **logged})
-                    bar.set_postfix(loss=f"{logged['loss']:.4g}", steps_per_s=f"{rate:.2f}")
-                bar.update(1)
-                if store is not None and done % checkpoint_every == 0:
-                    store.save(done, state, config)
-        except KeyboardInterrupt:
-            if store is not None:
-                done = int(np.max(np.asarray(state.step)))  # the state actually held, whatever was interrupted
-                store.save(done, state, config)
-                bar.write(f"interrupted: saved step {done} to {store.directory}")
-            raise
-        finally:
-            bar.close()
-    if store is not None:
-        store.save(done, state, config)
-    return state, history
-
-
 __all__ = [
+    "BMMTrainConfig",
     "CurveArrays",
-    "TrainConfig",
-    "TrainState",
-    "compile_train_step",
-    "data_mesh",
-    "init_train_state",
-    "init_train_states",
-    "make_optimizer",
-    "make_train_step",
-    "run_training",
-    "stack_seeds",
+    "init_bmm_train_state",
+    "init_bmm_train_states",
+    "make_bmm_train_step",
 ]

@@ -9,7 +9,7 @@ Each CSV row is one frame at 25 fps: ``center_x, center_y, center_z`` then
 exactly as stored, as ``(frames, 24, 3)`` float64 with the center as point 0. (In the
 files the center moves around the room while the 23 bones stay near the origin: the bones
 are stored relative to the center in all three axes;
-:func:`bezmotion.anidance_evaluation.anidance_to_world` adds it back.)
+:func:`bezmotion.evaluation.anidance.anidance_to_world` adds it back.)
 
 ``split.json`` lists the benchmark's 61 files; the published archive holds 49 of them.
 Listed files that are absent are dropped with one warning that names them all; files

@@ -31,7 +31,7 @@ robustness claim, §4.2). The model is written for one example; ``jax.vmap`` it 
 batch. It is a flax NNX module used functionally: :func:`init_delta` returns
 ``(graphdef, params)``, :func:`apply_delta` merges them inside whatever ``jax.jit``
 calls it, and :func:`delta_inbetweener` wraps trained parameters as an in-betweener for
-:func:`bezmotion.evaluation.evaluate_transitions`.
+:func:`bezmotion.evaluation.lafan1.evaluate_transitions`.
 
 **Positions only** (``representation="positions"``, for corpora without rotations such as
 Anidance, ``../shared/REFERENCE.md`` §2): a key-frame token holds the ``P × 3`` global
@@ -556,7 +556,7 @@ def delta_inbetweener(
     *,
     batch_size: int | None = None,
 ) -> Callable[..., tuple[Array, Array]]:
-    """The trained model as an in-betweener for :func:`bezmotion.evaluation.evaluate_transitions`.
+    """The trained model as an in-betweener for :func:`bezmotion.evaluation.lafan1.evaluate_transitions`.
 
     ``inbetween(past_quat (B, n_past, J, 4), past_root (B, n_past, 3), target_quat (B, J, 4),
     target_root (B, 3), n) -> (quat (B, n, J, 4), root (B, n, 3))`` with ``n`` a Python int.
@@ -612,7 +612,7 @@ def delta_position_inbetweener(
     graphdef: nnx.GraphDef, params: nnx.State, *, batch_size: int | None = None
 ) -> Callable[..., Array]:
     """A trained positions-representation model as an in-betweener for
-    :func:`bezmotion.anidance_evaluation.evaluate_anidance`.
+    :func:`bezmotion.evaluation.anidance.evaluate_anidance`.
 
     ``inbetween(key_pos (B, K, P, 3), key_frame, missing_frame) -> (B, M, P, 3)`` with
     ``key_frame`` (``K``) and ``missing_frame`` (``M``) tuples of Python ints: the frames

@@ -2,7 +2,7 @@
 
 ``step(state, data) -> (state, metrics)`` is pure: it draws its batch (windows, gap
 lengths, start frames, dropout) from ``state.key``, so a run is fully determined by its
-seed and resumes bit-identically from a checkpoint. It reuses :mod:`bezmotion.train`'s
+seed and resumes bit-identically from a checkpoint. It reuses :mod:`bezmotion.bmm.train`'s
 ``TrainState``, ``compile_train_step`` (several seeds vmapped over a stacked state) and
 ``run_training`` (atomic orbax checkpoints, Ctrl-C / SIGTERM handling).
 
@@ -47,7 +47,7 @@ from jaxtyping import Array, Bool, Float, Int
 from bezmotion.data.anidance import AnidanceWindows
 from bezmotion.data.lafan1 import Lafan1Windows
 from bezmotion.geometry.skeleton import forward_kinematics
-from bezmotion.models.delta import (
+from bezmotion.delta.model import (
     DeltaConfig,
     DeltaOutput,
     DeltaPositionsOutput,
@@ -57,7 +57,7 @@ from bezmotion.models.delta import (
     apply_delta_positions,
     init_delta,
 )
-from bezmotion.train import TrainState, fresh_train_state, run_training, stack_seeds
+from bezmotion.training import TrainState, fresh_train_state, run_training, stack_seeds
 
 
 @dataclasses.dataclass(frozen=True)
@@ -398,7 +398,7 @@ def make_delta_train_step(
     graphdef: nnx.GraphDef, model_config: DeltaConfig, train_config: DeltaTrainConfig, *, window_frames: int
 ) -> Callable[[TrainState, DeltaArrays | DeltaPositionArrays], tuple[TrainState, dict[str, Array]]]:
     """The (un-jitted) single-seed training step; compile it with
-    :func:`bezmotion.train.compile_train_step`.
+    :func:`bezmotion.bmm.train.compile_train_step`.
 
     Args:
       graphdef: from :func:`init_delta_train_state`.
@@ -467,7 +467,7 @@ def run_delta_training(
     data: DeltaArrays | DeltaPositionArrays,
     **kwargs: Any,
 ) -> tuple[TrainState, list[dict[str, float | int]]]:
-    """:func:`bezmotion.train.run_training` for Δ-interpolator data (same keyword arguments:
+    """:func:`bezmotion.bmm.train.run_training` for Δ-interpolator data (same keyword arguments:
     ``num_steps``, ``store``, ``checkpoint_every``, ``config``, ``progress``, ``log_every``)."""
     return run_training(step_fn, state, data, **kwargs)
 

@@ -54,7 +54,7 @@ from bezmotion.data.anidance import (
     load_anidance,
 )
 from bezmotion.metrics import l2p
-from bezmotion.models.delta import KeyPositions, position_interpolation_baseline, position_zero_velocity_baseline
+from bezmotion.delta.model import KeyPositions, position_interpolation_baseline, position_zero_velocity_baseline
 
 ANIDANCE_LENGTHS: tuple[int, ...] = (5, 15, 30)
 KEYFRAME_PERIOD = 6

@@ -31,7 +31,7 @@ from bezmotion.data.lafan1 import (
 )
 from bezmotion.geometry.skeleton import forward_kinematics
 from bezmotion.metrics import align_to_context, l2p, l2q, npss
-from bezmotion.models.baselines import interpolation, zero_velocity
+from bezmotion.baselines import interpolation, zero_velocity
 
 TRANSITION_LENGTHS: tuple[int, ...] = (5, 15, 30, 45)
 TEST_WINDOW, TEST_OFFSET = 65, 40

@@ -39,7 +39,7 @@ class IKTargets(NamedTuple):
     Attributes:
       position: ``(*batch, 6, 3)`` world positions (cm), :data:`CHARACTERISTIC_JOINTS` order.
       rot6d: ``(*batch, 6, 6)`` global orientations in the *target character's* joint
-        convention (see :func:`bezmotion.pipeline.orientation_offsets` for transfers).
+        convention (see :func:`bezmotion.pipeline.inbetweening.orientation_offsets` for transfers).
     """
 
     position: Float[Array, "*batch 6 3"]

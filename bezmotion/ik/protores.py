@@ -66,7 +66,7 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
-from bezmotion.checkpoint import CheckpointStore
+from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.geometry.rotations import matrix_from_rot6d, quat_from_matrix, rot6d_from_matrix, safe_norm
 from bezmotion.geometry.skeleton import Skeleton

@@ -2,7 +2,7 @@
 
 ``step(state, poses) -> (state, metrics)`` is pure: it draws its frames and their
 effector configurations from ``state.key``, so a run is fully determined by its seed
-and resumes bit-identically from a checkpoint. It reuses :mod:`bezmotion.train`'s
+and resumes bit-identically from a checkpoint. It reuses :mod:`bezmotion.bmm.train`'s
 ``TrainState`` (``ema`` is ``None``), ``compile_train_step``, ``stack_seeds`` and
 ``run_training`` (atomic orbax checkpoints, Ctrl-C / SIGTERM handling).
 
@@ -60,7 +60,7 @@ from bezmotion.ik.protores import (
     pose_from_output,
     solve_effectors,
 )
-from bezmotion.train import TrainState, fresh_train_state, stack_seeds
+from bezmotion.training import TrainState, fresh_train_state, stack_seeds
 
 #: Joints beyond the characteristic six that Table 2 uses, by role, for the bundled skeletons.
 EXTRA_ROLES: Mapping[str, Mapping[str, str]] = {
@@ -277,7 +277,7 @@ def make_ik_train_step(
     configurations: Mapping[str, tuple[int, ...]] | None = None,
 ) -> Callable[[TrainState, Pose], tuple[TrainState, dict[str, Array]]]:
     """The (un-jitted) single-seed training step; compile it with
-    :func:`bezmotion.train.compile_train_step`.
+    :func:`bezmotion.bmm.train.compile_train_step`.
 
     Args:
       graphdef: from :func:`init_ik_train_state`.

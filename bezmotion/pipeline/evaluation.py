@@ -1,6 +1,6 @@
 """Metrics of the full pipeline, after IK, on a corpus's validation windows (BMM Table 1).
 
-The evaluation windows are those of :func:`bezmotion.bmm_evaluation.make_eval_set` (same
+The evaluation windows are those of :func:`bezmotion.bmm.evaluation.make_eval_set` (same
 handles, same OOD noise); here each window also carries the ground-truth full-body poses
 of the target character, so the start and end poses are real and MPJPE can be measured.
 Everything is in the windows' aligned frame (hips start at the origin in XZ).
@@ -16,12 +16,31 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bezmotion.bmm_evaluation import EvalSet, map_in_chunks
+from bezmotion.bmm.evaluation import EvalSet, map_in_chunks
 from bezmotion.data.curves import CurveDataset, MotionClips
 from bezmotion.ik.protocol import Character, IKFn, Pose, pose_fk, pose_from_motion, targets_from_pose
 from bezmotion.metrics import foot_skating_ratio, mean_position_error
-from bezmotion.pipeline import Transfer, _inbetween, full_body_handles_error
-from bezmotion.sampling import BezierMotionModel, Handles
+from bezmotion.pipeline.inbetweening import _inbetween
+from bezmotion.pipeline.transfer import Transfer
+from bezmotion.metrics import handles_error
+from jaxtyping import Array, Float
+from bezmotion.bmm.sampling import BezierMotionModel, Handles
+
+
+def full_body_handles_error(
+    character: Character, pose: Pose, handles: Handles, stride: int
+) -> Float[Array, ""]:
+    """Mean distance (cm) between each valid handle and the IK'd skeleton's joint at its
+    frame (BMM Table 1, measured after IK). ``pose`` is ``(*batch, frames, …)``, handles
+    ``(*batch, handles)``; handles sit on control frames, every ``stride`` frames."""
+    _, pos = pose_fk(character, pose)
+    at_controls = pos[..., ::stride, :, :][..., np.asarray(character.characteristic), :]  # (*batch, controls, 6, 3)
+    return handles_error(at_controls, handles.control, handles.joint, handles.position, handles.valid)
+
+
+def mpjpe(character: Character, pose: Pose, true: Pose) -> Float[Array, ""]:
+    """Mean per-joint position error (cm) over every joint and frame."""
+    return mean_position_error(pose_fk(character, pose)[1], pose_fk(character, true)[1])
 
 
 def window_poses(character: Character, clips: MotionClips, dataset: CurveDataset, rows: np.ndarray) -> Pose:
@@ -44,7 +63,7 @@ def window_poses(character: Character, clips: MotionClips, dataset: CurveDataset
 @dataclasses.dataclass(frozen=True)
 class PipelineMetricsConfig:
     """Settings of the after-IK metrics: the curves' stride, frame rate and the character's
-    ankle height with the foot flat (cm; :func:`~bezmotion.bmm_evaluation.floor_height_from`)."""
+    ankle height with the foot flat (cm; :func:`~bezmotion.bmm.evaluation.floor_height_from`)."""
 
     stride: int
     fps: float
@@ -86,7 +105,7 @@ def ground_truth_pose_metrics(
 
 @functools.partial(jax.jit, static_argnames=("ik_fn", "steps", "foot_lock"))
 def _run_chunk(bmm, ik_params, character, transfer, inputs, key, *, ik_fn, steps, foot_lock) -> Pose:
-    """:func:`~bezmotion.pipeline.inbetween` of a chunk of windows; one compilation per IK,
+    """:func:`~bezmotion.pipeline.inbetweening.inbetween` of a chunk of windows; one compilation per IK,
     settings and shapes, shared by every call (evaluate_pipeline's in-distribution and OOD runs)."""
     one = functools.partial(_inbetween, ik_fn=ik_fn, steps=steps, guidance=1.0, foot_lock=foot_lock, keep_keyframes=True)
     start, end, handles = inputs

@@ -1,0 +1,46 @@
+"""In-betweening end to end: poses and handles in, a full-body motion of any character out.
+
+    start pose, end pose, handles ──▶ BMM curves of the six characteristic joints
+        ──▶ dense trajectories ──▶ ik_fn per frame ──▶ full-body poses ──▶ BVH
+
+:mod:`~bezmotion.pipeline.inbetweening` (the jit-compiled :func:`inbetween`),
+:mod:`~bezmotion.pipeline.transfer` (driving one skeleton with another's BMM),
+:mod:`~bezmotion.pipeline.export` (BVH), :mod:`~bezmotion.pipeline.evaluation` (metrics
+after IK on a corpus's validation windows).
+"""
+
+from bezmotion.pipeline.evaluation import (
+    PipelineMetricsConfig,
+    evaluate_pipeline,
+    full_body_handles_error,
+    ground_truth_pose_metrics,
+    mpjpe,
+    pose_metrics,
+    run_pipeline,
+    window_poses,
+)
+from bezmotion.pipeline.export import default_channels, pose_to_bvh
+from bezmotion.pipeline.inbetweening import InbetweenResult, inbetween
+from bezmotion.pipeline.transfer import CharacterProfile, Transfer, curves_to_target, facing_yaw, floor_anchor, mean_rotation, to_source_space
+
+__all__ = [
+    "CharacterProfile",
+    "InbetweenResult",
+    "PipelineMetricsConfig",
+    "Transfer",
+    "curves_to_target",
+    "default_channels",
+    "evaluate_pipeline",
+    "facing_yaw",
+    "floor_anchor",
+    "full_body_handles_error",
+    "ground_truth_pose_metrics",
+    "inbetween",
+    "mean_rotation",
+    "mpjpe",
+    "pose_metrics",
+    "pose_to_bvh",
+    "run_pipeline",
+    "to_source_space",
+    "window_poses",
+]

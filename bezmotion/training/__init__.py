@@ -1,0 +1,25 @@
+"""Training any bezmotion model: explicit state, one jitted step, checkpoints, resume.
+
+Knows no model: the BMM (:mod:`bezmotion.bmm.train`), the Δ-interpolator
+(:mod:`bezmotion.delta.train`) and the learned IK (:mod:`bezmotion.ik.training`) each
+build a ``step(state, data) -> (state, metrics)`` and hand it to :func:`run_training`.
+"""
+
+from bezmotion.training.checkpoint import CONFIG_FILE, CheckpointStore
+from bezmotion.training.loop import compile_train_step, data_mesh, run_training, shard_batch
+from bezmotion.training.optim import adamw_amsgrad_torch, scale_by_amsgrad_torch
+from bezmotion.training.state import TrainState, fresh_train_state, stack_seeds
+
+__all__ = [
+    "CONFIG_FILE",
+    "CheckpointStore",
+    "TrainState",
+    "adamw_amsgrad_torch",
+    "compile_train_step",
+    "data_mesh",
+    "fresh_train_state",
+    "run_training",
+    "scale_by_amsgrad_torch",
+    "shard_batch",
+    "stack_seeds",
+]

@@ -1,0 +1,122 @@
+"""The training loop for any model: compile a step, run it with checkpoints and resume.
+
+``run_training`` knows no model: it calls a compiled ``step(state, data)``, logs its
+metrics, checkpoints every N steps and on Ctrl-C or SIGTERM, and resumes from the
+latest checkpoint of its store. With more than one local device, :func:`data_mesh` and
+:func:`shard_batch` split the batch over them and XLA all-reduces the gradients.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+import time
+from collections.abc import Callable
+from typing import Any
+
+import jax
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from jaxtyping import Array
+from tqdm.auto import tqdm
+
+from bezmotion.training.checkpoint import CheckpointStore
+from bezmotion.training.state import TrainState
+
+
+def shard_batch(x: Array, mesh: Mesh | None) -> Array:
+    """Split the batch axis over the mesh's devices (no-op on one device)."""
+    if mesh is None:
+        return x
+    return jax.lax.with_sharding_constraint(x, NamedSharding(mesh, PartitionSpec("data")))
+
+
+def compile_train_step(step_fn: Callable, *, num_seeds: int | None) -> Callable:
+    """``jax.jit`` the step, vmapped over stacked seeds when ``num_seeds`` is given.
+
+    The state is not donated: if Ctrl-C lands mid-step, the previous state must still be
+    intact so it can be checkpointed."""
+    fn = jax.vmap(step_fn, in_axes=(0, None)) if num_seeds is not None else step_fn
+    return jax.jit(fn)
+
+
+def data_mesh() -> Mesh | None:
+    """A 1-D mesh over all local devices named ``"data"``, or ``None`` with one device."""
+    devices = jax.local_devices()
+    return Mesh(np.asarray(devices), ("data",)) if len(devices) > 1 else None
+
+
+@contextlib.contextmanager
+def _terminate_requests():
+    """Record SIGTERM (``kill``, a scheduler's pre-emption) instead of dying, so the loop
+    can stop at a step boundary and checkpoint as on Ctrl-C. Background jobs of a
+    non-interactive shell ignore SIGINT, so for them SIGTERM is the polite way to stop.
+    Yields a list that gets the signal number; a no-op outside the main thread."""
+    received: list[int] = []
+    if threading.current_thread() is not threading.main_thread():
+        yield received
+        return
+    previous = signal.signal(signal.SIGTERM, lambda signum, frame: received.append(signum))
+    try:
+        yield received
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def run_training(
+    step_fn: Callable[[TrainState, Any], tuple[TrainState, dict[str, Array]]],
+    state: TrainState,
+    data: Any,
+    *,
+    num_steps: int,
+    store: CheckpointStore | None = None,
+    checkpoint_every: int = 1000,
+    config: dict[str, Any] | None = None,
+    progress: bool = True,
+    log_every: int = 25,
+) -> tuple[TrainState, list[dict[str, float | int]]]:
+    """Run a compiled step until ``state.step`` reaches ``num_steps``, resuming from ``store``.
+
+    Model-agnostic: ``data`` is whatever the step takes (BMM's :class:`CurveArrays`, the
+    Δ-interpolator's windows).
+
+    Checkpoints every ``checkpoint_every`` steps, at the end and on Ctrl-C or SIGTERM
+    (then raises ``KeyboardInterrupt``). Returns the final state and the logged metrics (every ``log_every``
+    steps, averaged over seeds).
+    """
+    if store is not None and store.latest_step() is not None:
+        state = store.restore(state)
+    done = int(np.max(np.asarray(state.step)))
+    history: list[dict[str, float]] = []
+    bar = tqdm(total=num_steps, initial=done, desc="training", unit="step", disable=not progress)
+    started, started_step = time.perf_counter(), done
+    with _terminate_requests() as terminate:
+        try:
+            while done < num_steps:
+                if terminate:  # a SIGTERM arrived during the last step: stop here, cleanly
+                    raise KeyboardInterrupt(f"signal {terminate[0]}")
+                state, metrics = step_fn(state, data)
+                done += 1
+                if done % log_every == 0 or done == num_steps:
+                    logged = {k: float(np.mean(np.asarray(v))) for k, v in metrics.items()}
+                    rate = (done - started_step) / max(time.perf_counter() - started, 1e-9)
+                    history.append({"step": done, "steps_per_s": rate, **logged})
+                    bar.set_postfix(loss=f"{logged['loss']:.4g}", steps_per_s=f"{rate:.2f}")
+                bar.update(1)
+                if store is not None and done % checkpoint_every == 0:
+                    store.save(done, state, config)
+        except KeyboardInterrupt:
+            if store is not None:
+                done = int(np.max(np.asarray(state.step)))  # the state actually held, whatever was interrupted
+                store.save(done, state, config)
+                bar.write(f"interrupted: saved step {done} to {store.directory}")
+            raise
+        finally:
+            bar.close()
+    if store is not None:
+        store.save(done, state, config)
+    return state, history
+
+
+__all__ = ["compile_train_step", "data_mesh", "run_training", "shard_batch"]
