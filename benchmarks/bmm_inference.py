@@ -7,7 +7,7 @@ XLA compilation separately), steady-state latency of one motion at batch 1 (star
 and two intermediate handles; no guidance, as in the paper's timing), and throughput in
 motions per second at ``--batch``. Weights are random: latency does not depend on them.
 Everything is compiled with the options ``sample_curves`` itself uses
-(:func:`bezmotion._xla.inference_compiler_options`); ``"xla_defaults"`` repeats the
+(:func:`bezmotion.xla_options.inference_compiler_options`); ``"xla_defaults"`` repeats the
 single-motion figures with XLA's default options, to show what they are worth.
 Writes ``{"paper": {"params", "compile_s", "latency_s", "motions_per_s", …}, "default": {…}}``;
 latency is the median of ``--repeats`` runs, ``latency_min_s`` the fastest (this CPU is a
@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from _common import machine_info, report, time_jitted
-from bezmotion._xla import inference_compiler_options
+from bezmotion.xla_options import inference_compiler_options
 from bezmotion.bmm.denoiser import BMMConfig, count_parameters, init_denoiser
 from bezmotion.bmm.features import FeatureStats
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, sample_curves

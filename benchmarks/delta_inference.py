@@ -8,7 +8,7 @@ separately), steady-state latency of one transition at batch 1 (10 past frames a
 target, ``--gap`` missing frames; the benchmark's layout) and throughput in transitions
 per second at ``--batch``. The parameters are an argument of the timed function, not
 constants baked into it. Weights are random: latency does not depend on them.
-Everything is compiled with :func:`bezmotion._xla.inference_compiler_options` (as the BMM
+Everything is compiled with :func:`bezmotion.xla_options.inference_compiler_options` (as the BMM
 benchmark); ``"xla_defaults"`` repeats the batch-1 figures with XLA's default options.
 Latency is the median of ``--repeats`` runs, ``latency_min_s`` the fastest.
 """
@@ -23,7 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from _common import machine_info, report, time_jitted
-from bezmotion._xla import inference_compiler_options
+from bezmotion.xla_options import inference_compiler_options
 from bezmotion.data.lafan1 import N_PAST
 from bezmotion.delta.model import DeltaConfig, count_parameters, delta_inbetweener, init_delta
 

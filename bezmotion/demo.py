@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bezmotion._io import atomic_write_text, save_figure
+from bezmotion.io import atomic_write_text, save_figure
 from bezmotion.assets import BUNDLED_BMM, BUNDLED_IK, DEMO_CLIP, DEMO_CLIP_ATTRIBUTION, PROFILES_DIR
 from bezmotion.data.bvh import BvhMotion, read_bvh, write_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS

@@ -22,7 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bezmotion._io import save_figure, write_results
+from bezmotion.io import save_figure, write_results
 from bezmotion.bezier import BezierLayout, evaluate, fit_curves
 from bezmotion.data import lafan1
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS

@@ -33,7 +33,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from bezmotion._io import write_results
+from bezmotion.io import write_results
 from bezmotion.bmm.evaluation import (
     CurveMetricsConfig,
     curve_metrics,

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import jax.numpy as jnp
 
-from bezmotion._io import atomic_write_text
+from bezmotion.io import atomic_write_text
 from bezmotion.data.curves import bandai_namco_clips, lafan1_clips
 from bezmotion.geometry.skeleton import Skeleton
 from bezmotion.ik.protocol import Character, pose_from_motion

@@ -25,7 +25,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from bezmotion._io import write_results
+from bezmotion.io import write_results
 from bezmotion.assets import PROFILES_DIR
 from bezmotion.bmm.evaluation import floor_height_from, make_eval_set
 from bezmotion.data.cache import cache_dir

@@ -51,7 +51,7 @@ from pathlib import Path
 
 import jax
 
-from bezmotion._io import write_results
+from bezmotion.io import write_results
 from bezmotion.evaluation.anidance import (
     ANIDANCE_LENGTHS,
     KEYFRAME_PERIOD,

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import jax
 
-from bezmotion._io import write_results
+from bezmotion.io import write_results
 from bezmotion.data.lafan1 import TEST_SUBJECTS, TRAIN_SUBJECTS, lafan1_statistics, lafan1_windows, load_lafan1
 from _delta import (
     MODE_NAMES,

@@ -35,7 +35,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bezmotion._io import save_figure, write_results
+from bezmotion.io import save_figure, write_results
 from bezmotion.bezier import BezierLayout, fit_curves, reconstruct_dense
 from bezmotion.data import lafan1
 from bezmotion.data.cache import cache_dir

@@ -16,7 +16,7 @@ import argparse
 import json
 import time
 
-from bezmotion._io import atomic_write_text
+from bezmotion.io import atomic_write_text
 from bezmotion.evaluation.lafan1 import TRANSITION_LENGTHS, evaluate_baselines, format_table, lafan1_benchmark
 
 

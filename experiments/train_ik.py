@@ -27,7 +27,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from bezmotion._io import atomic_write_text
+from bezmotion.io import atomic_write_text
 from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.data.cache import cache_dir
 from bezmotion.ik.frames import CORPORA, load_frames

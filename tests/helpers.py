@@ -25,7 +25,8 @@ import pytest
 # ------------------------------------------------------------------------- data locations
 
 #: ``../shared/data`` beside the repository (real mocap corpora; absent on fresh machines).
-SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+REPO_ROOT = Path(__file__).resolve().parents[1]  # the repository (tests/ lies directly under it)
+SHARED_DATA = REPO_ROOT.parent / "shared" / "data"
 
 #: Skip marker for tests that need :data:`SHARED_DATA`.
 requires_shared = pytest.mark.skipif(

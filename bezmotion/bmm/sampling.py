@@ -21,7 +21,7 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
-from bezmotion._xla import call_with_inference_options
+from bezmotion.xla_options import call_with_inference_options
 from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.diffusion.ddim import ddim_sample
@@ -212,7 +212,7 @@ def sample_curves(
       targets exactly when ``overwrite``.
 
     Compiled once per input shape and static argument, with the backend's inference
-    compiler options (:mod:`bezmotion._xla`); inside a caller's own ``jax.jit`` it is
+    compiler options (:mod:`bezmotion.xla_options`); inside a caller's own ``jax.jit`` it is
     simply traced into that computation.
     """
     return call_with_inference_options(

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bezmotion._io import atomic_path
+from bezmotion.io import atomic_path
 
 CACHE_ENV = "BEZMOTION_CACHE"
 

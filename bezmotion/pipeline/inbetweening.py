@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from bezmotion._xla import call_with_inference_options
+from bezmotion.xla_options import call_with_inference_options
 from bezmotion.bezier import BezierLayout, reconstruct_dense
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, SampledCurves, sample_curves
 from bezmotion.geometry.rotations import quat_from_rot6d, rot6d_from_quat

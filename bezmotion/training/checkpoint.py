@@ -17,7 +17,7 @@ import jax
 import jax.numpy as jnp
 import orbax.checkpoint as ocp
 
-from bezmotion._io import atomic_write_text
+from bezmotion.io import atomic_write_text
 
 CONFIG_FILE = "config.json"
 

@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 
 import reference_lafan1 as ref
+from helpers import SHARED_DATA
 
-ZIP_PATH = Path(__file__).resolve().parents[2] / "shared" / "data" / "lafan1" / "lafan1-subset.zip"
+ZIP_PATH = SHARED_DATA / "lafan1" / "lafan1-subset.zip"
 VARIANTS = ("official", "delta")
 METHODS = ("zerov", "interp")
 METRICS = ("l2q", "l2p", "npss")

@@ -55,6 +55,7 @@ from bezmotion.delta.model import (
 )
 from bezmotion.training import compile_train_step
 from helpers import SHARED_DATA, requires_shared
+from helpers import REPO_ROOT
 
 P, N_PAST, MAX_GAP, PERIOD = 24, 1, 39, 6
 SIZES = {"width": 32, "num_heads": 2, "mlp_layers": 2, "embedding_dim": 8, "num_blocks": 2}
@@ -346,7 +347,7 @@ def test_experiment_end_to_end_untrained_is_lerp_and_resumes(tmp_path):
     step; training is tested above): the untrained Δ-interpolator scores exactly as LERP
     under both protocols, chunked evaluation included; the rerun restores its checkpoint,
     and a run directory with other settings is refused."""
-    path = Path(__file__).resolve().parents[1] / "experiments" / "delta_anidance.py"
+    path = REPO_ROOT / "experiments" / "delta_anidance.py"
     spec = importlib.util.spec_from_file_location("_under_test_delta_anidance", path)
     experiment = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(experiment)

@@ -54,8 +54,9 @@ from bezmotion.data.curves import (
 )
 from bezmotion.geometry.rotations import matrix_from_rot6d
 from bezmotion.geometry.skeleton import forward_kinematics
+from helpers import REPO_ROOT, SHARED_DATA
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = REPO_ROOT
 DEMO = read_bvh(DEMO_CLIP)  # 40 frames at 30 fps, 22 joints (joint_Root, Hips, …)
 BANDAI_NAMES = ("Hips", "Head", "Hand_L", "Hand_R", "Foot_L", "Foot_R")
 LAFAN1_NAMES = ("Hips", "Head", "LeftHand", "RightHand", "LeftFoot", "RightFoot")

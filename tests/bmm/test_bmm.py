@@ -45,7 +45,7 @@ from bezmotion.diffusion.schedule import DiffusionSchedule, cosine_schedule, res
 from bezmotion.bmm.losses import LossWeights, bmm_loss_terms, dense_velocity, min_snr_weight
 from bezmotion.metrics import contact_accuracy, foot_skating_ratio, handles_error, mean_position_error
 from bezmotion.baselines import handle_interpolation
-from bezmotion._xla import inference_compiler_options
+from bezmotion.xla_options import inference_compiler_options
 from flax import nnx
 
 from bezmotion.bmm.denoiser import (
@@ -73,6 +73,7 @@ from bezmotion.bmm.sampling import BezierMotionModel, Handles, SampledCurves, lo
 from bezmotion.bmm.train import CurveArrays, BMMTrainConfig, init_bmm_train_state, init_bmm_train_states, make_bmm_train_step
 from bezmotion.training import compile_train_step, data_mesh, run_training
 from bezmotion.training.optim import adamw_amsgrad_torch
+from helpers import REPO_ROOT
 
 K, J = 6, 6  # control points per 31-frame window at stride 6; characteristic joints
 F = J * 12  # frame-token features
@@ -1173,8 +1174,8 @@ def test_bmm_lafan1_experiment_smoke(tmp_path, monkeypatch):
     """The experiment end to end on the real LaFAN1 subset: tiny model, a few steps, a few windows."""
     import importlib.util
 
-    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1] / "experiments"))
-    spec = importlib.util.spec_from_file_location("bmm_lafan1", Path(__file__).resolve().parents[1] / "experiments" / "bmm_lafan1.py")
+    monkeypatch.syspath_prepend(str(REPO_ROOT / "experiments"))
+    spec = importlib.util.spec_from_file_location("bmm_lafan1", REPO_ROOT / "experiments" / "bmm_lafan1.py")
     experiment = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(experiment)
     out = tmp_path / "bmm.json"
