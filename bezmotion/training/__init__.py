@@ -8,6 +8,7 @@ build a ``step(state, data) -> (state, metrics)`` and hand it to :func:`run_trai
 from bezmotion.training.checkpoint import CONFIG_FILE, CheckpointStore
 from bezmotion.training.loop import compile_train_step, data_mesh, run_training, shard_batch
 from bezmotion.training.optim import adamw_amsgrad_torch, scale_by_amsgrad_torch
+from bezmotion.training.step import apply_gradients, count_parameters
 from bezmotion.training.state import TrainState, fresh_train_state, stack_seeds
 
 __all__ = [
@@ -15,7 +16,9 @@ __all__ = [
     "CheckpointStore",
     "TrainState",
     "adamw_amsgrad_torch",
+    "apply_gradients",
     "compile_train_step",
+    "count_parameters",
     "data_mesh",
     "fresh_train_state",
     "run_training",
