@@ -60,7 +60,7 @@ from bezmotion.ik.protores import (
     pose_from_output,
     solve_effectors,
 )
-from bezmotion.training import TrainState, fresh_train_state, stack_seeds
+from bezmotion.training import TrainState, fresh_train_state, stack_seeds, warmup_then_decay
 
 #: Joints beyond the characteristic six that Table 2 uses, by role, for the bundled skeletons.
 EXTRA_ROLES: Mapping[str, Mapping[str, str]] = {
@@ -176,11 +176,15 @@ class IKTrainConfig:
 
 def learning_rate_schedule(config: IKTrainConfig) -> optax.Schedule:
     """Linear warm-up to ``learning_rate``, then cosine decay to ``final_learning_rate`` at ``num_steps``."""
+    # At least one warm-up step and one decay step, however short the run.
     warmup = min(config.warmup_steps, config.num_steps - 1)
-    return optax.warmup_cosine_decay_schedule(
-        init_value=config.learning_rate * 0.01, peak_value=config.learning_rate, warmup_steps=max(warmup, 1),
-        decay_steps=max(config.num_steps, warmup + 2), end_value=config.final_learning_rate,
-    )  # fmt: skip
+    warmup_steps, decay_steps = max(warmup, 1), max(config.num_steps, warmup + 2)
+    cosine = optax.cosine_decay_schedule(
+        config.learning_rate, decay_steps - warmup_steps, alpha=config.final_learning_rate / config.learning_rate
+    )
+    return warmup_then_decay(
+        cosine, init_value=config.learning_rate * 0.01, peak_value=config.learning_rate, warmup_steps=warmup_steps
+    )
 
 
 def make_optimizer(config: IKTrainConfig) -> optax.GradientTransformation:

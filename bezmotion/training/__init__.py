@@ -7,7 +7,7 @@ build a ``step(state, data) -> (state, metrics)`` and hand it to :func:`run_trai
 
 from bezmotion.training.checkpoint import CONFIG_FILE, CheckpointStore
 from bezmotion.training.loop import compile_train_step, data_mesh, run_training, shard_batch
-from bezmotion.training.optim import adamw_amsgrad_torch, scale_by_amsgrad_torch
+from bezmotion.training.optim import adamw_amsgrad_torch, scale_by_amsgrad_torch, warmup_then_decay
 from bezmotion.training.step import apply_gradients, count_parameters
 from bezmotion.training.state import TrainState, fresh_train_state, stack_seeds
 
@@ -25,4 +25,5 @@ __all__ = [
     "scale_by_amsgrad_torch",
     "shard_batch",
     "stack_seeds",
+    "warmup_then_decay",
 ]

@@ -1,7 +1,9 @@
-"""Optimisers shared by the trainers.
+"""Optimisers and learning-rate schedules shared by the trainers.
 
 The papers trained with PyTorch; :func:`scale_by_amsgrad_torch` reproduces PyTorch's
-AMSGrad exactly, which optax's differs from.
+AMSGrad exactly, which optax's differs from. :func:`warmup_then_decay` is the one
+schedule shape the Δ-interpolator and the learned IK both train with (a linear warm-up,
+then a decay of their choice); both use it with ``optax.adam``.
 """
 
 from __future__ import annotations
@@ -59,4 +61,32 @@ def adamw_amsgrad_torch(learning_rate: float | optax.Schedule, weight_decay: flo
     )
 
 
-__all__ = ["AmsgradState", "adamw_amsgrad_torch", "scale_by_amsgrad_torch"]
+def warmup_then_decay(
+    decay: optax.Schedule, *, init_value: float, peak_value: float, warmup_steps: int
+) -> optax.Schedule:
+    """A linear warm-up from ``init_value`` to ``peak_value``, then ``decay``.
+
+    ``decay`` is any optax schedule that starts at ``peak_value``; it is counted from the
+    end of the warm-up (it sees step ``t − warmup_steps``). The two in use:
+
+    - step decay (Δ-interpolator, Harvey et al. 2020):
+      ``optax.exponential_decay(peak, decay_every, decay_factor, staircase=True)``;
+    - cosine decay to ``end`` at step ``total`` (learned IK):
+      ``optax.cosine_decay_schedule(peak, total - warmup_steps, alpha=end / peak)``, which
+      makes this exactly ``optax.warmup_cosine_decay_schedule(init, peak, warmup_steps,
+      total, end)``.
+
+    Args:
+      decay: the schedule after the warm-up (a function of the step, returning the rate).
+      init_value: the rate at step 0.
+      peak_value: the rate reached at ``warmup_steps``.
+      warmup_steps: length of the warm-up (steps); 0 starts with ``decay`` at once.
+
+    Returns:
+      An optax schedule: step count → learning rate.
+    """
+    warmup = optax.linear_schedule(init_value, peak_value, warmup_steps)
+    return optax.join_schedules([warmup, decay], [warmup_steps])
+
+
+__all__ = ["AmsgradState", "adamw_amsgrad_torch", "scale_by_amsgrad_torch", "warmup_then_decay"]
