@@ -1,0 +1,230 @@
+"""The BMM's curve-level evaluation (``bezmotion.bmm.evaluation``) and the reference and
+metrics it reports (``bezmotion.baselines``, ``bezmotion.metrics``), worked out by hand;
+the LaFAN1 experiment end to end.
+"""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from helpers import REPO_ROOT, SHARED_DATA, assert_trees_identical, requires_shared
+from bmm.common import J, K
+
+from bezmotion.baselines import handle_interpolation
+from bezmotion.bezier import BezierLayout
+from bezmotion.bmm.evaluation import (
+    CurveMetricsConfig,
+    curve_metrics,
+    make_eval_set,
+    reference_curves,
+    sample_in_chunks,
+)
+from bezmotion.bmm.sampling import SampledCurves
+from bezmotion.data.characteristic import FEET
+from bezmotion.metrics import contact_accuracy, foot_skating_ratio, handles_error, mean_position_error
+
+
+def test_handle_interpolation_by_hand():
+    target = jnp.asarray(np.random.default_rng(3).normal(size=(K, 2, 3)), jnp.float32)
+    mask = jnp.zeros((K, 2), bool).at[0].set(True).at[-1].set(True).at[3, 0].set(True)
+    pos, tangent = handle_interpolation(mask, target)
+    p, tg = np.asarray(pos, np.float64), np.asarray(target, np.float64)
+    for k, j in zip(*np.nonzero(np.asarray(mask)), strict=True):
+        np.testing.assert_array_equal(pos[k, j], target[k, j])  # exact through the known points
+    # Joint 0: known at 0, 3, 5 → linear in control index on each side.
+    np.testing.assert_allclose(p[1, 0], tg[0, 0] + (tg[3, 0] - tg[0, 0]) / 3, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(p[2, 0], tg[0, 0] + 2 * (tg[3, 0] - tg[0, 0]) / 3, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(p[4, 0], (tg[3, 0] + tg[5, 0]) / 2, rtol=1e-5, atol=1e-6)
+    # Joint 1: known only at the ends.
+    for k in range(1, 5):
+        np.testing.assert_allclose(p[k, 1], tg[0, 1] + k * (tg[5, 1] - tg[0, 1]) / 5, rtol=1e-5, atol=1e-6)
+    # Catmull-Rom tangents, one-sided at the ends.
+    t_ref = np.concatenate([(p[1:2] - p[:1]) / 3, (p[2:] - p[:-2]) / 6, (p[-1:] - p[-2:-1]) / 3])
+    np.testing.assert_allclose(tangent, t_ref, rtol=1e-5, atol=1e-5)
+    # Batched.
+    bpos, _ = handle_interpolation(jnp.stack([mask, mask]), jnp.stack([target, target + 1.0]))
+    np.testing.assert_allclose(bpos[1], pos + 1.0, rtol=1e-5, atol=1e-5)
+
+
+def test_handles_error_by_hand():
+    ctrl = jnp.zeros((K, J, 3)).at[4, 2].set(jnp.asarray([1.0, 1.0, 1.0]))
+    control = jnp.asarray([2, 4, 1], jnp.int32)
+    joint = jnp.asarray([1, 2, 0], jnp.int32)
+    position = jnp.asarray([[3.0, 4.0, 0.0], [1.0, 1.0, 1.0], [100.0, 0.0, 0.0]])
+    assert float(handles_error(ctrl, control, joint, position, jnp.asarray([True, True, False]))) == pytest.approx(2.5)
+    assert float(handles_error(ctrl, control, joint, position, jnp.asarray([True, True, True]))) == pytest.approx(35.0)
+    assert float(handles_error(ctrl, control, joint, position, jnp.zeros(3, bool))) == 0.0
+
+
+def test_foot_skating_ratio_by_hand():
+    frames, fps = 11, 30.0
+    x = np.arange(frames) * 1.0  # 1 cm per frame = 30 cm/s > 7.5 cm/s
+
+    def feet(left_y=1.0, right_y=1.0, speed=1.0, axis=0):
+        f = np.zeros((frames, 2, 3))
+        f[:, :, axis] = (x * speed)[:, None]
+        f[:, 0, 1] += left_y
+        f[:, 1, 1] += right_y
+        return jnp.asarray(f, jnp.float32)
+
+    assert float(foot_skating_ratio(feet(), fps)) == 1.0  # both low and fast
+    assert float(foot_skating_ratio(feet(left_y=20.0), fps)) == 0.0  # one foot lifted
+    assert float(foot_skating_ratio(feet(speed=0.1), fps)) == 0.0  # 3 cm/s: slow
+    assert float(foot_skating_ratio(feet(axis=2), fps)) == 1.0  # Z is horizontal too
+    assert float(foot_skating_ratio(feet(speed=0.1), 300.0)) == 1.0  # 30 cm/s at 300 fps
+    assert float(foot_skating_ratio(feet(left_y=21.0, right_y=21.0), fps, floor_height=20.0)) == 1.0
+    half = np.array(feet())
+    half[6:, :, 0] = half[5, :, 0]  # stops after frame 5: 5 of 10 steps skate
+    assert float(foot_skating_ratio(jnp.asarray(half), fps)) == pytest.approx(0.5)
+    # Only one foot sliding is not skating.
+    one = np.array(feet())
+    one[:, 1, 0] = 0.0
+    assert float(foot_skating_ratio(jnp.asarray(one), fps)) == 0.0
+
+
+def test_contact_accuracy_and_mean_position_error():
+    prob = jnp.asarray([[0.7, 0.2], [0.4, 0.9]])
+    true = jnp.asarray([[True, False], [True, False]])
+    assert float(contact_accuracy(prob, true)) == pytest.approx(0.5)
+    pred = jnp.zeros((2, 3, 1, 3)).at[0, 0, 0].set(jnp.asarray([3.0, 4.0, 0.0]))
+    assert float(mean_position_error(pred, jnp.zeros((2, 3, 1, 3)))) == pytest.approx(5.0 / 6.0)
+
+
+def test_ground_truth_metrics_report_the_mocap_and_its_fitted_curves(demo_dataset, eval_set):
+    from bezmotion.bmm.evaluation import ground_truth_metrics
+
+    config = CurveMetricsConfig(BezierLayout.from_controls(K, 6), demo_dataset.fps, 0.0)
+    gt = ground_truth_metrics(config, eval_set)
+    fitted = SampledCurves(eval_set.ctrl_pos, eval_set.ctrl_tangent, jnp.zeros((*eval_set.ctrl_pos.shape[:-1], 6)), eval_set.ctrl_contacts.astype(jnp.float32))
+    as_model = curve_metrics(config, fitted, eval_set, eval_set.handles)
+    assert gt["fitted_curves"]["dense_error_cm"] == pytest.approx(as_model["dense_error_cm"], rel=1e-6)
+    assert gt["fitted_curves"]["foot_skating_ratio"] == pytest.approx(as_model["foot_skating_ratio"], rel=1e-6)
+    # Fitted with pinned positions: the curves pass through the mocap's control frames,
+    # and in between they stay within the fit's sub-centimetre error.
+    assert 0.0 < gt["fitted_curves"]["dense_error_cm"] < 0.5 and as_model["handles_error_cm"] < 1e-4
+    dense_feet = eval_set.dense_pos[..., list(FEET), :]
+    assert gt["foot_skating_ratio"] == pytest.approx(float(foot_skating_ratio(dense_feet, demo_dataset.fps, floor_height=0.0)))
+
+
+@pytest.fixture(scope="module")
+def eval_set(demo_dataset):
+    return make_eval_set(demo_dataset, key=jax.random.key(5))
+
+
+def test_make_eval_set(demo_dataset, eval_set):
+    es = eval_set
+    ds = demo_dataset
+    assert_trees_identical(make_eval_set(ds, key=jax.random.key(5)), es)
+    np.testing.assert_array_equal(es.start, ds.ctrl_pos[:, 0])
+    np.testing.assert_array_equal(es.end, ds.ctrl_pos[:, -1])
+    np.testing.assert_array_equal(es.ctrl_contacts, ds.ctrl_contacts)
+    np.testing.assert_array_equal(es.dense_pos, ds.dense_pos)
+    np.testing.assert_array_equal(es.ctrl_pos, ds.ctrl_pos)
+    np.testing.assert_array_equal(es.ctrl_tangent, ds.ctrl_tangent)
+    h = es.handles
+    assert h.control.shape == (10, 4)
+    control, joint, valid = map(np.asarray, (h.control, h.joint, h.valid))
+    assert control.min() >= 1 and control.max() <= K - 2
+    counts = valid.sum(1)
+    assert counts.min() >= 1 and counts.max() <= 4
+    rows = np.arange(10)[:, None]
+    np.testing.assert_array_equal(h.position, ds.ctrl_pos[rows, control, joint])
+    noise = np.asarray(es.handles_ood.position) - np.asarray(h.position)
+    assert np.all(np.abs(noise) <= 16.0 + 1e-3) and np.abs(noise).max() > 4.0
+    np.testing.assert_array_equal(es.handles_ood.control, h.control)
+    np.testing.assert_array_equal(es.handles_ood.valid, h.valid)
+    # A subset of windows, still deterministic.
+    sub = make_eval_set(ds, key=jax.random.key(5), num_windows=4)
+    assert sub.start.shape == (4, J, 3)
+    starts = [int(np.flatnonzero(np.all(ds.ctrl_pos[:, 0] == s, axis=(1, 2)))[0]) for s in np.asarray(sub.start)]
+    assert starts == sorted(set(starts))
+    with pytest.raises(ValueError, match="max_handles"):
+        make_eval_set(ds, key=jax.random.key(5), max_handles=0)
+
+
+def test_reference_curves_and_curve_metrics(demo_dataset, eval_set):
+    es = eval_set
+    ref = reference_curves(es, es.handles, K)
+    assert ref.ctrl_pos.shape == (10, K, J, 3) and ref.contacts.shape == (10, K, 2)
+    np.testing.assert_array_equal(ref.ctrl_pos[:, 0], es.start)
+    np.testing.assert_array_equal(ref.ctrl_pos[:, -1], es.end)
+    h = es.handles
+    assert float(handles_error(ref.ctrl_pos, h.control, h.joint, h.position, h.valid)) == 0.0
+    # OOD handles are hit exactly as well (the reference trusts them).
+    ood = reference_curves(es, es.handles_ood, K)
+    o = es.handles_ood
+    assert float(handles_error(ood.ctrl_pos, o.control, o.joint, o.position, o.valid)) == 0.0
+    # An invalid slot is ignored: moving it changes nothing.
+    moved = h._replace(position=jnp.where(h.valid[..., None], h.position, h.position + 50.0))
+    np.testing.assert_array_equal(reference_curves(es, moved, K).ctrl_pos, ref.ctrl_pos)
+
+    config = CurveMetricsConfig(demo_dataset.layout, demo_dataset.fps, floor_height=0.0)
+    metrics = curve_metrics(config, ref, es, es.handles)
+    assert set(metrics) == {"handles_error_cm", "dense_error_cm", "foot_skating_ratio", "contact_accuracy"}
+    assert metrics["handles_error_cm"] == 0.0
+    assert 0.0 <= metrics["foot_skating_ratio"] <= 1.0
+    # Contacts of 0.5 count as "no contact".
+    assert metrics["contact_accuracy"] == pytest.approx(float(np.mean(~demo_dataset.ctrl_contacts)))
+    # The fitted curves themselves: handles exact, dense error = the fit residual (small), contacts right.
+    fitted = SampledCurves(
+        jnp.asarray(demo_dataset.ctrl_pos), jnp.asarray(demo_dataset.ctrl_tangent),
+        jnp.asarray(demo_dataset.ctrl_rot6d), jnp.asarray(demo_dataset.ctrl_contacts, jnp.float32),
+    )  # fmt: skip
+    own = curve_metrics(config, fitted, es, es.handles)
+    assert own["handles_error_cm"] == 0.0 and own["contact_accuracy"] == 1.0
+    assert own["dense_error_cm"] < 2.0 and own["dense_error_cm"] < metrics["dense_error_cm"]
+
+
+def test_sample_in_chunks(eval_set):
+    calls = []
+
+    def sample(start, end, handles, key):
+        calls.append(start.shape[0])
+        tag = jax.random.uniform(key, ())
+        c = start.shape[0]
+        return SampledCurves(
+            jnp.broadcast_to(start[:, None], (c, K, J, 3)), jnp.zeros((c, K, J, 3)),
+            jnp.zeros((c, K, J, 6)), jnp.full((c, K, 2), tag),
+        )  # fmt: skip
+
+    key = jax.random.key(8)
+    out = sample_in_chunks(sample, eval_set, eval_set.handles, key=key, chunk=4)
+    assert calls == [4, 4, 4]  # the last chunk padded to the same shape
+    assert out.ctrl_pos.shape == (10, K, J, 3)
+    np.testing.assert_array_equal(out.ctrl_pos[:, 0], eval_set.start)
+    for i, rows in enumerate((slice(0, 4), slice(4, 8), slice(8, 10))):
+        np.testing.assert_array_equal(out.contacts[rows], float(jax.random.uniform(jax.random.fold_in(key, i), ())))
+    calls.clear()
+    sample_in_chunks(sample, eval_set, eval_set.handles, key=key, chunk=256)
+    assert calls == [10]
+
+
+@requires_shared
+def test_bmm_lafan1_experiment_smoke(tmp_path, monkeypatch):
+    """The experiment end to end on the real LaFAN1 subset: tiny model, a few steps, a few windows."""
+    import importlib.util
+
+    monkeypatch.syspath_prepend(str(REPO_ROOT / "experiments"))
+    spec = importlib.util.spec_from_file_location("bmm_lafan1", REPO_ROOT / "experiments" / "bmm_lafan1.py")
+    experiment = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(experiment)
+    out = tmp_path / "bmm.json"
+    args = ["--out", str(out), "--data", str(SHARED_DATA / "lafan1" / "lafan1-subset.zip"), "--config", "tiny",
+            "--steps", "4", "--checkpoint-every", "2", "--eval-windows", "8", "--table6-steps", "5",
+            "--run-dir", str(tmp_path / "run"), "--no-progress"]  # fmt: skip
+    results = experiment.main(args)
+    saved = json.loads(out.read_text())
+    assert saved["eval"]["n_windows"] == 8 and saved["training"]["steps"] == 4
+    bmm = saved["bmm"]["0"]
+    assert bmm["overwrite"]["id"]["handles_error_cm"] == 0.0 and bmm["overwrite"]["ood"]["handles_error_cm"] == 0.0
+    assert bmm["no_overwrite"]["id"]["handles_error_cm"] > 0.0
+    assert saved["reference"]["id"]["handles_error_cm"] == 0.0 and list(bmm["steps"]) == ["5"]
+    assert (tmp_path / "run" / "model" / "config.json").exists() and out.with_suffix(".md").exists()
+    # Running it again resumes at step 4: nothing more to train.
+    again = experiment.main(args)
+    assert again["training"]["history"] == [] and results["model"]["params"] == again["model"]["params"]

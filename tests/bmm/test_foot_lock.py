@@ -1,0 +1,64 @@
+"""Foot locking (``bezmotion.bmm.foot_lock``), alone and inside sampling.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from helpers import assert_trees_close, assert_trees_identical
+from bmm.common import J, K, grid_errors
+
+from bezmotion.bmm.sampling import sample_curves
+from bezmotion.data.characteristic import FEET
+
+
+def test_lock_feet_pins_each_contact_run_and_leaves_everything_else(rng):
+    from bezmotion.bmm.foot_lock import lock_feet
+
+    pos = jnp.asarray(rng.normal(scale=20.0, size=(K, J, 3)), jnp.float32)
+    tangent = jnp.asarray(rng.normal(scale=5.0, size=(K, J, 3)), jnp.float32)
+    left, right = FEET
+    contacts = np.full((K, 2), 0.1, np.float32)
+    contacts[1:4, 0] = 0.9  # left foot planted over controls 1, 2, 3
+    contacts[4, 1] = 0.8  # right foot: a one-control run ...
+    contacts[0:2, 1] = 0.7  # ... and a run through the (constrained) start
+    constrained = np.zeros((K, J), bool)
+    constrained[[0, -1]] = True
+    new_pos, new_tangent = lock_feet(pos, tangent, jnp.asarray(contacts), jnp.asarray(constrained))
+    p, t, p0, t0 = (np.asarray(a) for a in (new_pos, new_tangent, pos, tangent))
+    # Left run 1–3: one horizontal position, the run's mean; heights kept; no horizontal velocity.
+    np.testing.assert_allclose(p[1:4, left][:, [0, 2]], np.broadcast_to(p0[1:4, left][:, [0, 2]].mean(0), (3, 2)), rtol=1e-6)
+    np.testing.assert_array_equal(p[1:4, left, 1], p0[1:4, left, 1])
+    np.testing.assert_array_equal(t[1:4, left][:, [0, 2]], 0.0)
+    np.testing.assert_array_equal(t[1:4, left, 1], t0[1:4, left, 1])
+    # Right run 0–1 contains the start, which does not move: control 1 takes its XZ.
+    np.testing.assert_array_equal(p[0, right], p0[0, right])
+    np.testing.assert_allclose(p[1, right][[0, 2]], p0[0, right][[0, 2]], rtol=1e-6)
+    # A one-control run keeps its position and only stops horizontally.
+    np.testing.assert_array_equal(p[4, right], p0[4, right])
+    np.testing.assert_array_equal(t[4, right][[0, 2]], 0.0)
+    # Unplanted controls, other joints: untouched, bit for bit.
+    untouched = np.ones((K, J), bool)
+    untouched[1:4, left] = untouched[[0, 1, 4], right] = False
+    np.testing.assert_array_equal(p[untouched], p0[untouched])
+    np.testing.assert_array_equal(t[untouched], t0[untouched])
+    # Batch axes: the same as one motion at a time.
+    batched = lock_feet(jnp.stack([pos, pos + 1.0]), jnp.stack([tangent] * 2), jnp.asarray(np.stack([contacts] * 2)), jnp.asarray(np.stack([constrained] * 2)))
+    assert_trees_close(jax.tree.map(lambda a: a[0], batched), (new_pos, new_tangent), tol=1e-6)
+    with pytest.raises(ValueError, match="threshold"):
+        lock_feet(pos, tangent, jnp.asarray(contacts), jnp.asarray(constrained), threshold=1.0)
+
+
+def test_foot_locked_sampling_keeps_the_constraints_exact(model, motions, sampled):
+    locked = sample_curves(model, motions.start, motions.end, motions.handles, key=jax.random.key(21), steps=5, foot_lock=True)
+    assert np.all(grid_errors(locked, motions) == 0.0)
+    assert_trees_identical(locked.contacts, sampled.contacts)
+    planted = np.asarray(locked.contacts) > 0.5
+    assert planted.any(), "the fixture model should plant some foot somewhere"
+    feet_tangent = np.asarray(locked.ctrl_tangent)[:, :, list(FEET)]
+    np.testing.assert_array_equal(feet_tangent[planted][:, [0, 2]], 0.0)
+    others = [j for j in range(J) if j not in FEET]
+    assert_trees_identical(locked.ctrl_pos[:, :, others], sampled.ctrl_pos[:, :, others])

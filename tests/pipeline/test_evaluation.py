@@ -1,0 +1,131 @@
+"""The after-IK metrics (``bezmotion.pipeline.evaluation``): full-body handles error and MPJPE
+against NumPy, the true windows' poses, and the pipeline evaluation end to end.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ik.demo_poses import frame, np_pose_positions, targets_of
+from pipeline.common import FRAMES, K, STRIDE, handles_error, hips_only_ik, identity_quats
+
+from bezmotion.bmm.evaluation import floor_height_from, make_eval_set
+from bezmotion.bmm.sampling import Handles
+from bezmotion.ik.protocol import IKTargets, Pose
+from bezmotion.pipeline import mpjpe
+from bezmotion.pipeline.evaluation import (
+    PipelineMetricsConfig,
+    evaluate_pipeline,
+    ground_truth_pose_metrics,
+    pose_metrics,
+    run_pipeline,
+    window_poses,
+)
+
+mpjpe_of = jax.jit(mpjpe)
+
+
+def lookup_ik(params: tuple[jax.Array, Pose], targets: IKTargets) -> Pose:
+    """A "perfect" IK on known poses: the pose whose six target positions are nearest."""
+    table, poses = params
+    i = jnp.argmin(jnp.sum((table - targets.position) ** 2, axis=(-2, -1)))
+    return jax.tree.map(lambda x: x[i], poses)
+
+
+def test_full_body_handles_error_against_numpy(clip, rng):
+    c = clip.character
+    pose = jax.tree.map(lambda x: jnp.stack([x[:FRAMES], x[5 : 5 + FRAMES]]), clip.pose)  # (2, 31, …)
+    joint = rng.integers(0, 6, (2, 4))
+    control = rng.integers(0, K, (2, 4))
+    valid = np.array([[True, True, False, True], [False, True, False, False]])
+    position = rng.normal(scale=30.0, size=(2, 4, 3)) + clip.pos_global[0, 1]
+    position[~valid] = np.nan  # padding is ignored, whatever it holds
+    handles = Handles(
+        jnp.asarray(joint, jnp.int32), jnp.asarray(control, jnp.int32), jnp.asarray(position, jnp.float32), jnp.asarray(valid)
+    )
+    pos = np_pose_positions(c, pose)  # (2, 31, 22, 3)
+    idx = np.asarray(c.characteristic)
+    errors = [
+        np.linalg.norm(pos[b, control[b, s] * STRIDE, idx[joint[b, s]]] - position[b, s])
+        for b in range(2) for s in range(4) if valid[b, s]
+    ]  # fmt: skip
+    got = float(handles_error(c, pose, handles, STRIDE))
+    assert np.isfinite(got) and got == pytest.approx(np.mean(errors), rel=1e-5)
+    # One motion alone, and no valid handle at all.
+    one = float(handles_error(c, frame(pose, 1), frame(handles, 1), STRIDE))
+    assert one == pytest.approx(errors[-1], rel=1e-5)
+    assert float(handles_error(c, pose, handles._replace(valid=jnp.zeros((2, 4), bool)), STRIDE)) == 0.0
+    # MPJPE: zero against itself, the shift's length against a shifted copy.
+    assert float(mpjpe_of(c, pose, pose)) == 0.0
+    shifted = pose._replace(root_pos=pose.root_pos + jnp.asarray([3.0, 0.0, 4.0]))
+    assert float(mpjpe_of(c, shifted, pose)) == pytest.approx(5.0 * 21 / 22, rel=1e-4)  # joint_Root stays put
+
+
+def test_window_poses_reproduce_the_curve_dataset(clip, curves):
+    c, ds = clip.character, curves.dataset
+    assert len(ds) == 2 and list(ds.start_frame) == [0, 5]
+    truth = window_poses(c, curves.clips, ds, np.arange(2))
+    assert truth.root_pos.shape == (2, FRAMES, 3) and truth.quat_local.shape == (2, FRAMES, 22, 4)
+    np.testing.assert_array_equal(np.asarray(truth.root_pos)[:, 0, [0, 2]], np.zeros((2, 2)))
+    np.testing.assert_array_equal(truth.quat_local[..., 0, :], np.broadcast_to([1.0, 0.0, 0.0, 0.0], (2, FRAMES, 4)))
+    targets = targets_of(c, truth)
+    np.testing.assert_allclose(targets.position, ds.dense_pos, atol=1e-3)
+    np.testing.assert_allclose(targets.rot6d[:, ds.layout.control_frames], ds.ctrl_rot6d, atol=1e-5)
+    # The windows are the clip's frames 0–30 and 5–35, moved in XZ only.
+    for w, first in enumerate((0, 5)):
+        moved = np.asarray(clip.pose.root_pos[first : first + FRAMES]) - np.asarray(truth.root_pos[w])
+        np.testing.assert_allclose(moved - moved[0], 0.0, atol=1e-3)
+        assert moved[0, 1] == 0.0
+        np.testing.assert_array_equal(truth.quat_local[w], clip.pose.quat_local[first : first + FRAMES])
+    # Rows pick windows, in the order given.
+    swapped = window_poses(c, curves.clips, ds, np.array([1, 0]))
+    np.testing.assert_array_equal(swapped.root_pos, np.asarray(truth.root_pos)[::-1])
+
+
+@pytest.fixture(scope="module")
+def evaluation(clip, curves) -> SimpleNamespace:
+    ds = curves.dataset
+    eval_set = make_eval_set(ds, key=jax.random.key(5))
+    truth = window_poses(clip.character, curves.clips, ds, eval_set.rows)
+    config = PipelineMetricsConfig(stride=STRIDE, fps=ds.fps, floor_height=floor_height_from(ds))
+    return SimpleNamespace(eval_set=eval_set, truth=truth, config=config)
+
+
+def test_evaluate_pipeline_returns_finite_metrics_and_compiles_once(clip, bmm, evaluation):
+    c, ev = clip.character, evaluation
+    ik, rest = hips_only_ik(c), identity_quats(c.num_joints)
+    metrics = evaluate_pipeline(ev.config, bmm, ik, rest, c, ev.truth, ev.eval_set, key=jax.random.key(2))
+    assert set(metrics) == {"id", "ood"}
+    for m in metrics.values():
+        assert set(m) == {"handles_error_cm", "foot_skating_ratio", "mpjpe_cm"}
+        assert all(np.isfinite(v) for v in m.values())
+        assert m["handles_error_cm"] >= 0.0 and 0.0 <= m["foot_skating_ratio"] <= 1.0 and m["mpjpe_cm"] > 1.0
+    assert len(ik.traces) == 1, "the in-distribution and OOD runs must share one compilation"
+    # The windows start and end on the true poses; same key and steps (10), same poses as evaluate_pipeline's.
+    pose = run_pipeline(bmm, ik, rest, c, ev.truth, ev.eval_set.handles, key=jax.random.key(2), steps=10)
+    assert len(ik.traces) == 1
+    for i in (0, -1):
+        np.testing.assert_array_equal(pose.root_pos[:, i], ev.truth.root_pos[:, i])
+        np.testing.assert_array_equal(pose.quat_local[:, i], ev.truth.quat_local[:, i])
+    again_metrics = pose_metrics(ev.config, c, pose, ev.truth, ev.eval_set.handles)
+    assert again_metrics == pytest.approx(metrics["id"], rel=1e-6)
+
+
+def test_metrics_of_the_truth_and_of_a_perfect_ik(clip, evaluation):
+    c, ev = clip.character, evaluation
+    truth_metrics = pose_metrics(ev.config, c, ev.truth, ev.truth, ev.eval_set.handles)
+    assert truth_metrics["mpjpe_cm"] == 0.0
+    assert truth_metrics["handles_error_cm"] < 1e-3  # the handles are the mocap's (pinned) control points
+    flat = jax.tree.map(lambda x: x.reshape(-1, *x.shape[2:]), ev.truth)
+    table = jnp.asarray(np_pose_positions(c, flat)[:, list(c.characteristic)], jnp.float32)
+    gt = ground_truth_pose_metrics(ev.config, c, ev.truth, lookup_ik, (table, flat))
+    assert set(gt) == {"foot_skating_ratio", "ik_of_mocap_mpjpe_cm", "ik_of_mocap_foot_skating_ratio"}
+    assert gt["foot_skating_ratio"] == truth_metrics["foot_skating_ratio"]
+    assert gt["ik_of_mocap_mpjpe_cm"] < 1e-4
+    assert gt["ik_of_mocap_foot_skating_ratio"] == pytest.approx(gt["foot_skating_ratio"], abs=1e-6)
+    assert set(ground_truth_pose_metrics(ev.config, c, ev.truth)) == {"foot_skating_ratio"}

@@ -1,0 +1,98 @@
+"""``inbetween`` (``bezmotion.pipeline.inbetweening``): BMM curves → dense trajectories →
+``ik_fn`` per frame, with the handles and keyframes hit, any plain function as an IK, and
+the input checks.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ik.demo_poses import fk, np_rot6d, targets_of
+from pipeline.common import FRAMES, K, LEFT_HAND, STEPS, STRIDE, handles_error
+
+from bezmotion.data.characteristic import HIPS
+from bezmotion.ik.protocol import IKTargets, Pose
+from bezmotion.pipeline import inbetween
+
+
+def test_inbetween_curves_pass_through_the_handles_and_the_keyframes(run):
+    r, h = run.result, run.handles
+    assert r.positions.shape == (FRAMES, 6, 3) and r.rot6d.shape == (FRAMES, 6, 6)
+    assert r.pose.root_pos.shape == (FRAMES, 3) and r.pose.quat_local.shape == (FRAMES, 22, 4)
+    assert r.curves.ctrl_pos.shape == (K, 6, 3) and all(np.isfinite(np.asarray(a)).all() for a in (*r.curves, *r.pose))
+    ctrl = np.asarray(r.curves.ctrl_pos)
+    # Bit for bit at the handles' control points; the padding slot (NaN) is no constraint.
+    np.testing.assert_array_equal(ctrl[2, HIPS], np.asarray(h.position[0]))
+    np.testing.assert_array_equal(ctrl[3, LEFT_HAND], np.asarray(h.position[1]))
+    # The end control points are the given poses' six joints, positions and orientations.
+    for pose, k in ((run.start, 0), (run.end, K - 1)):
+        t = targets_of(run.character, pose)
+        np.testing.assert_allclose(ctrl[k], t.position, atol=1e-3)
+        np.testing.assert_allclose(r.curves.ctrl_rot6d[k], t.rot6d, atol=1e-5)
+    # The dense trajectories IK receives go through all of them.
+    np.testing.assert_allclose(r.positions[12, HIPS], h.position[0], atol=1e-3)
+    np.testing.assert_allclose(r.positions[18, LEFT_HAND], h.position[1], atol=1e-3)
+    np.testing.assert_allclose(np.asarray(r.positions)[[0, -1]], ctrl[[0, -1]], atol=1e-3)
+
+
+def test_keep_keyframes_returns_the_given_start_and_end_poses(run):
+    pose = run.result.pose
+    for i, given in ((0, run.start), (-1, run.end)):
+        np.testing.assert_array_equal(pose.root_pos[i], given.root_pos)
+        np.testing.assert_array_equal(pose.quat_local[i], given.quat_local)
+    # Every other frame is the IK's own: body at identity (what hips-only IK gives).
+    body = np.delete(np.asarray(pose.quat_local[1:-1]), run.character.hips, axis=1)
+    np.testing.assert_array_equal(body, np.tile([1.0, 0.0, 0.0, 0.0], (FRAMES - 2, 21, 1)))
+    assert not np.allclose(np.asarray(run.start.quat_local), [1.0, 0.0, 0.0, 0.0])
+
+
+def test_hips_only_ik_has_no_full_body_error_on_a_hips_handle(run):
+    r, h, c = run.result, run.handles, run.character
+    # The IK puts the hips on the trajectory, oriented as the curves say.
+    np.testing.assert_array_equal(r.pose.root_pos[1:-1], r.positions[1:-1, HIPS])
+    quat, _ = fk(c, r.pose)
+    np.testing.assert_allclose(np_rot6d(np.asarray(quat[1:-1, c.hips])), r.rot6d[1:-1, HIPS], atol=1e-5)
+    hips_only = h._replace(valid=jnp.asarray([True, False, False]))
+    assert float(handles_error(c, r.pose, hips_only, STRIDE)) < 1e-4
+    # The hand handle is out of this IK's reach: the metric sees it.
+    hand_only = h._replace(valid=jnp.asarray([False, True, False]))
+    assert float(handles_error(c, r.pose, hand_only, STRIDE)) > 5.0
+
+
+def test_any_plain_function_is_an_ik_and_compiles_once(clip, bmm, run):
+    traces = []
+
+    def translated_rest(params: dict, targets: IKTargets) -> Pose:  # ignores orientations
+        traces.append(1)
+        return Pose(targets.position[HIPS] + params["shift"], params["rest"])
+
+    params = {"shift": jnp.asarray([0.0, 2.0, 0.0]), "rest": clip.pose.quat_local[20]}
+    args = (bmm, translated_rest, params, run.character, run.start, run.end, run.handles)
+    first = inbetween(*args, key=jax.random.key(0), steps=STEPS, keep_keyframes=False)
+    second = inbetween(*args, key=jax.random.key(1), steps=STEPS, keep_keyframes=False)
+    assert len(traces) == 1, "a second call with the same shapes must not retrace"
+    for r in (first, second):
+        np.testing.assert_allclose(r.pose.root_pos, r.positions[:, HIPS] + np.array([0.0, 2.0, 0.0]), atol=1e-4)
+        # Without keep_keyframes the first and last frames are the IK's too.
+        np.testing.assert_array_equal(r.pose.quat_local, np.broadcast_to(params["rest"], (FRAMES, 22, 4)))
+    assert not np.allclose(first.curves.ctrl_tangent, second.curves.ctrl_tangent)
+
+
+def test_inbetween_rejects_bad_inputs(bmm, run):
+    def call(start=run.start, end=run.end, handles=run.handles):
+        return inbetween(bmm, run.ik, run.rest, run.character, start, end, handles, key=run.key, steps=STEPS)
+
+    batched = jax.tree.map(lambda x: x[None], run.start)
+    with pytest.raises(ValueError, match=r"single poses of bandai_namco \(22 joints\).*\(1, 22, 4\), \(22, 4\)"):
+        call(start=batched)
+    with pytest.raises(ValueError, match=r"\(22, 4\), \(21, 4\)"):
+        call(end=run.end._replace(quat_local=run.end.quat_local[:21]))
+    with pytest.raises(ValueError, match="the start pose contains non-finite values"):
+        call(start=run.start._replace(root_pos=run.start.root_pos.at[1].set(jnp.nan)))
+    with pytest.raises(ValueError, match="the end pose contains non-finite values"):
+        call(end=run.end._replace(quat_local=run.end.quat_local.at[3, 0].set(jnp.inf)))
+    with pytest.raises(ValueError, match=r"one motion.*got \(1, 3, 3\)"):
+        call(handles=jax.tree.map(lambda x: x[None], run.handles))

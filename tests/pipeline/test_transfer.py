@@ -1,0 +1,171 @@
+"""Character transfer (``bezmotion.pipeline.transfer``): profiles, the transfer between them,
+and the in-betweening with a transfer.
+"""
+
+from __future__ import annotations
+
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from helpers import (
+    assert_same_rotation,
+    assert_trees_close,
+    np_quat_from_axis_angle,
+    np_quat_mul,
+    np_quat_rotate,
+    random_quat_np,
+)
+from ik.demo_poses import fk, np_rot6d, targets_of
+from pipeline.common import K, LEFT_HAND, STEPS
+
+from bezmotion.bmm.sampling import SampledCurves
+from bezmotion.data.characteristic import HIPS
+from bezmotion.ik.protocol import Pose
+from bezmotion.pipeline import (
+    CharacterProfile,
+    Transfer,
+    curves_to_target,
+    facing_yaw,
+    inbetween,
+    mean_rotation,
+    to_source_space,
+)
+
+SCALED = 1.37  # a transfer scale whose round trip is not exact in float32
+source_space = jax.jit(to_source_space)
+to_target = jax.jit(curves_to_target)
+yaw_of = jax.jit(facing_yaw)
+mean_of = jax.jit(mean_rotation)
+
+
+def yawed(pose: Pose, angle: float) -> tuple[Pose, np.ndarray]:
+    """``pose`` (hips-rooted: ancestors at identity, at the origin) turned by ``angle`` about +Y."""
+    q = np_quat_from_axis_angle(np.array([0.0, 1.0, 0.0]), np.asarray(angle))
+    quat = np.asarray(pose.quat_local, np.float64).copy()
+    quat[..., 1, :] = np_quat_mul(q, quat[..., 1, :])  # joint 1 is Bandai-Namco's Hips
+    root = np_quat_rotate(q, np.asarray(pose.root_pos, np.float64))
+    return Pose(jnp.asarray(root, jnp.float32), jnp.asarray(quat, jnp.float32)), q
+
+
+def again(bmm, run, **kwargs):
+    """``run``'s in-betweening with some arguments replaced (same shapes: no recompilation)."""
+    args = dict(handles=run.handles, transfer=None, key=run.key)
+    args.update(kwargs)
+    return inbetween(
+        bmm, run.ik, run.rest, run.character, run.start, run.end, args["handles"], key=args["key"],
+        transfer=args["transfer"], steps=STEPS,
+    )  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def profile(clip) -> CharacterProfile:
+    return CharacterProfile.from_poses(clip.character, clip.pose)
+
+
+def test_transfer_between_a_profile_and_itself_is_no_transfer(bmm, run, profile):
+    t = Transfer.between(profile, profile)
+    assert float(t.scale) == 1.0 and t.scale.dtype == jnp.float32 and t.rot_offset.dtype == jnp.float32
+    np.testing.assert_allclose(t.rot_offset, Transfer.identity().rot_offset, atol=1e-6)
+    same = again(bmm, run, transfer=t)
+    assert_trees_close(same.curves, run.result.curves, tol=1e-4)
+    assert_trees_close(same.pose, run.result.pose, tol=1e-4)
+
+
+def test_to_source_space_and_curves_to_target_are_inverses(rng):
+    offset = random_quat_np(rng, (6,))
+    t = Transfer(jnp.asarray(SCALED, jnp.float32), jnp.asarray(offset, jnp.float32))
+    anchor = jnp.asarray([30.0, 0.0, -40.0])
+    pos = jnp.asarray(rng.normal(scale=50.0, size=(K, 6, 3)), jnp.float32)
+    source = source_space(t, anchor, pos)
+    np.testing.assert_allclose(source, anchor + (np.asarray(pos) - anchor) / SCALED, rtol=1e-6, atol=1e-4)
+    tangent = jnp.asarray(rng.normal(size=(K, 6, 3)), jnp.float32)
+    quat = random_quat_np(rng, (K, 6))
+    curves = SampledCurves(source, tangent, jnp.asarray(np_rot6d(quat), jnp.float32), jnp.zeros((K, 2)))
+    target = to_target(t, anchor, curves)
+    np.testing.assert_allclose(target.ctrl_pos, pos, atol=1e-4)
+    np.testing.assert_allclose(target.ctrl_tangent, SCALED * np.asarray(tangent), rtol=1e-6)
+    np.testing.assert_allclose(target.ctrl_rot6d, np_rot6d(np_quat_mul(quat, offset)), atol=1e-5)
+    # Identity: nothing moves.
+    same = to_target(Transfer.identity(), anchor, curves)
+    np.testing.assert_allclose(same.ctrl_pos, source, atol=1e-5)
+    np.testing.assert_allclose(same.ctrl_rot6d, curves.ctrl_rot6d, atol=1e-6)
+
+
+def test_transfer_between_profiles_aligns_heights_and_orientations(rng):
+    src = CharacterProfile(80.0, random_quat_np(rng, (6,)))
+    tgt = CharacterProfile(100.0, random_quat_np(rng, (6,)))
+    t = Transfer.between(src, tgt)
+    assert float(t.scale) == pytest.approx(1.25)
+    assert_same_rotation(np_quat_mul(src.mean_orientation, np.asarray(t.rot_offset)), tgt.mean_orientation, atol=1e-5)
+
+
+def test_a_scaled_transfer_keeps_handles_and_keyframes_exact(bmm, run):
+    """Also when a padding slot sits on a handle's control point (the ``run`` handles' third slot)."""
+    t = Transfer(jnp.asarray(SCALED, jnp.float32), Transfer.identity().rot_offset)
+    r = again(bmm, run, transfer=t)
+    ctrl = np.asarray(r.curves.ctrl_pos)
+    np.testing.assert_array_equal(ctrl[2, HIPS], np.asarray(run.handles.position[0]))
+    np.testing.assert_array_equal(ctrl[3, LEFT_HAND], np.asarray(run.handles.position[1]))
+    np.testing.assert_array_equal(ctrl[[0, -1]], np.asarray(run.result.curves.ctrl_pos)[[0, -1]])
+    free = np.ones(K, bool)
+    free[[0, -1]] = False
+    assert np.abs(ctrl[free] - np.asarray(run.result.curves.ctrl_pos)[free]).max() > 1.0  # the scale does act
+
+
+def test_character_profile_is_invariant_to_the_facing(clip, profile):
+    assert profile.mean_orientation.shape == (6, 4) and profile.mean_orientation.dtype == np.float64
+    np.testing.assert_allclose(np.linalg.norm(profile.mean_orientation, axis=-1), 1.0, atol=1e-6)
+    assert 60.0 < profile.height < 100.0  # hips above the ankles of a standing adult, cm
+    turned, q = yawed(clip.pose, 2.1)
+    np.testing.assert_allclose(fk(clip.character, turned)[1][..., 1], clip.pos_global[..., 1], atol=1e-3)
+    other = CharacterProfile.from_poses(clip.character, turned)
+    assert other.height == pytest.approx(profile.height, abs=1e-3)
+    assert_same_rotation(other.mean_orientation, profile.mean_orientation, atol=1e-4)
+    # The facing turns with the character.
+    yaw = yaw_of(targets_of(clip.character, clip.pose).position)
+    yaw_turned = yaw_of(targets_of(clip.character, turned).position)
+    assert_same_rotation(yaw_turned, np_quat_mul(q, np.asarray(yaw)), atol=1e-5)
+
+
+def test_facing_yaw_by_hand():
+    pos = np.zeros((2, 6, 3), np.float32)
+    pos[0, [2, 4], 0], pos[0, [3, 5], 0] = 10.0, -10.0  # left is +X: facing +Z, no turn
+    pos[1, [2, 4], 2], pos[1, [3, 5], 2] = -10.0, 10.0  # left is -Z: facing +X, a quarter turn
+    pos[:, :, 1] = np.arange(6.0)  # heights play no part
+    s = np.sqrt(0.5)
+    np.testing.assert_allclose(yaw_of(jnp.asarray(pos)), [[1.0, 0.0, 0.0, 0.0], [s, 0.0, s, 0.0]], atol=1e-6)
+
+
+def test_mean_rotation_of_symmetric_rotations_is_their_centre(rng):
+    centre = random_quat_np(rng)
+    axes = rng.normal(size=(3, 3))
+    axes /= np.linalg.norm(axes, axis=-1, keepdims=True)
+    spread = np_quat_from_axis_angle(np.concatenate([axes, axes]), np.array([0.4, 0.7, 0.2, -0.4, -0.7, -0.2]))
+    samples = np_quat_mul(centre, spread) * np.array([1, -1, 1, 1, -1, 1])[:, None]  # signs do not matter
+    assert_same_rotation(mean_of(jnp.asarray(samples, jnp.float32)), centre, atol=1e-5)
+
+
+def test_character_profile_load_round_trip_and_malformed_files(tmp_path, profile):
+    good = tmp_path / "good.json"
+    good.write_text(json.dumps({"corpus": "bandai_namco", **profile.to_json()}))
+    loaded = CharacterProfile.load(good)
+    assert loaded.height == profile.height
+    np.testing.assert_array_equal(loaded.mean_orientation, profile.mean_orientation)
+    cases = {
+        "truncated": good.read_text()[:-7],
+        "no_height": json.dumps({"mean_orientation": profile.to_json()["mean_orientation"]}),
+        "a_list": json.dumps([1, 2, 3]),
+        "wrong_shape": json.dumps({**profile.to_json(), "mean_orientation": [[1.0, 0.0, 0.0, 0.0]] * 5}),
+        "ragged": json.dumps({**profile.to_json(), "mean_orientation": [[1.0, 0.0], [1.0]]}),
+        "zero_height": json.dumps({**profile.to_json(), "height": 0.0}),
+        "text_height": json.dumps({**profile.to_json(), "height": "tall"}),
+    }
+    for name, text in cases.items():
+        path = tmp_path / f"{name}.json"
+        path.write_text(text)
+        with pytest.raises(ValueError, match=rf"{name}\.json: not a character profile"):
+            CharacterProfile.load(path)
