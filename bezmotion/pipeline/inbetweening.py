@@ -17,6 +17,7 @@ from __future__ import annotations
 import functools
 from typing import Any, NamedTuple
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -25,6 +26,7 @@ from jaxtyping import Array, Float
 from bezmotion.xla_options import call_with_inference_options
 from bezmotion.bezier import BezierLayout, reconstruct_dense
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, SampledCurves, sample_curves
+from bezmotion.data.characteristic import HIPS
 from bezmotion.geometry.rotations import quat_from_rot6d, rot6d_from_quat
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, pose_fk, pose_local, targets_from_pose
 from bezmotion.pipeline.transfer import Transfer, floor_anchor, curves_to_target, to_source_space
@@ -91,6 +93,23 @@ def _inbetween(
     return InbetweenResult(pose, curves, positions, rot6d)
 
 
+def _checked_finite(pose: Pose, name: str) -> Pose:
+    """``pose``, after checking that it holds finite numbers only.
+
+    Concrete values are checked here, before compiling (``ValueError``). Inside a caller's
+    ``jax.jit`` they are known only at run time, so the check becomes part of that
+    computation (``eqx.error_if``: the same message when it runs). Eager calls keep the
+    check out of the compiled :func:`_inbetween`.
+    """
+    message = f"the {name} pose contains non-finite values"
+    if any(isinstance(x, jax.core.Tracer) for x in pose):
+        bad = ~(jnp.isfinite(pose.root_pos).all() & jnp.isfinite(pose.quat_local).all())
+        return eqx.error_if(pose, bad, message)
+    if not (np.isfinite(np.asarray(pose.root_pos)).all() and np.isfinite(np.asarray(pose.quat_local)).all()):
+        raise ValueError(message)
+    return pose
+
+
 @functools.cache
 def _compiled(options: tuple[tuple[str, str], ...]):
     return jax.jit(
@@ -136,7 +155,11 @@ def inbetween(
       full-body handle error is the IK module's alone.
 
     Raises:
-      ValueError: poses not of this character, or handles not of one motion.
+      ValueError: poses not of this character, handles not of one motion, or a start or
+        end pose with non-finite values.
+      equinox.EquinoxRuntimeError: inside a caller's ``eqx.filter_jit``, when the
+        computation runs with a non-finite start or end pose (same message, from
+        ``eqx.error_if``; a plain ``jax.jit`` re-wraps it in JAX's own runtime error).
     """
     if start.quat_local.shape != (character.num_joints, 4) or end.quat_local.shape != start.quat_local.shape:
         raise ValueError(
@@ -145,11 +168,7 @@ def inbetween(
         )
     if handles.position.ndim != 2:
         raise ValueError(f"handles must describe one motion ((handles, 3) positions), got {handles.position.shape}")
-    for name, pose in (("start", start), ("end", end)):
-        if any(isinstance(x, jax.core.Tracer) for x in pose):
-            continue  # inside a caller's jit: values are unknown until run time
-        if not (np.isfinite(np.asarray(pose.root_pos)).all() and np.isfinite(np.asarray(pose.quat_local)).all()):
-            raise ValueError(f"the {name} pose contains non-finite values")
+    start, end = _checked_finite(start, "start"), _checked_finite(end, "end")
     transfer = Transfer.identity() if transfer is None else transfer
     return call_with_inference_options(
         _compiled, bmm, ik_params, character, start, end, handles, transfer, key,

@@ -1,0 +1,75 @@
+"""``inbetween`` rejects non-finite start and end poses, eagerly and inside a caller's jit.
+
+Concrete poses are checked before compiling (``ValueError``); traced ones by
+``eqx.error_if`` when the computation runs (the same message).
+The BMM is tiny and untrained and the IK puts only the hips in place: plumbing, not motion.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bezmotion.assets import DEMO_CLIP
+from bezmotion.bmm.denoiser import BMMConfig, init_denoiser
+from bezmotion.bmm.features import FeatureStats
+from bezmotion.bmm.sampling import BezierMotionModel, Handles
+from bezmotion.data.bvh import read_bvh
+from bezmotion.data.characteristic import HIPS
+from bezmotion.geometry.rotations import quat_from_rot6d
+from bezmotion.ik.protocol import Character, IKTargets, Pose, pose_from_motion
+from bezmotion.pipeline.inbetweening import inbetween
+
+TINY = BMMConfig.cpu(width=32, ff_width=64, num_heads=2, num_layers=1, dropout=0.0)
+STEPS = 1  # DDIM steps: the checks run before sampling
+
+
+def hips_only_ik(params: jax.Array, targets: IKTargets) -> Pose:
+    """The hips where the targets put them, every other joint at ``params`` (local rotations)."""
+    return Pose(targets.position[HIPS], params.at[1].set(quat_from_rot6d(targets.rot6d[HIPS])))  # Bandai-Namco hips: joint 1
+
+
+@pytest.fixture(scope="module")
+def case():
+    """The bundled clip's frames 0 and 30 as start and end, a tiny BMM, no handles."""
+    motion = read_bvh(DEMO_CLIP)
+    character = Character.from_bvh(motion, "bandai_namco")
+    frames = TINY.num_frames
+    poses = pose_from_motion(character, motion.quat_local[:frames].astype(np.float32), motion.pos_local[:frames].astype(np.float32))
+    start, end = jax.tree.map(lambda x: x[0], poses), jax.tree.map(lambda x: x[-1], poses)
+    graphdef, params = init_denoiser(TINY, key=jax.random.key(0))
+    stats = FeatureStats(jnp.zeros((6, 12), jnp.float32), jnp.full((6, 12), 50.0, jnp.float32))
+    bmm = BezierMotionModel(params, stats, graphdef, TINY)
+    rest = jnp.asarray(poses.quat_local[0])
+    return bmm, character, rest, start, end
+
+
+def nan_at(pose: Pose) -> Pose:
+    return pose._replace(root_pos=pose.root_pos.at[1].set(jnp.nan))
+
+
+def run(case, start, end):
+    bmm, character, rest, _, _ = case
+    return inbetween(bmm, hips_only_ik, rest, character, start, end, Handles.empty(), key=jax.random.key(1), steps=STEPS)
+
+
+@pytest.mark.parametrize("which", ["start", "end"])
+def test_a_non_finite_pose_raises_a_value_error_naming_it_before_compiling(case, which):
+    _, _, _, start, end = case
+    start, end = (nan_at(start), end) if which == "start" else (start, nan_at(end))
+    with pytest.raises(ValueError, match=f"the {which} pose contains non-finite values"):
+        run(case, start, end)
+
+
+def test_inside_a_callers_jit_a_non_finite_start_pose_raises_when_it_runs(case):
+    _, _, _, start, end = case
+    jitted = jax.jit(lambda s, e: run(case, s, e).pose)
+    finite = jitted(start, end)  # the check passes finite poses through unchanged
+    assert np.isfinite(np.asarray(finite.quat_local)).all()
+    # eqx.error_if raises equinox.EquinoxRuntimeError; plain jax.jit re-wraps it in a
+    # runtime error whose type depends on JAX's dispatch path. The message survives.
+    with pytest.raises((eqx.EquinoxRuntimeError, RuntimeError, ValueError), match="the start pose contains non-finite values"):
+        jax.block_until_ready(jitted(nan_at(start), end))
