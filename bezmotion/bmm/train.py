@@ -20,7 +20,6 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import optax
 from flax import nnx
 from jax.sharding import Mesh
 from jaxtyping import Array, Bool, Float
@@ -45,6 +44,7 @@ from bezmotion.bmm.features import (
 from bezmotion.training.loop import shard_batch
 from bezmotion.training.optim import adamw_amsgrad_torch
 from bezmotion.training.state import TrainState, fresh_train_state, stack_seeds
+from bezmotion.training.step import apply_gradients
 
 
 @dataclasses.dataclass(frozen=True)
@@ -141,13 +141,7 @@ def make_bmm_train_step(
         index = jax.random.randint(index_key, (train_config.batch_size,), 0, data.ctrl_pos.shape[0])
         batch = jax.tree.map(lambda a: shard_batch(a[index], mesh), tuple(data))
         rngs = jax.random.split(example_key, train_config.batch_size)
-        (loss, terms), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params, batch, rngs)
-        updates, opt_state = optimizer.update(grads, state.opt_state, state.params)
-        params = optax.apply_updates(state.params, updates)
-        decay = train_config.ema_decay
-        ema = jax.tree.map(lambda e, p: decay * e + (1.0 - decay) * p, state.ema, params)
-        metrics = {"loss": loss, "grad_norm": optax.global_norm(grads), **terms}
-        return TrainState(params, opt_state, ema, state.step + 1, key), metrics
+        return apply_gradients(state, optimizer, loss_fn, batch, rngs, next_key=key, ema_decay=train_config.ema_decay)
 
     return step
 

@@ -2,9 +2,9 @@
 
 ``step(state, poses) -> (state, metrics)`` is pure: it draws its frames and their
 effector configurations from ``state.key``, so a run is fully determined by its seed
-and resumes bit-identically from a checkpoint. It reuses :mod:`bezmotion.bmm.train`'s
-``TrainState`` (``ema`` is ``None``), ``compile_train_step``, ``stack_seeds`` and
-``run_training`` (atomic orbax checkpoints, Ctrl-C / SIGTERM handling).
+and resumes bit-identically from a checkpoint. It trains with :mod:`bezmotion.training`:
+``TrainState`` (``ema`` is ``None``), ``apply_gradients``, ``compile_train_step``,
+``stack_seeds`` and ``run_training`` (atomic orbax checkpoints, Ctrl-C / SIGTERM handling).
 
 **Effectors.** Each example is one frame of the corpus posed on its character; the
 step gives the network a subset of its *body* joints (every joint but the static ones
@@ -60,7 +60,7 @@ from bezmotion.ik.protores import (
     pose_from_output,
     solve_effectors,
 )
-from bezmotion.training import TrainState, fresh_train_state, stack_seeds, warmup_then_decay
+from bezmotion.training import TrainState, apply_gradients, fresh_train_state, stack_seeds, warmup_then_decay
 
 #: Joints beyond the characteristic six that Table 2 uses, by role, for the bundled skeletons.
 EXTRA_ROLES: Mapping[str, Mapping[str, str]] = {
@@ -281,7 +281,7 @@ def make_ik_train_step(
     configurations: Mapping[str, tuple[int, ...]] | None = None,
 ) -> Callable[[TrainState, Pose], tuple[TrainState, dict[str, Array]]]:
     """The (un-jitted) single-seed training step; compile it with
-    :func:`bezmotion.bmm.train.compile_train_step`.
+    :func:`bezmotion.training.compile_train_step`.
 
     Args:
       graphdef: from :func:`init_ik_train_state`.
@@ -364,11 +364,9 @@ def make_ik_train_step(
         keys = jax.random.split(example_key, tc.batch_size)
         sparse = jax.tree.map(lambda a: a[:n_sparse], batch)
         dense = jax.tree.map(lambda a: a[n_sparse:], batch)
-        (loss, terms), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params, sparse, dense, keys[:n_sparse], keys[n_sparse:])
-        updates, opt_state = optimizer.update(grads, state.opt_state, state.params)
-        params = optax.apply_updates(state.params, updates)
-        metrics = {"loss": loss, "grad_norm": optax.global_norm(grads), "learning_rate": schedule(state.step), **terms}
-        return TrainState(params, opt_state, None, state.step + 1, key), metrics
+        args = (sparse, dense, keys[:n_sparse], keys[n_sparse:])
+        new_state, metrics = apply_gradients(state, optimizer, loss_fn, *args, next_key=key)
+        return new_state, {**metrics, "learning_rate": schedule(state.step)}
 
     return step
 
