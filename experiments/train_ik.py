@@ -103,25 +103,21 @@ def train_ik(args: argparse.Namespace) -> dict:
     # the step compiles once whether it starts fresh or from a checkpoint.
     state = jax.device_put(state, jax.devices()[0])
     poses = jax.device_put(poses, jax.devices()[0])
-    history: list[dict] = []
     train_started = time.perf_counter()
-    done = store.latest_step() or 0
-    # In segments of one checkpoint each, so the log shows progress without a progress bar.
-    while done < args.steps:
-        target = min(args.steps, (done // args.checkpoint_every + 1) * args.checkpoint_every)
-        state, logged = run_training(
-            step, state, poses, num_steps=target, store=store, checkpoint_every=args.checkpoint_every, config=config,
-            progress=not args.no_progress, log_every=min(100, args.checkpoint_every),
-        )  # fmt: skip
-        history += logged
-        done = target
-        if logged:
-            last = logged[-1]
+
+    def report(done: int, last: dict) -> None:
+        # One line per checkpoint, so the log shows progress without a progress bar.
+        if done % args.checkpoint_every == 0 or done == args.steps:
             print(
                 f"step {done}: loss {last['loss']:.3f}, MPJPE {last['pos']:.3f} cm, rot {last['rot']:.4f}, "
                 f"{last['steps_per_s']:.2f} steps/s, {time.perf_counter() - train_started:.0f} s",
                 flush=True,
             )
+
+    state, history = run_training(
+        step, state, poses, num_steps=args.steps, store=store, checkpoint_every=args.checkpoint_every, config=config,
+        progress=not args.no_progress, log_every=min(100, args.checkpoint_every), progress_fn=report,
+    )  # fmt: skip
     store.close()
     train_s = time.perf_counter() - train_started
     model = ProtoResModel(state.params, character, graphdef, model_config)

@@ -75,15 +75,33 @@ def run_training(
     config: dict[str, Any] | None = None,
     progress: bool = True,
     log_every: int = 25,
+    progress_fn: Callable[[int, dict[str, float | int]], None] | None = None,
 ) -> tuple[TrainState, list[dict[str, float | int]]]:
     """Run a compiled step until ``state.step`` reaches ``num_steps``, resuming from ``store``.
 
     Model-agnostic: ``data`` is whatever the step takes (BMM's :class:`CurveArrays`, the
-    Δ-interpolator's windows).
+    Δ-interpolator's windows, the IK's poses).
 
-    Checkpoints every ``checkpoint_every`` steps, at the end and on Ctrl-C or SIGTERM
-    (then raises ``KeyboardInterrupt``). Returns the final state and the logged metrics (every ``log_every``
-    steps, averaged over seeds).
+    Args:
+      step_fn: the compiled ``step(state, data) -> (state, metrics)``; ``metrics`` holds
+        scalars (one per seed when vmapped), ``"loss"`` among them.
+      state: the state to start from when ``store`` holds no checkpoint.
+      data: passed to every step unchanged.
+      num_steps: the step count to stop at (total, not this call's share).
+      store: where to checkpoint and resume from; ``None`` runs without checkpoints.
+      checkpoint_every: checkpoint period (steps); also at the end and on Ctrl-C or
+        SIGTERM (then raises ``KeyboardInterrupt``).
+      config: saved as the store's ``config.json`` with every checkpoint.
+      progress: show a tqdm progress bar.
+      log_every: logging period (steps); the last step is always logged.
+      progress_fn: called as ``progress_fn(step, record)`` at every logged step, after
+        that step's periodic checkpoint if it has one (the final checkpoint is written
+        after the last call); ``record`` is the entry appended to
+        the history (``step``, ``steps_per_s`` since this call started, and the metrics
+        averaged over seeds).
+
+    Returns:
+      The final state and the logged records (every ``log_every`` steps and the last).
     """
     if store is not None and store.latest_step() is not None:
         state = store.restore(state)
@@ -98,14 +116,18 @@ def run_training(
                     raise KeyboardInterrupt(f"signal {terminate[0]}")
                 state, metrics = step_fn(state, data)
                 done += 1
+                record = None
                 if done % log_every == 0 or done == num_steps:
                     logged = {k: float(np.mean(np.asarray(v))) for k, v in metrics.items()}
                     rate = (done - started_step) / max(time.perf_counter() - started, 1e-9)
-                    history.append({"step": done, "steps_per_s": rate, **logged})
+                    record = {"step": done, "steps_per_s": rate, **logged}
+                    history.append(record)
                     bar.set_postfix(loss=f"{logged['loss']:.4g}", steps_per_s=f"{rate:.2f}")
                 bar.update(1)
                 if store is not None and done % checkpoint_every == 0:
                     store.save(done, state, config)
+                if progress_fn is not None and record is not None:
+                    progress_fn(done, record)
         except KeyboardInterrupt:
             if store is not None:
                 done = int(np.max(np.asarray(state.step)))  # the state actually held, whatever was interrupted
