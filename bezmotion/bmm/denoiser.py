@@ -107,6 +107,11 @@ class BMMConfig:
         """A size that trains within one session on a 2-core CPU."""
         return cls(**{"width": 256, "ff_width": 512, "num_heads": 4, "num_layers": 4, **overrides})
 
+    @classmethod
+    def tiny(cls, **overrides) -> BMMConfig:
+        """A size for smoke tests: the CPU size at width 32, one layer of two heads."""
+        return cls.cpu(**{"width": 32, "ff_width": 64, "num_heads": 2, "num_layers": 1, **overrides})
+
 
 class Conditions(NamedTuple):
     """Sparse position conditions as token slots (one motion; add a leading axis to batch).

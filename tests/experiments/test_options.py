@@ -1,0 +1,262 @@
+"""Options classes turned into command lines (:mod:`bezmotion.options`), and every
+experiment and benchmark script's command line built from its options class."""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+import sys
+from pathlib import Path
+from typing import ClassVar, Literal
+
+import pytest
+
+from bezmotion.bmm.denoiser import BMMConfig
+from bezmotion.delta.model import DeltaConfig
+from bezmotion.ik.protores import ProtoResConfig
+from bezmotion.options import PRESET_NAMES, option, options, options_parser, parse_options, presets
+
+REPO_ROOT = Path(__file__).resolve().parents[2]
+
+
+@options
+class Example:
+    """Train an example.
+
+    A second paragraph that --help leaves out."""
+
+    KIND: ClassVar[str] = "example"
+    out: str = option(help="output JSON")
+    steps: int = option(100, help="training steps")
+    rate: float = 1e-3
+    name: str | None = None
+    folder: Path = Path("runs")
+    mode: Literal["fast", "exact"] = option("exact", help="how to solve")
+    config: str = option("cpu", choices=presets(BMMConfig), help="model size")
+    seeds: tuple[int, ...] = option((0,), help="seeds trained together")
+    offset: tuple[float, float, float] = option((0.0, 25.0, 0.0), metavar=("X", "Y", "Z"), help="cm")
+    overwrite: bool = True
+    skip: bool | None = option(None, help="override the preset's")
+    no_progress: bool = False
+
+    def __post_init__(self):
+        if self.steps < 0:
+            raise ValueError(f"--steps must be non-negative, got {self.steps}")
+
+
+def test_every_supported_type_parses_to_a_frozen_instance():
+    args = parse_options(
+        Example,
+        ["--out", "o.json", "--steps", "7", "--rate", "0.5", "--name", "n", "--folder", "f", "--mode", "fast",
+         "--config", "tiny", "--seeds", "1", "2", "--offset", "1", "2", "3", "--no-overwrite", "--skip", "--no-progress"],
+    )  # fmt: skip
+    assert args == Example(
+        out="o.json", steps=7, rate=0.5, name="n", folder=Path("f"), mode="fast", config="tiny", seeds=(1, 2),
+        offset=(1.0, 2.0, 3.0), overwrite=False, skip=True, no_progress=True,
+    )  # fmt: skip
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        args.steps = 1  # type: ignore[misc]
+
+
+def test_defaults_come_from_the_fields():
+    args = parse_options(Example, ["--out", "o.json"])
+    assert args == Example(out="o.json")
+    assert (args.steps, args.seeds, args.offset, args.overwrite, args.skip, args.no_progress) == (100, (0,), (0.0, 25.0, 0.0), True, None, False)
+    assert isinstance(args.folder, Path) and Example.KIND == "example"
+
+
+def test_help_lists_every_flag_with_its_text(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        parse_options(Example, ["--help"])
+    assert exit_.value.code == 0
+    text = capsys.readouterr().out
+    assert "Train an example." in text and "second paragraph" not in text
+    for flag in ("--out OUT", "--steps STEPS", "--mode {fast,exact}", "--config {cpu,paper,tiny}", "--seeds SEEDS [SEEDS ...]",
+                 "--offset X Y Z", "--overwrite, --no-overwrite", "--skip, --no-skip", "--no-progress"):  # fmt: skip
+        assert flag in text, flag
+    assert "how to solve" in text and "override the preset's" in text
+    assert "--kind" not in text.lower()  # a ClassVar is no option
+    assert "--no-no-progress" not in text  # a no_… field is a plain switch
+
+
+def test_description_defaults_to_the_class_docstring_and_can_be_given():
+    assert options_parser(Example).description == "Train an example."
+    assert options_parser(Example, description="Script.\n\nDetails.").description == "Script."
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        ([], "the following arguments are required: --out"),
+        (["--out", "o", "--steps", "many"], "argument --steps: invalid int value: 'many'"),
+        (["--out", "o", "--rate", "fast"], "argument --rate: invalid float value: 'fast'"),
+        (["--out", "o", "--mode", "slow"], "argument --mode: invalid choice: 'slow' (choose from 'fast', 'exact')"),
+        (["--out", "o", "--config", "huge"], "argument --config: invalid choice: 'huge' (choose from 'cpu', 'paper', 'tiny')"),
+        (["--out", "o", "--offset", "1", "2"], "argument --offset: expected 3 arguments"),
+        (["--out", "o", "--seeds"], "argument --seeds: expected at least one argument"),
+        (["--out", "o", "--unknown"], "unrecognized arguments: --unknown"),
+        (["--out", "o", "--steps", "-1"], "--steps must be non-negative, got -1"),  # the class's own check
+    ],
+)
+def test_bad_values_exit_through_argparse_with_the_message(capsys, argv, message):
+    with pytest.raises(SystemExit) as exit_:
+        parse_options(Example, argv)
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert message in err and err.startswith("usage:")
+
+
+def test_unsupported_declarations_fail_when_the_class_is_declared():
+    with pytest.raises(TypeError, match=r"option Bad\.values: unsupported type 'list\[int\]'"):
+
+        @options
+        class Bad:
+            values: list[int] = ()
+
+    with pytest.raises(TypeError, match=r"option Mixed\.pair: a tuple option holds one or more values of one type"):
+
+        @options
+        class Mixed:
+            pair: tuple[int, str] = (1, "a")
+
+    with pytest.raises(TypeError, match=r"option On\.no_cache: a no_… switch defaults to False, got True"):
+
+        @options
+        class On:
+            no_cache: bool = True
+
+    with pytest.raises(ValueError, match=r"an option's default must be immutable .*, got \[0\]"):
+        option([0])
+
+
+def test_a_script_loaded_by_path_declares_its_options(tmp_path, capsys):
+    """Tests load scripts with importlib, which leaves them out of ``sys.modules``; plain
+    dataclasses then fail on string annotations, options classes do not."""
+    script = tmp_path / "script.py"
+    script.write_text(
+        "from __future__ import annotations\n"
+        "from pathlib import Path\n"
+        "from typing import Literal\n"
+        "from bezmotion.options import option, options, parse_options\n\n"
+        "@options\n"
+        "class Options:\n"
+        "    data: Path = option(help='corpus')\n"
+        "    mode: Literal['a', 'b'] = 'a'\n\n"
+        "def main(argv=None):\n"
+        "    return parse_options(Options, argv, description=__doc__)\n"
+    )
+    spec = importlib.util.spec_from_file_location("_unregistered_script", script)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    assert "_unregistered_script" not in sys.modules
+    assert module.main(["--data", "x", "--mode", "b"]) == module.Options(data=Path("x"), mode="b")
+
+
+def test_presets_are_the_configs_classmethods_by_name():
+    parents = {"parents": (-1, 0, 1, 0)}  # a 4-joint skeleton
+    for config_cls, args, kwargs in ((BMMConfig, (), {}), (DeltaConfig, (), parents), (ProtoResConfig, (22,), {})):
+        found = presets(config_cls)
+        assert tuple(found) == PRESET_NAMES
+        for name, make in found.items():
+            assert make(*args, **kwargs) == getattr(config_cls, name)(*args, **kwargs)
+    assert BMMConfig.tiny(prediction="residual") == BMMConfig.cpu(width=32, ff_width=64, num_heads=2, num_layers=1, prediction="residual")
+    assert DeltaConfig.tiny(**parents) == DeltaConfig.cpu(width=32, num_blocks=1, num_heads=2, embedding_dim=8, **parents)
+    # Fixed settings are bound into every preset; the caller's overrides still apply.
+    bound = presets(DeltaConfig, input_delta="none", **parents)
+    assert bound["tiny"](output_delta="last") == DeltaConfig.tiny(input_delta="none", output_delta="last", **parents)
+    with pytest.raises(ValueError, match="Example defines no size preset"):
+        presets(Example)
+
+
+# ---------------------------------------------------------------- the real scripts
+
+EXPERIMENTS = ("bezier_stride", "bmm_lafan1", "character_profiles", "cross_skeleton", "delta_anidance", "delta_lafan1",
+               "ik_subsets", "lafan1_baselines", "train_ik")  # fmt: skip
+BENCHMARKS = ("bezier_fit", "bmm_inference", "bvh_parse", "delta_inference", "fk")
+_SIBLINGS = ("_common", "_delta")  # the helper modules beside the scripts (both folders have a _common)
+
+
+@pytest.fixture
+def load_script(monkeypatch):
+    """Import a script by path as Python runs it: its folder first on ``sys.path``."""
+    saved = {name: sys.modules.pop(name) for name in _SIBLINGS if name in sys.modules}
+
+    def load(folder: str, name: str):
+        monkeypatch.syspath_prepend(str(REPO_ROOT / folder))
+        spec = importlib.util.spec_from_file_location(f"_options_test_{name}", REPO_ROOT / folder / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+        return module
+
+    yield load
+    for name in _SIBLINGS:
+        sys.modules.pop(name, None)
+    sys.modules.update(saved)
+
+
+def _help(module, capsys) -> str:
+    with pytest.raises(SystemExit) as exit_:
+        module.main(["--help"])
+    assert exit_.value.code == 0
+    return capsys.readouterr().out
+
+
+@pytest.mark.parametrize(("folder", "name"), [("experiments", n) for n in EXPERIMENTS] + [("benchmarks", n) for n in BENCHMARKS])
+def test_every_script_answers_help_from_its_options_class(load_script, capsys, folder, name):
+    module = load_script(folder, name)
+    text = _help(module, capsys)
+    assert text.startswith("usage:") and module.__doc__.strip().split("\n\n")[0].split()[0] in text
+    for field in dataclasses.fields(module.Options):
+        assert "--" + field.name.replace("_", "-") in text
+
+
+# The README's "Reproducing the paper numbers" commands (and the smoke tests' flags) parse.
+README_COMMANDS = [
+    ("experiments", "lafan1_baselines", ["--data", "../shared/data/lafan1/lafan1-subset.zip", "--out", "results/lafan1_baselines.json"]),
+    ("experiments", "bezier_stride", ["--data", "../shared/data/lafan1/lafan1-subset.zip", "--out", "results/bezier_stride.json"]),
+    ("benchmarks", "bezier_fit", ["--data", "../shared/data", "--out", "results/bezier_fit.json"]),
+    ("experiments", "bmm_lafan1", ["--out", "results/bmm_lafan1.json"]),
+    ("experiments", "bmm_lafan1", ["--out", "r.json", "--prediction", "residual", "--learning-rate", "5e-4", "--min-snr-gamma", "0", "--steps", "9"]),
+    ("benchmarks", "bmm_inference", ["--out", "results/bmm_inference.json"]),
+    ("experiments", "delta_lafan1", ["--out", "results/delta_lafan1.json", "--modes", "main"]),
+    ("experiments", "delta_anidance", ["--out", "results/delta_anidance.json"]),
+    ("experiments", "train_ik", ["--corpus", "lafan1", "--out-dir", "~/.cache/bezmotion/runs/ik_lafan1"]),
+    ("experiments", "ik_subsets", ["--out", "results/ik_subsets.json"]),
+    ("experiments", "character_profiles", ["--out-dir", "bezmotion/assets/profiles"]),
+    ("experiments", "cross_skeleton", ["--out", "results/cross_skeleton.json"]),
+    ("benchmarks", "delta_inference", []),
+    ("benchmarks", "fk", []),
+    ("benchmarks", "bvh_parse", []),
+]
+
+
+@pytest.mark.parametrize(("folder", "name", "argv"), README_COMMANDS)
+def test_readme_commands_parse(load_script, folder, name, argv):
+    module = load_script(folder, name)
+    args = parse_options(module.Options, argv)
+    assert isinstance(args, module.Options)
+
+
+def test_script_defaults_and_derived_settings(load_script, tmp_path, monkeypatch):
+    monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path))
+    bmm = load_script("experiments", "bmm_lafan1")
+    args = parse_options(bmm.Options, ["--out", "o", "--prediction", "residual", "--config", "tiny"])
+    assert (args.steps, args.batch_size, args.learning_rate, args.min_snr_gamma, args.seeds) == (6000, 64, 1e-4, 5.0, (0,))
+    assert args.table6_steps == (5, 10, 25, 50, 100) and args.run_dir == str(tmp_path / "runs" / "bmm_lafan1_tiny_residual")
+    with pytest.raises(SystemExit):
+        parse_options(bmm.Options, ["--out", "o", "--corpus", "bandai_namco", "--bandai-namco", "x"])
+
+    delta = load_script("experiments", "delta_lafan1")
+    args = parse_options(delta.Options, ["--out", "o"])
+    assert (args.steps, args.batch_size, args.learning_rate, args.lengths, args.modes) == (3000, 64, 2e-4, (5, 15, 30, 45), "table3")
+    assert args.run_dir == str(tmp_path / "runs" / "delta_lafan1_cpu")
+    assert parse_options(delta.Options, ["--out", "o", "--run-dir", "/r/{name}-{config}"]).run_dir == "/r/delta_lafan1-cpu"
+
+    anidance = load_script("experiments", "delta_anidance")
+    args = parse_options(anidance.Options, ["--out", "o", "--steps", "0"])
+    assert (args.steps, args.lengths, args.modes, args.min_gap, args.max_gap) == (0, (5, 15, 30), "table2", 4, 39)
+    assert args.run_dir == str(tmp_path / "runs" / "delta_anidance_cpu")
+
+    ik = load_script("experiments", "train_ik")
+    args = ik.parse_args(["--corpus", "lafan1", "--no-effector-skip"])
+    assert (args.steps, args.config, args.effector_skip, args.output_rotations) == (9000, "cpu", False, None)
