@@ -181,6 +181,11 @@ class DeltaConfig:
         """A size that trains in minutes on a 2-core CPU (0.4 M parameters)."""
         return cls(**{"width": 128, "num_blocks": 3, "num_heads": 4, **overrides})
 
+    @classmethod
+    def tiny(cls, **overrides) -> DeltaConfig:
+        """A size for smoke tests: the CPU size at width 32, one block of two heads, 8-d embeddings."""
+        return cls.cpu(**{"width": 32, "num_blocks": 1, "num_heads": 2, "embedding_dim": 8, **overrides})
+
 
 class KeyFrames(NamedTuple):
     """The known frames of one example (add leading axes to batch).
