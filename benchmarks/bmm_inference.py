@@ -16,7 +16,6 @@ shared virtual machine, so the median drifts by ±10 % from run to run).
 
 from __future__ import annotations
 
-import argparse
 import functools
 import sys
 
@@ -29,8 +28,18 @@ from bezmotion.xla_options import inference_compiler_options
 from bezmotion.bmm.denoiser import BMMConfig, count_parameters, init_denoiser
 from bezmotion.bmm.features import FeatureStats
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, sample_curves
+from bezmotion.options import option, options, parse_options
 
 PAPER_LATENCY_S = 0.08  # BMM §6: 10 steps on an RTX 3090
+
+
+@options
+class Options:
+    steps: int = option(10, help="DDIM steps (default 10)")
+    batch: int = option(256, help="batch for the throughput figure (default 256)")
+    repeats: int = option(100, help="timed repeats; the median and the minimum are reported")
+    batch_repeats: int = option(5, help="timed repeats of the batched call")
+    out: str | None = option(None, help="write the result as JSON to this file (atomically)")
 
 
 def example_inputs(config: BMMConfig, batch: int | None):
@@ -75,13 +84,7 @@ def measure(config: BMMConfig, *, batch: int, steps: int, repeats: int, batch_re
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--steps", type=int, default=10, help="DDIM steps (default 10)")
-    parser.add_argument("--batch", type=int, default=256, help="batch for the throughput figure (default 256)")
-    parser.add_argument("--repeats", type=int, default=100, help="timed repeats; the median and the minimum are reported")
-    parser.add_argument("--batch-repeats", type=int, default=5, help="timed repeats of the batched call")
-    parser.add_argument("--out", default=None, help="write the result as JSON to this file (atomically)")
-    args = parser.parse_args(argv)
+    args = parse_options(Options, argv, description=__doc__)
 
     result = {
         "benchmark": "bmm_inference",

@@ -15,7 +15,6 @@ Latency is the median of ``--repeats`` runs, ``latency_min_s`` the fastest.
 
 from __future__ import annotations
 
-import argparse
 import sys
 
 import jax
@@ -26,8 +25,19 @@ from _common import machine_info, report, time_jitted
 from bezmotion.xla_options import inference_compiler_options
 from bezmotion.data.lafan1 import N_PAST
 from bezmotion.delta.model import DeltaConfig, count_parameters, delta_inbetweener, init_delta
+from bezmotion.options import option, options, parse_options, presets
 
-CONFIGS = {"paper": DeltaConfig.paper, "cpu": DeltaConfig.cpu}
+CONFIGS = presets(DeltaConfig)
+
+
+@options
+class Options:
+    configs: tuple[str, ...] = option(("paper", "cpu"), choices=CONFIGS, help="sizes to measure (default: paper cpu)")
+    gap: int = option(30, help="missing frames (default 30)")
+    batch: int = option(64, help="batch for the throughput figure (default 64)")
+    repeats: int = option(50, help="timed batch-1 repeats; the median and the minimum are reported")
+    batch_repeats: int = option(5, help="timed repeats of the batched call")
+    out: str | None = option(None, help="write the result as JSON to this file (atomically)")
 
 
 def example_inputs(config: DeltaConfig, batch: int):
@@ -75,14 +85,7 @@ def measure(config: DeltaConfig, *, gap: int, batch: int, repeats: int, batch_re
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--configs", nargs="+", choices=tuple(CONFIGS), default=list(CONFIGS), help="sizes to measure (default: paper cpu)")
-    parser.add_argument("--gap", type=int, default=30, help="missing frames (default 30)")
-    parser.add_argument("--batch", type=int, default=64, help="batch for the throughput figure (default 64)")
-    parser.add_argument("--repeats", type=int, default=50, help="timed batch-1 repeats; the median and the minimum are reported")
-    parser.add_argument("--batch-repeats", type=int, default=5, help="timed repeats of the batched call")
-    parser.add_argument("--out", default=None, help="write the result as JSON to this file (atomically)")
-    args = parser.parse_args(argv)
+    args = parse_options(Options, argv, description=__doc__)
 
     result = {"benchmark": "delta_inference", "machine": machine_info()}
     for name in args.configs:

@@ -8,7 +8,6 @@ over many frames in float32 and reports compile time, steady-state time and fram
 
 from __future__ import annotations
 
-import argparse
 import sys
 
 import jax
@@ -17,9 +16,18 @@ import numpy as np
 
 from _common import machine_info, report, time_jitted
 from bezmotion.geometry.skeleton import Skeleton
+from bezmotion.options import option, options, parse_options
 
 # LaFAN1 joint order (Hips, legs, spine/head, arms).
 LAFAN1_PARENTS = (-1, 0, 1, 2, 3, 0, 5, 6, 7, 0, 9, 10, 11, 12, 11, 14, 15, 16, 11, 18, 19, 20)
+
+
+@options
+class Options:
+    frames: int = option(10**6, help="number of frames (default 1e6)")
+    repeats: int = option(5, help="timed repeats; the median is reported")
+    seed: int = 0
+    out: str | None = option(None, help="write the result as JSON to this file (atomically)")
 
 
 def make_inputs(frames: int, seed: int = 0) -> tuple[Skeleton, jax.Array, jax.Array]:
@@ -40,12 +48,7 @@ def fk_positions_and_rotations(skeleton: Skeleton, quat: jax.Array, root: jax.Ar
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--frames", type=int, default=10**6, help="number of frames (default 1e6)")
-    parser.add_argument("--repeats", type=int, default=5, help="timed repeats; the median is reported")
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--out", default=None, help="write the result as JSON to this file (atomically)")
-    args = parser.parse_args(argv)
+    args = parse_options(Options, argv, description=__doc__)
 
     skeleton, quat, root = make_inputs(args.frames, args.seed)
     timing = time_jitted(fk_positions_and_rotations, (skeleton, quat, root), repeats=args.repeats)

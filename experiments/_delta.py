@@ -4,22 +4,22 @@ averaging over seeds (``experiments/delta_lafan1.py``, ``experiments/delta_anida
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import time
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import jax
 import numpy as np
 
 from bezmotion.training.checkpoint import CONFIG_FILE, CheckpointStore
-from bezmotion.data.cache import cache_dir
 from bezmotion.delta.train import DeltaTrainConfig, init_delta_train_states, make_delta_train_step, run_delta_training
 from bezmotion.delta.model import DeltaConfig
+from bezmotion.options import option, options, presets
 from bezmotion.training import compile_train_step
+from _common import runs_dir
 
 MODE_NAMES = {"last": "Last", "none": "No", "interpolation": "I"}
 """How the paper's tables name the Δ-modes."""
@@ -30,35 +30,37 @@ def mode_label(mode: tuple[str, str]) -> str:
     return f"{mode[0]}-{mode[1]}"
 
 
-def add_delta_arguments(
-    parser: argparse.ArgumentParser,
-    *,
-    configs: Mapping[str, Callable[..., DeltaConfig]],
-    lengths: Sequence[int],
-    default_data: Path,
-    data_help: str,
-    run_name: str,
-) -> None:
-    """The options both Δ experiment scripts take (``--out``, data, model size, training, run directory)."""
-    parser.add_argument("--out", required=True, help="output JSON (a .md report is written beside it)")
-    parser.add_argument("--data", default=str(default_data), help=data_help)
-    parser.add_argument("--config", choices=tuple(configs), default="cpu", help="model size (default cpu; paper: width 1024, 6 blocks; tiny: smoke tests)")
-    parser.add_argument("--steps", type=int, default=3000, help="training steps per Δ-mode (default 3000)")
-    parser.add_argument("--batch-size", type=int, default=64)
-    parser.add_argument("--learning-rate", type=float, default=2e-4, help="peak learning rate (paper: 2e-4)")
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="seeds trained together (vmapped)")
-    parser.add_argument("--run-dir", default=str(cache_dir() / "runs" / "{name}_{config}"), help=f"checkpoints (default: <cache>/runs/{run_name}_<config>)")
-    parser.add_argument("--checkpoint-every", type=int, default=500)
-    parser.add_argument("--eval-batch", type=int, default=256, help="test windows per vectorised chunk at evaluation")
-    parser.add_argument("--lengths", type=int, nargs="+", default=list(lengths), help=f"transition lengths (default {' '.join(map(str, lengths))})")
-    parser.add_argument("--no-cache", action="store_true", help="re-parse the corpus instead of using the cache")
-    parser.add_argument("--no-progress", action="store_true")
-    parser.set_defaults(run_name=run_name)
+@options
+class DeltaOptions:
+    """The options both Δ experiment scripts take (``--out``, data, model size, training, run
+    directory); each script subclasses it with its corpus's data, transition lengths and
+    ``RUN_NAME``, and adds its own."""
 
+    RUN_NAME: ClassVar[str] = "delta"
+    """The default run directory is ``<cache>/runs/<RUN_NAME>_<config>``."""
 
-def resolve_run_dir(args: argparse.Namespace) -> None:
-    """Fill the ``{name}`` and ``{config}`` placeholders of ``--run-dir``."""
-    args.run_dir = args.run_dir.format(name=args.run_name, config=args.config)
+    out: str = option(help="output JSON (a .md report is written beside it)")
+    data: str = option(help="the corpus archive or folder")
+    config: str = option(
+        "cpu", choices=presets(DeltaConfig), help="model size (default cpu; paper: width 1024, 6 blocks; tiny: smoke tests)"
+    )
+    steps: int = option(3000, help="training steps per Δ-mode (default 3000)")
+    batch_size: int = DeltaTrainConfig.batch_size
+    learning_rate: float = option(DeltaTrainConfig.learning_rate, help="peak learning rate (paper: 2e-4)")
+    seeds: tuple[int, ...] = option((0,), help="seeds trained together (vmapped)")
+    run_dir: str | None = option(
+        None, help="checkpoints (default: <cache>/runs/<script>_<config>; {name} and {config} in a given path are filled in)"
+    )
+    checkpoint_every: int = 500
+    eval_batch: int = option(256, help="test windows per vectorised chunk at evaluation")
+    lengths: tuple[int, ...] = option(help="transition lengths")
+    no_cache: bool = option(False, help="re-parse the corpus instead of using the cache")
+    no_progress: bool = False
+
+    def __post_init__(self):
+        # The run directory's placeholders: {name} the script's RUN_NAME, {config} --config.
+        template = self.run_dir if self.run_dir is not None else str(runs_dir("{name}_{config}"))
+        object.__setattr__(self, "run_dir", template.format(name=self.RUN_NAME, config=self.config))
 
 
 def check_resumable(directory: Path, config: dict) -> None:
@@ -88,7 +90,7 @@ class ModeRun:
 
     @classmethod
     def plan(
-        cls, args: argparse.Namespace, model_config: DeltaConfig, train_config: DeltaTrainConfig, *, data: dict | None = None, suffix: str = ""
+        cls, args: DeltaOptions, model_config: DeltaConfig, train_config: DeltaTrainConfig, *, data: dict | None = None, suffix: str = ""
     ) -> ModeRun:
         label = mode_label((model_config.input_delta, model_config.output_delta)) + suffix
         config = {
@@ -99,7 +101,7 @@ class ModeRun:
         return cls(Path(args.run_dir) / label / "checkpoints", config)
 
 
-def train_delta_mode(args: argparse.Namespace, run: ModeRun, model_config: DeltaConfig, train_config: DeltaTrainConfig, data, *, window_frames: int):
+def train_delta_mode(args: DeltaOptions, run: ModeRun, model_config: DeltaConfig, train_config: DeltaTrainConfig, data, *, window_frames: int):
     """Train (or resume) one Δ-mode for all seeds at once; returns ``(graphdef, state, history, seconds)``."""
     check_resumable(run.directory, run.config)
     graphdef, state = init_delta_train_states(model_config, train_config, args.seeds)

@@ -12,26 +12,27 @@ published full-dataset ones: say so when reporting them.
 
 from __future__ import annotations
 
-import argparse
 import json
 import time
+from typing import Literal
 
 from bezmotion.io import atomic_write_text
 from bezmotion.evaluation.lafan1 import TRANSITION_LENGTHS, evaluate_baselines, format_table, lafan1_benchmark
+from bezmotion.options import option, options, parse_options
+
+
+@options
+class Options:
+    data: str = option(help="LaFAN1 zip (e.g. lafan1.zip) or a directory of its .bvh files")
+    out: str = option(help="output JSON file")
+    variant: Literal["official", "delta"] = option(
+        "official", help="metric convention: the La Forge evaluator (default) or the Δ-interpolator code's L2Q/NPSS"
+    )
+    no_cache: bool = option(False, help="re-parse the BVH files instead of using the cache")
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--data", required=True, help="LaFAN1 zip (e.g. lafan1.zip) or a directory of its .bvh files")
-    parser.add_argument("--out", required=True, help="output JSON file")
-    parser.add_argument(
-        "--variant",
-        choices=("official", "delta"),
-        default="official",
-        help="metric convention: the La Forge evaluator (default) or the Δ-interpolator code's L2Q/NPSS",
-    )
-    parser.add_argument("--no-cache", action="store_true", help="re-parse the BVH files instead of using the cache")
-    args = parser.parse_args(argv)
+    args = parse_options(Options, argv, description=__doc__)
 
     start = time.perf_counter()
     bench = lafan1_benchmark(args.data, use_cache=not args.no_cache)
