@@ -5,7 +5,6 @@ averaging over seeds (``experiments/delta_lafan1.py``, ``experiments/delta_anida
 from __future__ import annotations
 
 import dataclasses
-import json
 import time
 from collections.abc import Mapping
 from pathlib import Path
@@ -14,7 +13,7 @@ from typing import Any, ClassVar
 import jax
 import numpy as np
 
-from bezmotion.training.checkpoint import CONFIG_FILE, CheckpointStore
+from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.delta.train import DeltaTrainConfig, init_delta_train_states, make_delta_train_step, run_delta_training
 from bezmotion.delta.model import DeltaConfig
 from bezmotion.options import option, options, presets
@@ -63,24 +62,6 @@ class DeltaOptions:
         object.__setattr__(self, "run_dir", template.format(name=self.RUN_NAME, config=self.config))
 
 
-def check_resumable(directory: Path, config: dict) -> None:
-    """Refuse to resume a run trained with other settings (the schedule depends on ``--steps``
-    too), naming the settings that differ."""
-    path = directory / CONFIG_FILE
-    if not path.exists():
-        return
-    saved = json.loads(path.read_text())
-    new = json.loads(json.dumps(config, sort_keys=True, default=str))  # as the store writes it
-    differ = [
-        f"{section}.{key}: {saved.get(section, {}).get(key)!r} → {new[section].get(key)!r}"
-        for section in new
-        for key in sorted(set(new[section]) | set(saved.get(section, {})))
-        if saved.get(section, {}).get(key) != new[section].get(key)
-    ]
-    if differ:
-        raise ValueError(f"{directory} holds a run with other settings ({'; '.join(differ)}); use another --run-dir")
-
-
 @dataclasses.dataclass(frozen=True)
 class ModeRun:
     """Where one Δ-mode trains and the configuration saved beside its checkpoints."""
@@ -103,13 +84,13 @@ class ModeRun:
 
 def train_delta_mode(args: DeltaOptions, run: ModeRun, model_config: DeltaConfig, train_config: DeltaTrainConfig, data, *, window_frames: int):
     """Train (or resume) one Δ-mode for all seeds at once; returns ``(graphdef, state, history, seconds)``."""
-    check_resumable(run.directory, run.config)
     graphdef, state = init_delta_train_states(model_config, train_config, args.seeds)
     step = compile_train_step(
         make_delta_train_step(graphdef, model_config, train_config, window_frames=window_frames), num_seeds=len(args.seeds)
     )
     device = jax.devices()[0]
     store = CheckpointStore(run.directory)
+    store.check_resumable(run.config)  # the schedule depends on --steps too: refuse other settings
     started = time.perf_counter()
     # Restored checkpoints are device-committed; commit fresh states too (one compilation).
     state, history = run_delta_training(

@@ -80,6 +80,7 @@ def train(args, model_config: BMMConfig, train_config: BMMTrainConfig, train_set
         "model": dataclasses.asdict(model_config),
         "train": {**dataclasses.asdict(train_config), "seeds": list(args.seeds), "num_steps": args.steps},
     }
+    store.check_resumable(config)
     started = time.perf_counter()
     state, history = run_training(
         step, state, CurveArrays.from_dataset(train_set), num_steps=args.steps, store=store,

@@ -92,11 +92,8 @@ def train_ik(args: argparse.Namespace) -> dict:
         "character": character_to_json(character),
     }
     store = CheckpointStore(out_dir / "checkpoints")
-    saved = store.config()
-    if saved is not None and store.latest_step() is not None:
-        for key in ("corpus", "seed", "frame_step", "model", "train"):
-            if json.loads(json.dumps(saved.get(key), default=str)) != json.loads(json.dumps(config[key], default=str)):
-                raise SystemExit(f"{out_dir}: its checkpoints were trained with a different {key!r} ({saved.get(key)}); use another --out-dir")
+    store.check_resumable(config)
+    if store.latest_step() is not None:
         print(f"resuming from step {store.latest_step()} in {out_dir}")
     step = compile_train_step(make_ik_train_step(graphdef, model_config, train_config, character, configurations), num_seeds=None)
     # Restored checkpoints are committed to the device; commit the fresh state too, so

@@ -3,7 +3,9 @@
 Each checkpoint is a numbered orbax step folder (written under a temporary name and
 renamed when complete, so an interrupted save never leaves a readable half checkpoint)
 plus ``config.json`` beside them describing what was trained. Typed JAX PRNG keys are
-stored as their raw key data and re-wrapped on restore.
+stored as their raw key data and re-wrapped on restore. :meth:`CheckpointStore.check_resumable`
+is the resume guard: it refuses a run directory whose checkpoints were trained with
+another configuration.
 """
 
 from __future__ import annotations
@@ -24,6 +26,24 @@ CONFIG_FILE = "config.json"
 
 def _is_key(x: Any) -> bool:
     return isinstance(x, jax.Array | jax.ShapeDtypeStruct) and jnp.issubdtype(x.dtype, jax.dtypes.prng_key)
+
+
+class _Absent:
+    def __repr__(self) -> str:
+        return "(absent)"
+
+
+_ABSENT = _Absent()
+
+
+def _flatten(tree: Any, prefix: str = "") -> dict[str, Any]:
+    """Nested dicts as ``{"section.key": value}`` (other values, lists included, are leaves)."""
+    if not isinstance(tree, dict) or not tree:
+        return {prefix: tree}
+    flat: dict[str, Any] = {}
+    for key, value in tree.items():
+        flat.update(_flatten(value, f"{prefix}.{key}" if prefix else str(key)))
+    return flat
 
 
 class CheckpointStore:
@@ -71,8 +91,38 @@ class CheckpointStore:
         return treedef.unflatten(leaves)
 
     def config(self) -> dict[str, Any] | None:
+        """The configuration saved with the checkpoints (as JSON read it back), or ``None``."""
         path = self.directory / CONFIG_FILE
         return json.loads(path.read_text()) if path.exists() else None
+
+    def check_resumable(self, config: dict[str, Any]) -> None:
+        """Refuse to resume checkpoints that were trained with another configuration.
+
+        The one resume guard of every trainer: run it before :func:`run_training` restores
+        from this store. A store without checkpoints (a fresh run) always passes.
+
+        Args:
+          config: the configuration this run would save (compared as ``save`` writes it,
+            so tuples equal lists and non-JSON values compare as their ``str``).
+
+        Raises:
+          ValueError: naming every differing setting as ``section.key: saved → new``.
+        """
+        saved = self.config()
+        if saved is None or self.latest_step() is None:
+            return
+        new = json.loads(json.dumps(config, sort_keys=True, default=str))
+        old_flat, new_flat = _flatten(saved), _flatten(new)
+        differ = [
+            f"{key}: {old_flat.get(key, _ABSENT)!r} → {new_flat.get(key, _ABSENT)!r}"
+            for key in sorted(old_flat.keys() | new_flat.keys())
+            if old_flat.get(key, _ABSENT) != new_flat.get(key, _ABSENT)
+        ]
+        if differ:
+            raise ValueError(
+                f"{self.directory} holds a run with other settings ({'; '.join(differ)}); "
+                "resume with the same settings or train in another directory"
+            )
 
     def close(self) -> None:
         self._manager.close()
