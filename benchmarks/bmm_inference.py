@@ -25,7 +25,8 @@ import numpy as np
 
 from _common import machine_info, report, time_jitted
 from bezmotion.xla_options import inference_compiler_options
-from bezmotion.bmm.denoiser import BMMConfig, count_parameters, init_denoiser
+from bezmotion.bmm.denoiser import BMMConfig, init_denoiser
+from bezmotion.training import count_parameters
 from bezmotion.bmm.features import FeatureStats
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, sample_curves
 from bezmotion.options import option, options, parse_options

@@ -47,11 +47,11 @@ from bezmotion.bezier import BezierLayout
 from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.data.cache import cache_dir
 from bezmotion.data.curves import CurveDataset, bandai_namco_curve_dataset, lafan1_curve_dataset
-from bezmotion.bmm.denoiser import PREDICTIONS, BMMConfig, count_parameters
+from bezmotion.bmm.denoiser import PREDICTIONS, BMMConfig
 from bezmotion.bmm.features import FeatureStats
 from bezmotion.bmm.sampling import BezierMotionModel, sample_curves, save_model
 from bezmotion.bmm.train import CurveArrays, BMMTrainConfig, init_bmm_train_states, make_bmm_train_step
-from bezmotion.training import compile_train_step, data_mesh, run_training
+from bezmotion.training import compile_train_step, count_parameters, data_mesh, run_training
 
 SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 DEFAULT_DATA = {

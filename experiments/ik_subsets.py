@@ -42,7 +42,8 @@ from bezmotion.data.cache import cache_dir
 from bezmotion.geometry.rotations import safe_norm
 from bezmotion.ik.frames import default_source, lafan1_clip_starts, lafan1_frames
 from bezmotion.ik.protocol import IKTargets, Pose, pose_fk, targets_from_pose
-from bezmotion.ik.protores import ProtoResModel, count_parameters, load_ik_model, protores_ik_fn
+from bezmotion.ik.protores import ProtoResModel, load_ik_model, protores_ik_fn
+from bezmotion.training import count_parameters
 from bezmotion.ik.training import CHARACTERISTIC, TABLE2, body_joints, effector_configurations, effector_mpjpe
 
 WINDOW = 31

@@ -31,7 +31,7 @@ from bezmotion.io import atomic_write_text
 from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.data.cache import cache_dir
 from bezmotion.ik.frames import CORPORA, load_frames
-from bezmotion.ik.protores import ProtoResConfig, ProtoResModel, character_to_json, count_parameters, save_ik_model
+from bezmotion.ik.protores import ProtoResConfig, ProtoResModel, character_to_json, save_ik_model
 from bezmotion.ik.training import (
     CHARACTERISTIC,
     IKTrainConfig,
@@ -40,7 +40,7 @@ from bezmotion.ik.training import (
     init_ik_train_state,
     make_ik_train_step,
 )
-from bezmotion.training import compile_train_step, run_training
+from bezmotion.training import compile_train_step, count_parameters, run_training
 
 CONFIGS = {"cpu": ProtoResConfig.cpu, "paper": ProtoResConfig.paper, "tiny": ProtoResConfig.tiny}
 

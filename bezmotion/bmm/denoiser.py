@@ -36,6 +36,7 @@ from flax import nnx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
+from bezmotion.training.step import count_parameters  # noqa: F401 (its old home, re-exported)
 
 FEATURES_PER_JOINT = 12  # position (3), tangent (3), ortho6D orientation (6)
 NUM_CONTACTS = 2  # left foot, right foot
@@ -290,7 +291,3 @@ def apply_denoiser(
 ) -> tuple[Float[Array, "controls features"], Float[Array, "controls 2"]]:
     """Pure call of the denoiser on one motion (see :meth:`BMMDenoiser.__call__`)."""
     return nnx.merge(graphdef, params)(x_t, t, conditions, key=key)
-
-
-def count_parameters(params: nnx.State) -> int:
-    return int(sum(np.prod(x.shape) for x in jax.tree.leaves(params)))

@@ -67,6 +67,7 @@ from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
 from bezmotion.training.checkpoint import CheckpointStore
+from bezmotion.training.step import count_parameters  # its old home, re-exported (__all__)
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.geometry.rotations import matrix_from_rot6d, quat_from_matrix, rot6d_from_matrix, safe_norm
 from bezmotion.geometry.skeleton import Skeleton
@@ -426,10 +427,6 @@ def apply_protores(
 def pose_from_output(output: ProtoResOutput) -> Pose:
     """The :class:`~bezmotion.ik.protocol.Pose` of a prediction (quaternions, w ≥ 0)."""
     return Pose(output.root_pos, quat_from_matrix(matrix_from_rot6d(output.rot6d_local)))
-
-
-def count_parameters(params: nnx.State) -> int:
-    return int(sum(np.prod(x.shape) for x in jax.tree.leaves(params)))
 
 
 # ------------------------------------------------------------------------ trained model
