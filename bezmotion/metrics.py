@@ -1,7 +1,8 @@
 """In-betweening metrics.
 
 - The LaFAN1 benchmark's L2Q, L2P and NPSS. Definitions follow the official Ubisoft La
-  Forge evaluator (``../shared/REFERENCE.md`` §1). Call them on float64 arrays (inside
+  Forge evaluator (github.com/ubisoft/ubisoft-laforge-animation-dataset,
+  ``lafan1/benchmarks.py``). Call them on float64 arrays (inside
   ``jax.enable_x64(True)``) to reproduce the published numbers; in float32 they agree to
   about 1e-6.
 - BMM's curve metrics: handles error, foot-skating ratio, contact accuracy, mean

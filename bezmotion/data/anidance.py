@@ -15,7 +15,8 @@ are stored relative to the center in all three axes;
 Listed files that are absent are dropped with one warning that names them all; files
 present but not listed are ignored with a warning too.
 
-Benchmark protocol (``../shared/REFERENCE.md`` §2, after Duan et al. 2022): windows of
+Benchmark protocol (Duan et al. 2022, as the Δ-interpolator's public code runs it,
+github.com/boreshkinai/delta-interpolator ``src/evaluation/anidance_benchmark.py``): windows of
 128 frames every 64 frames, no centering or rotation, and L2P normalised by the 72-d
 mean and population std of the training windows.
 """

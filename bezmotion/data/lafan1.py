@@ -2,7 +2,8 @@
 
 Reads the original BVH files from the official zip (or any directory of them), caches
 the parsed clips on disk, and cuts windows exactly as the Ubisoft La Forge extractor
-does (``../shared/REFERENCE.md`` §1): strict sliding windows, foot contacts from FK of
+does (github.com/ubisoft/ubisoft-laforge-animation-dataset, ``lafan1/extract.py``):
+strict sliding windows, foot contacts from FK of
 the raw window, XZ-centering of the root, rotation about +Y so the hips face +X at the
 last past frame (9), float64 throughout.
 

@@ -1,8 +1,8 @@
 """The Anidance in-betweening benchmark, for any positions in-betweener.
 
 The benchmark of Duan et al. (2022) as the Δ-interpolator paper runs it (§5.1, appendix E,
-Table 2; ``../shared/REFERENCE.md`` §2; frame layout and metric as in the Δ-interpolator's
-public evaluation code):
+Table 2; frame layout and metric as in the Δ-interpolator's public evaluation code,
+github.com/boreshkinai/delta-interpolator ``src/evaluation/anidance_benchmark.py``):
 
 - **Test windows**: the split's validation files, 128 frames every 64, positions exactly
   as stored (no centring, no rotation).

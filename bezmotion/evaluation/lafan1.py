@@ -6,7 +6,9 @@ that sees only the past context (``(B, 10, 22, 4)`` local rotations, ``(B, 10, 3
 positions), the target key frame (``(B, 22, 4)``, ``(B, 3)``) and the transition length
 ``n``, and returns the ``n`` transition frames (``(B, n, 22, 4)``, ``(B, n, 3)``).
 Ground truth and prediction go through FK with the real root position and the constant
-offsets, and L2Q, L2P and NPSS are computed in float64 (``../shared/REFERENCE.md`` §1).
+offsets, and L2Q, L2P and NPSS are computed in float64, as the official Ubisoft La Forge
+evaluator does (github.com/ubisoft/ubisoft-laforge-animation-dataset: ``evaluate.py``,
+``lafan1/benchmarks.py``).
 """
 
 from __future__ import annotations
