@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from helpers import assert_same_rotation, np_forward_kinematics, random_quat_np
-from ik.demo_poses import fk, frame, motion_to_pose, np_pose_positions, np_rot6d, targets_of
+from ik.demo_poses import clip, fk, frame, motion_to_pose, np_pose_positions, np_rot6d, targets_of  # noqa: F401  (clip: a fixture)
 
 from bezmotion.geometry.skeleton import Skeleton
 from bezmotion.ik.protocol import Character, pose_from_global
