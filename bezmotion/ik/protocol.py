@@ -39,7 +39,8 @@ class IKTargets(NamedTuple):
     Attributes:
       position: ``(*batch, 6, 3)`` world positions (cm), :data:`CHARACTERISTIC_JOINTS` order.
       rot6d: ``(*batch, 6, 6)`` global orientations in the *target character's* joint
-        convention (see :func:`bezmotion.pipeline.inbetweening.orientation_offsets` for transfers).
+        convention (a BMM trained on another skeleton is mapped to it by
+        :class:`bezmotion.pipeline.transfer.Transfer`'s per-joint ``rot_offset``).
     """
 
     position: Float[Array, "*batch 6 3"]

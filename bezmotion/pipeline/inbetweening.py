@@ -27,8 +27,7 @@ from bezmotion.xla_options import call_with_inference_options
 from bezmotion.bezier import BezierLayout, reconstruct_dense
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, SampledCurves, sample_curves
 from bezmotion.data.characteristic import HIPS
-from bezmotion.geometry.rotations import quat_from_rot6d, rot6d_from_quat
-from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, pose_fk, pose_local, targets_from_pose
+from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, targets_from_pose
 from bezmotion.pipeline.transfer import Transfer, floor_anchor, curves_to_target, to_source_space
 
 

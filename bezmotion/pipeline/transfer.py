@@ -19,8 +19,9 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from bezmotion.bmm.sampling import SampledCurves
-from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
+from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.geometry.rotations import matrix_from_quat, quat_conjugate, quat_from_matrix, quat_from_rot6d, quat_mul, rot6d_from_quat
+from bezmotion.ik.protocol import Character, Pose, targets_from_pose
 
 LEFT = tuple(CHARACTERISTIC_JOINTS.index(j) for j in ("left_hand", "left_foot"))
 RIGHT = tuple(CHARACTERISTIC_JOINTS.index(j) for j in ("right_hand", "right_foot"))
@@ -61,7 +62,7 @@ class CharacterProfile:
     """
 
     height: float
-    mean_orientation: np.ndarray
+    mean_orientation: Float[np.ndarray, "6 4"]
 
     @classmethod
     def from_poses(cls, character: Character, poses: Pose) -> CharacterProfile:
