@@ -26,23 +26,16 @@ import numpy as np
 
 from _common import machine_info, report, time_jitted
 from bezmotion.bezier import BezierLayout, fit_curves
-from bezmotion.data import bandai_namco, lafan1
-from bezmotion.data.curves import (
-    DEFAULT_OFFSET,
-    DEFAULT_WINDOW,
-    CurveDataset,
-    MotionClips,
-    build_curve_dataset,
-    characteristic_windows,
-)
+from bezmotion.data.corpus import SPLITS, motion_clips
+from bezmotion.data.curves import DEFAULT_OFFSET, DEFAULT_WINDOW, CurveDataset, build_curve_dataset, characteristic_windows
+from bezmotion.data.sources import default_source, load_corpus
 
 
 def windows_for_throughput(data: Path | None, count: int, window: int) -> tuple[np.ndarray, str]:
     """``(count, 6, window, 3)`` float32 trajectories: real LaFAN1 windows (tiled) or random walks."""
-    zip_path = data / "lafan1" / "lafan1-subset.zip" if data else None
+    zip_path = default_source("lafan1", data) if data else None
     if zip_path is not None and zip_path.exists():
-        corpus = lafan1.load_lafan1(zip_path)
-        clips = MotionClips.from_lafan1(corpus, corpus.files_of(lafan1.TEST_SUBJECTS))
+        clips = motion_clips(load_corpus("lafan1", source=zip_path), "validation")
         pos, _, _, _ = characteristic_windows(clips, "lafan1", window=window)
         pos = np.resize(pos, (count,) + pos.shape[1:])
         source = "LaFAN1 subject 5 windows"
@@ -67,28 +60,18 @@ def throughput(points: np.ndarray, stride: int, repeats: int) -> dict:
 def dataset_build(data: Path) -> dict:
     """Build every curve dataset from the cached corpora, timing each stage."""
     results = {}
-    corpora = {
-        "lafan1": (lafan1.load_lafan1, data / "lafan1" / "lafan1-subset.zip"),
-        "bandai_namco": (functools.partial(bandai_namco.load_bandai_namco, progress=False), data / "bandai-namco" / "bandai-namco-2.tar.xz"),
-    }  # fmt: skip
-    for name, (load, path) in corpora.items():
+    for name in ("lafan1", "bandai_namco"):
+        path = default_source(name, data)
         if not path.exists():
             continue
         t0 = time.perf_counter()
-        corpus = load(path)
+        corpus = load_corpus(name, source=path, progress=False)
         load_s = time.perf_counter() - t0
-        if name == "lafan1":
-            splits = {"train": corpus.files_of(lafan1.TRAIN_SUBJECTS), "validation": corpus.files_of(lafan1.TEST_SUBJECTS)}
-            make = MotionClips.from_lafan1
-        else:
-            train, validation = bandai_namco.bandai_namco_split(corpus)
-            splits = {"train": train, "validation": validation}
-            make = MotionClips.from_bandai_namco
-        for split, members in splits.items():
+        for split in SPLITS:
             t0 = time.perf_counter()
-            clips = make(corpus, members)
+            clips = motion_clips(corpus, split)
             t1 = time.perf_counter()
-            dataset = build_curve_dataset(clips, name, progress=False)
+            dataset = build_curve_dataset(clips, corpus.characteristic_map, progress=False)
             t2 = time.perf_counter()
             with tempfile.TemporaryDirectory() as tmp:
                 path_npz = Path(tmp) / "curves.npz"

@@ -34,8 +34,9 @@ from bezmotion.data.anidance import load_anidance
 from bezmotion.data.bandai_namco import load_bandai_namco
 from bezmotion.data.bvh import read_bvh
 from bezmotion.data.cache import CACHE_ENV
+from bezmotion.data.sources import data_dir
 
-SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
+SHARED_DATA = data_dir()
 LAFAN1_MEMBER = "walk4_subject1.bvh"
 
 

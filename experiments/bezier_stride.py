@@ -26,7 +26,8 @@ from bezmotion.io import save_figure, write_results
 from bezmotion.bezier import BezierLayout, evaluate, fit_curves
 from bezmotion.data import lafan1
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
-from bezmotion.data.curves import DEFAULT_OFFSET, DEFAULT_WINDOW, MotionClips, characteristic_windows
+from bezmotion.data.corpus import motion_clips
+from bezmotion.data.curves import DEFAULT_OFFSET, DEFAULT_WINDOW, characteristic_windows
 
 VARIANTS = {"pinned": True, "free": False}  # name -> pin_positions
 
@@ -106,7 +107,7 @@ def main(argv: list[str] | None = None) -> dict:
 
     start = time.perf_counter()
     corpus = lafan1.load_lafan1(args.data, use_cache=not args.no_cache)
-    clips = MotionClips.from_lafan1(corpus, corpus.files_of(lafan1.TEST_SUBJECTS))
+    clips = motion_clips(corpus, "validation")
     positions, _, _, _ = characteristic_windows(clips, "lafan1", window=args.window, offset=args.offset)
     strides = list(range(1, args.max_stride + 1))
     variants = stride_errors(positions, strides)

@@ -46,19 +46,15 @@ from bezmotion.bmm.evaluation import (
 from bezmotion.bezier import BezierLayout
 from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.data.cache import cache_dir
-from bezmotion.data.curves import CurveDataset, bandai_namco_curve_dataset, lafan1_curve_dataset
+from bezmotion.data.curves import CurveDataset, curve_dataset
+from bezmotion.data.sources import default_source, load_corpus
 from bezmotion.bmm.denoiser import PREDICTIONS, BMMConfig
 from bezmotion.bmm.features import FeatureStats
 from bezmotion.bmm.sampling import BezierMotionModel, sample_curves, save_model
 from bezmotion.bmm.train import CurveArrays, BMMTrainConfig, init_bmm_train_states, make_bmm_train_step
 from bezmotion.training import compile_train_step, count_parameters, data_mesh, run_training
 
-SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-DEFAULT_DATA = {
-    "lafan1": SHARED_DATA / "lafan1" / "lafan1-subset.zip",
-    "bandai_namco": SHARED_DATA / "bandai-namco" / "bandai-namco-2.tar.xz",
-}
-CURVE_DATASETS = {"lafan1": lafan1_curve_dataset, "bandai_namco": bandai_namco_curve_dataset}
+DEFAULT_DATA = {name: default_source(name) for name in ("lafan1", "bandai_namco")}
 STEP_COUNTS = (5, 10, 25, 50, 100)
 CONFIGS = {
     "cpu": BMMConfig.cpu,
@@ -184,11 +180,12 @@ def main(argv: list[str] | None = None) -> dict:
         parser.error("--bandai-namco adds Bandai-Namco to LaFAN1 training; with --corpus bandai_namco it is already the corpus")
 
     started = time.perf_counter()
-    curve_dataset = CURVE_DATASETS[args.corpus]
-    train_set = curve_dataset(args.data, "train", progress=not args.no_progress)
+    corpus = load_corpus(args.corpus, source=args.data, progress=not args.no_progress)
+    train_set = curve_dataset(corpus, "train", progress=not args.no_progress)
     if args.bandai_namco:
-        train_set = concat_datasets([train_set, bandai_namco_curve_dataset(args.bandai_namco, "train", progress=not args.no_progress)])
-    val_set = curve_dataset(args.data, "validation", progress=not args.no_progress)
+        extra = load_corpus("bandai_namco", source=args.bandai_namco, progress=not args.no_progress)
+        train_set = concat_datasets([train_set, curve_dataset(extra, "train", progress=not args.no_progress)])
+    val_set = curve_dataset(corpus, "validation", progress=not args.no_progress)
     stats = FeatureStats.from_dataset(train_set)
     model_config = CONFIGS[args.config](prediction=args.prediction)
     train_config = BMMTrainConfig(

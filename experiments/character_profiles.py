@@ -16,22 +16,18 @@ from pathlib import Path
 import jax.numpy as jnp
 
 from bezmotion.io import atomic_write_text
-from bezmotion.data.curves import bandai_namco_clips, lafan1_clips
+from bezmotion.data.corpus import motion_clips
+from bezmotion.data.sources import load_corpus
 from bezmotion.geometry.skeleton import Skeleton
 from bezmotion.ik.protocol import Character, pose_from_motion
 from bezmotion.pipeline import CharacterProfile
 
-SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-SOURCES = {
-    "lafan1": (lafan1_clips, SHARED_DATA / "lafan1" / "lafan1-subset.zip"),
-    "bandai_namco": (bandai_namco_clips, SHARED_DATA / "bandai-namco" / "bandai-namco-2.tar.xz"),
-}
+SOURCES = ("lafan1", "bandai_namco")
 
 
-def corpus_profile(corpus: str, source: Path, every: int = 10) -> tuple[Character, CharacterProfile]:
+def corpus_profile(corpus: str, every: int = 10) -> tuple[Character, CharacterProfile]:
     """The character (first clip's offsets) and profile of ``corpus``'s training clips."""
-    load, _ = SOURCES[corpus]
-    clips = load(source, "train")
+    clips = motion_clips(load_corpus(corpus), "train")
     offsets = clips.pos_local[0].copy()
     skeleton = Skeleton.from_parents(clips.parents, clips.joint_names, offsets)
     character = Character.from_skeleton(skeleton, corpus)
@@ -50,7 +46,7 @@ def main(argv: list[str] | None = None) -> None:
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     for corpus in args.corpora:
-        _, profile = corpus_profile(corpus, SOURCES[corpus][1])
+        _, profile = corpus_profile(corpus)
         atomic_write_text(out / f"{corpus}.json", json.dumps({"corpus": corpus, **profile.to_json()}, indent=2) + "\n")
         print(f"{corpus}: height {profile.height:.2f} cm -> {out / f'{corpus}.json'}")
 

@@ -29,25 +29,23 @@ from bezmotion.io import write_results
 from bezmotion.assets import PROFILES_DIR
 from bezmotion.bmm.evaluation import floor_height_from, make_eval_set
 from bezmotion.data.cache import cache_dir
-from bezmotion.data.curves import bandai_namco_clips, bandai_namco_curve_dataset, lafan1_clips, lafan1_curve_dataset
+from bezmotion.data.corpus import motion_clips
+from bezmotion.data.curves import curve_dataset
+from bezmotion.data.sources import load_corpus
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik
 from bezmotion.pipeline import CharacterProfile, Transfer
 from bezmotion.pipeline.evaluation import PipelineMetricsConfig, evaluate_pipeline, ground_truth_pose_metrics, window_poses
 from bezmotion.bmm.sampling import load_model
 
-SHARED_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data"
-CORPORA = {
-    "lafan1": (lafan1_curve_dataset, lafan1_clips, SHARED_DATA / "lafan1" / "lafan1-subset.zip"),
-    "bandai_namco": (bandai_namco_curve_dataset, bandai_namco_clips, SHARED_DATA / "bandai-namco" / "bandai-namco-2.tar.xz"),
-}
+CORPORA = ("lafan1", "bandai_namco")
 PAPER_LAFAN1 = {"handles_error_cm": 0.8914, "ood_handles_error_cm": 1.7090, "foot_skating_ratio": 0.2176, "gt_foot_skating_ratio": 0.1209}
 
 
 def evaluate_target(args, target: str, bmms: dict, profiles: dict) -> dict:
-    curve_dataset, clips_of, source = CORPORA[target]
-    val_set = curve_dataset(source, "validation", progress=False)
-    clips = clips_of(source, "validation")
+    corpus = load_corpus(target, progress=False)
+    val_set = curve_dataset(corpus, "validation", progress=False)
+    clips = motion_clips(corpus, "validation")
     ik_model = load_ik_model(Path(args.ik_dir.format(corpus=target)))
     character = ik_model.character
     eval_set = make_eval_set(val_set, key=jax.random.key(1234), num_windows=args.windows or None)

@@ -64,6 +64,7 @@ from bezmotion.evaluation.anidance import (
     in_stored_layout,
 )
 from bezmotion.data.anidance import anidance_statistics, anidance_windows, load_anidance
+from bezmotion.data.sources import default_source
 from _delta import (
     MODE_NAMES,
     ModeRun,
@@ -77,7 +78,7 @@ from _delta import (
 from bezmotion.delta.train import DeltaPositionArrays, DeltaTrainConfig
 from bezmotion.delta.model import TABLE3_MODES, DeltaConfig, count_parameters, delta_position_inbetweener
 
-DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "anidance" / "anidance.tar.xz"
+DEFAULT_DATA = default_source("anidance")
 TRAIN_WINDOW = 128
 N_PAST = 1
 NUM_POINTS = 24

@@ -27,12 +27,12 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import time
-from pathlib import Path
 
 import jax
 
 from bezmotion.io import write_results
 from bezmotion.data.lafan1 import TEST_SUBJECTS, TRAIN_SUBJECTS, lafan1_statistics, lafan1_windows, load_lafan1
+from bezmotion.data.sources import default_source
 from _delta import (
     MODE_NAMES,
     ModeRun,
@@ -55,7 +55,7 @@ from bezmotion.evaluation.lafan1 import (
 )
 from bezmotion.delta.model import TABLE3_MODES, DeltaConfig, count_parameters, delta_inbetweener
 
-DEFAULT_DATA = Path(__file__).resolve().parents[1].parent / "shared" / "data" / "lafan1" / "lafan1-subset.zip"
+DEFAULT_DATA = default_source("lafan1")
 TRAIN_WINDOW, TRAIN_OFFSET = 50, 20
 CONFIGS = {
     "cpu": DeltaConfig.cpu,

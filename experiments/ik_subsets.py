@@ -37,10 +37,11 @@ import numpy as np
 
 from bezmotion.io import save_figure, write_results
 from bezmotion.bezier import BezierLayout, fit_curves, reconstruct_dense
-from bezmotion.data import lafan1
 from bezmotion.data.cache import cache_dir
+from bezmotion.data.lafan1 import TEST_SUBJECTS
+from bezmotion.data.sources import default_source, load_corpus
 from bezmotion.geometry.rotations import safe_norm
-from bezmotion.ik.frames import default_source, lafan1_clip_starts, lafan1_frames
+from bezmotion.ik.frames import corpus_frame_starts, corpus_frames
 from bezmotion.ik.protocol import IKTargets, Pose, pose_fk, targets_from_pose
 from bezmotion.ik.protores import ProtoResModel, load_ik_model, protores_ik_fn
 from bezmotion.training import count_parameters
@@ -197,22 +198,22 @@ def main(argv: list[str] | None = None) -> dict:
         raise SystemExit(f"{model_dir} holds a learned IK for {model.character.name!r}, not LaFAN1")
     training = json.loads((model_dir.parent / "training.json").read_text()) if (model_dir.parent / "training.json").exists() else {}
 
-    corpus = lafan1.load_lafan1(data)
-    _, table_poses = lafan1_frames(corpus, "validation", frame_step=args.eval_step)
+    corpus = load_corpus("lafan1", source=data)
+    _, table_poses = corpus_frames(corpus, "validation", frame_step=args.eval_step)
     print(f"Table 2 analogue on {table_poses.root_pos.shape[0]} subject-5 frames")
     rows = table2(model, table_poses)
     for name, row in rows.items():
         print(f"  {name}: {row['mpjpe_cm']:.4f} cm (paper {row['paper_cm']})")
 
-    _, poses = lafan1_frames(corpus, "validation")
-    frames = windows_of(poses, lafan1_clip_starts(corpus, "validation"), WINDOW, args.offset)
+    _, poses = corpus_frames(corpus, "validation")
+    frames = windows_of(poses, corpus_frame_starts(corpus, "validation"), WINDOW, args.offset)
     print(f"Figure 8 analogue on {len(frames)} windows")
     f8 = figure8(model, poses, frames, strides)
     results = {
         "table2": rows,
         "table2_frames": int(table_poses.root_pos.shape[0]),
         "figure8": {**f8, "strides": list(strides), "n_windows": int(len(frames)), "offset": args.offset, "window": WINDOW},
-        "subjects": list(lafan1.TEST_SUBJECTS),
+        "subjects": list(TEST_SUBJECTS),
         "metric": "MPJPE: mean over joints (all 22) and frames of the Euclidean joint position error (cm)",
         "model": {
             "dir": str(model_dir),

@@ -30,7 +30,8 @@ import numpy as np
 from bezmotion.io import atomic_write_text
 from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.data.cache import cache_dir
-from bezmotion.ik.frames import CORPORA, load_frames
+from bezmotion.data.sources import CORPORA, load_corpus
+from bezmotion.ik.frames import corpus_frames
 from bezmotion.ik.protores import ProtoResConfig, ProtoResModel, character_to_json, save_ik_model
 from bezmotion.ik.training import (
     CHARACTERISTIC,
@@ -73,7 +74,8 @@ def train_ik(args: argparse.Namespace) -> dict:
     """Train (or resume) and save; returns the summary written to ``training.json``."""
     out_dir = Path(args.out_dir).expanduser() if args.out_dir else default_run_dir(args.corpus)
     started = time.perf_counter()
-    character, poses = load_frames(args.corpus, "train", source=args.data, frame_step=args.frame_step, progress=not args.no_progress)
+    corpus = load_corpus(args.corpus, source=args.data, progress=not args.no_progress)
+    character, poses = corpus_frames(corpus, "train", frame_step=args.frame_step)
     print(f"{args.corpus}: {poses.root_pos.shape[0]} training frames of {character.num_joints} joints ({time.perf_counter() - started:.1f} s)")
     overrides = {k: v for k, v in (("output_rotations", args.output_rotations), ("effector_skip", args.effector_skip)) if v is not None}
     model_config = CONFIGS[args.config](character.num_joints, **overrides)
@@ -120,7 +122,7 @@ def train_ik(args: argparse.Namespace) -> dict:
     model = ProtoResModel(state.params, character, graphdef, model_config)
     save_ik_model(out_dir / "model", model)
 
-    _, validation = load_frames(args.corpus, "validation", source=args.data, frame_step=args.eval_step, progress=False)
+    _, validation = corpus_frames(corpus, "validation", frame_step=args.eval_step)
     errors = {name: float(np.mean(effector_mpjpe(model, validation, joints))) for name, joints in configurations.items()}
     errors[CHARACTERISTIC + " (positions only)"] = float(np.mean(effector_mpjpe(model, validation, configurations[CHARACTERISTIC], rotations=False)))
     summary = {

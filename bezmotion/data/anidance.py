@@ -29,6 +29,7 @@ import os
 import warnings
 from collections.abc import Mapping
 from pathlib import Path, PurePosixPath
+from typing import ClassVar, NoReturn
 
 import numpy as np
 from jaxtyping import Float, Int
@@ -36,6 +37,7 @@ from tqdm.auto import tqdm
 
 from bezmotion.data._members import check_source, count_members, fingerprint_inputs, iter_members
 from bezmotion.data.cache import cached_arrays, fingerprint
+from bezmotion.data.corpus import check_split, no_source_key
 from bezmotion.data.windows import sliding_window_starts
 
 FPS = 25
@@ -56,12 +58,18 @@ _FORMAT_VERSION = 1  # bump when the cached arrays change meaning
 class AnidanceCorpus:
     """The split's present sequences, sorted by name, frames concatenated along time.
 
+    A positions-only :class:`~bezmotion.data.corpus.Corpus`: 24 points per frame with no
+    hierarchy and no rotations, so ``skeleton`` and ``characteristic_map`` are ``None`` and
+    :meth:`motion` raises; windows come from :func:`anidance_windows`. Split: the
+    benchmark's ``split.json``.
+
     Attributes:
       names: file stems, e.g. ``"dance_w_8"``.
       is_validation: ``(files,)`` whether each file is in the benchmark's validation split.
       starts: ``(files + 1,)`` file ``i`` is frames ``starts[i]:starts[i+1]``.
       positions: ``(frames, 24, 3)`` point positions as stored (cm), center first.
       missing: split entries absent from the source (as written in ``split.json``).
+      cache_inputs: the files the corpus was read from (hashed into cache keys).
     """
 
     names: tuple[str, ...]
@@ -69,9 +77,39 @@ class AnidanceCorpus:
     starts: np.ndarray
     positions: np.ndarray
     missing: tuple[str, ...] = ()
+    cache_inputs: tuple[Path, ...] = ()
+
+    name: ClassVar[str] = "anidance"
+    skeleton: ClassVar[None] = None
+    characteristic_map: ClassVar[None] = None
+    end_sites: ClassVar[tuple] = ()
+    fps: ClassVar[float] = float(FPS)
 
     def __len__(self) -> int:
         return len(self.names)
+
+    @property
+    def clip_names(self) -> tuple[str, ...]:
+        return self.names
+
+    def labels(self, index: int) -> dict[str, str | int]:
+        """``{"file", "split"}`` of one file."""
+        return {"file": self.names[index], "split": "validation" if self.is_validation[index] else "train"}
+
+    def split(self, split: str) -> np.ndarray:
+        """File indices of the benchmark's ``"train"`` or ``"validation"`` files."""
+        check_split(split)
+        return self.indices(split == "validation")
+
+    def motion(self, indices) -> NoReturn:
+        """Always raises: Anidance has joint positions only (see :attr:`positions`)."""
+        raise ValueError("anidance: the corpus stores joint positions only (no hierarchy or rotations); use anidance_windows")
+
+    def source_key(self, **params) -> str:
+        """:func:`~bezmotion.data.cache.fingerprint` of the archive (or the split and CSV files of a folder)."""
+        if not self.cache_inputs:
+            raise no_source_key(self.name)
+        return fingerprint(*self.cache_inputs, **params)
 
     def sequence(self, index: int | np.integer) -> Float[np.ndarray, "frames 24 3"]:
         """Positions ``(frames, 24, 3)`` of one file."""
@@ -248,6 +286,7 @@ def load_anidance(source: str | os.PathLike, *, use_cache: bool = True, progress
         starts=arrays["starts"],
         positions=arrays["positions"],
         missing=tuple(str(m) for m in arrays["missing"]),
+        cache_inputs=tuple(inputs),
     )
 
 

@@ -1,19 +1,23 @@
-"""The Bandai-Namco-Research-Motiondataset-2 corpus (Bandai Namco Research Inc., CC BY-NC 4.0).
+"""The Bandai-Namco-Research-Motiondataset corpora (Bandai Namco Research Inc., CC BY-NC 4.0).
 
-Reads the 2,902 BVH clips and their JSON labels straight from the published
-``.tar.xz`` (streamed, nothing extracted) or from an extracted copy (the dataset folder
-or its parent), checks them, and caches the parsed corpus on disk so later loads take
-about a second.
+Reads any release ``Bandai-Namco-Research-Motiondataset-N`` laid out like release 2:
+the BVH clips and their JSON labels straight from the published ``.tar.xz`` (streamed,
+nothing extracted) or from an extracted copy (the dataset folder or its parent), checks
+them, and caches the parsed corpus on disk so later loads take about a second.
 
-What the data looks like (checked on all 2,902 clips):
+What release 2 looks like (checked on all 2,902 clips); other releases follow the same
+naming with their own number ``N``:
 
-- Clip names are ``dataset-2_{content}_{style}_{id}``, ``id`` a 3-digit take number
-  counting 1, 2, … within each of the 70 content × style classes (17 to 104 takes each).
+- Clip names are ``dataset-N_{content}_{style}_{id}`` (``dataset-2_walk_normal_001``);
+  content and style may contain hyphens (``walk-turn-left``, ``not-confident``), never
+  underscores. ``id`` is a 3-digit take number counting 1, 2, … within each of the 70
+  content × style classes (17 to 104 takes each).
 - The JSON labels ``{"content": i, "style": j}`` are **0-based** line indices into
   ``cfg/content_label.txt`` / ``cfg/style_label.txt``, whose lines read
-  ``dataset-2_walk`` etc. They agree with the file names on every clip; the loader
-  checks that and raises ``ValueError`` on any disagreement. Labels are returned
-  without the ``dataset-2_`` prefix (``"walk"``, ``"normal"``).
+  ``dataset-N_walk`` etc. They agree with the file names on every clip; the loader
+  checks that and raises ``ValueError`` on any disagreement. The release prefix
+  (``dataset-N``) is taken from the clip names, and every clip and label line must carry
+  the same one. Labels are returned without it (``"walk"``, ``"normal"``).
 - Every clip has the same hierarchy: 22 joints rooted at ``joint_Root``, 6 channels
   (``Xposition Yposition Zposition Zrotation Xrotation Yrotation``) on every joint,
   4 zero-length End Sites, 30 fps. ``joint_Root`` stays at the origin with identity
@@ -35,8 +39,9 @@ import dataclasses
 import json
 import os
 import re
-from collections.abc import Collection, Iterator, Mapping
+from collections.abc import Collection, Iterator, Mapping, Sequence
 from pathlib import Path, PurePosixPath
+from typing import ClassVar
 
 import numpy as np
 from tqdm.auto import tqdm
@@ -44,15 +49,22 @@ from tqdm.auto import tqdm
 from bezmotion.data._members import check_source, count_members, fingerprint_inputs, iter_members
 from bezmotion.data.bvh import BvhMotion, parse_bvh
 from bezmotion.data.cache import cached_arrays, fingerprint
+from bezmotion.data.corpus import (
+    MotionClips,
+    check_split,
+    gather_clips,
+    hierarchy_arrays,
+    hierarchy_from_arrays,
+    no_source_key,
+)
 from bezmotion.geometry.skeleton import Skeleton
 
 FPS = 30
 VALIDATION_EVERY = 10  # clip ids divisible by this are validation clips
-LABEL_PREFIX = "dataset-2_"
 _MOTION_PATTERNS = ("data/*.bvh", "data/*.json")
 _LABEL_FILES = {"content": "cfg/content_label.txt", "style": "cfg/style_label.txt"}
 _PATTERNS = _MOTION_PATTERNS + tuple(_LABEL_FILES.values())
-_CLIP_NAME = re.compile(r"dataset-2_(?P<content>[a-z-]+)_(?P<style>[a-z]+)_(?P<clip_id>\d+)")
+_CLIP_NAME = re.compile(r"(?P<release>dataset-\d+)_(?P<content>[a-z0-9-]+)_(?P<style>[a-z0-9-]+)_(?P<clip_id>\d+)")
 _FORMAT_VERSION = 1  # bump when the cached arrays change meaning
 
 
@@ -87,7 +99,12 @@ class BandaiNamcoClip:
 
 @dataclasses.dataclass(frozen=True)
 class BandaiNamcoCorpus:
-    """Parsed clips sorted by name, frames concatenated along time (float64).
+    """Parsed clips sorted by name, frames concatenated along time (float64); a
+    :class:`~bezmotion.data.corpus.Corpus`.
+
+    Split: :meth:`split` (every 10th take of each class validates). Reference skeleton:
+    the first clip's (clips differ only in the ``Hips`` OFFSET, which the animated
+    ``Hips`` translation overrides).
 
     Attributes:
       names: clip names (file stems), sorted.
@@ -102,6 +119,9 @@ class BandaiNamcoCorpus:
       parents, joint_names: the shared hierarchy.
       channels: the shared channel list of every joint (to write clips back as BVH).
       end_sites: the shared End Sites, ``(parent joint, offset)``.
+      cache_inputs: the files the corpus was read from (hashed into cache keys).
+      clip_selection: the take numbers kept by ``load_bandai_namco(clip_ids=…)``, or
+        ``None`` for every take.
     """
 
     names: tuple[str, ...]
@@ -119,6 +139,11 @@ class BandaiNamcoCorpus:
     joint_names: tuple[str, ...]
     channels: tuple[tuple[str, ...], ...]
     end_sites: tuple[tuple[int, tuple[float, float, float]], ...]
+    cache_inputs: tuple[Path, ...] = ()
+    clip_selection: tuple[int, ...] | None = None
+
+    name: ClassVar[str] = "bandai_namco"
+    characteristic_map: ClassVar[str] = "bandai_namco"
 
     def __len__(self) -> int:
         return len(self.names)
@@ -127,9 +152,68 @@ class BandaiNamcoCorpus:
     def num_frames(self) -> int:
         return self.quat_local.shape[0]
 
-    def skeleton(self, clip_index: int | np.integer = 0) -> Skeleton:
+    @property
+    def release(self) -> str:
+        """The release prefix of the clip names, e.g. ``"dataset-2"``."""
+        return self.names[0].split("_", 1)[0]
+
+    @property
+    def clip_names(self) -> tuple[str, ...]:
+        return self.names
+
+    @property
+    def fps(self) -> float:
+        """Frames per second of the first clip (:meth:`motion` checks a selection shares one)."""
+        return round(1.0 / float(self.frame_times[0]), 6)
+
+    @property
+    def skeleton(self) -> Skeleton:
+        """The reference skeleton: the first clip's."""
+        return self.clip_skeleton(0)
+
+    def clip_skeleton(self, clip_index: int | np.integer) -> Skeleton:
         """The shared hierarchy with one clip's offsets (NumPy float64); they differ only at ``Hips``."""
         return Skeleton(self.parents, self.joint_names, self.offsets[clip_index])
+
+    def labels(self, index: int) -> dict[str, str | int]:
+        """``{"file", "content", "style", "take"}`` of one clip."""
+        clip = self.clip(index)
+        return {"file": clip.name, "content": clip.content, "style": clip.style, "take": clip.clip_id}
+
+    def split(self, split: str) -> np.ndarray:
+        """Deterministic split by clip: the clip indices of ``"train"`` or ``"validation"``.
+
+        The dataset publishes no split and no performer ids. Every 10th take of each
+        content × style class (ids 10, 20, …) goes to validation: 262 of release 2's
+        2,902 clips (9.0 %), at least one of each of the 70 classes (the smallest has 17
+        takes), so both labels are stratified. The rule looks only at a clip's own name,
+        so it does not depend on archive order or on which subset was loaded, and whole
+        clips never straddle the split. Takes of one class share a performer and session,
+        so this measures generalisation to unseen takes, not to unseen performers.
+        """
+        check_split(split)
+        is_val = np.asarray(self.clip_ids) % VALIDATION_EVERY == 0
+        return np.flatnonzero(is_val if split == "validation" else ~is_val)
+
+    def motion(self, indices: Sequence[int] | np.ndarray) -> MotionClips:
+        """The given clips (indices into the corpus, in the order given); they must share a frame time."""
+        clips = [int(i) for i in indices]
+        frames, starts = gather_clips(self.starts, clips)
+        frame_times = np.unique(self.frame_times[clips]) if clips else np.asarray([1.0 / FPS])
+        if len(frame_times) > 1:
+            raise ValueError(f"the selected Bandai-Namco clips mix frame times {frame_times.tolist()}")
+        fps = 1.0 / float(frame_times[0])
+        return MotionClips(
+            self.parents, self.joint_names, self.quat_local[frames], self.pos_local[frames], starts, round(fps, 6),
+        )  # fmt: skip
+
+    def source_key(self, **params) -> str:
+        """:func:`~bezmotion.data.cache.fingerprint` of the archive (or the motion and label
+        files of a folder) and the take selection, with ``params``."""
+        if not self.cache_inputs:
+            raise no_source_key(self.name)
+        selection = {} if self.clip_selection is None else {"clip_ids": list(self.clip_selection)}
+        return fingerprint(*self.cache_inputs, **params, **selection)
 
     def clip(self, index: int | np.integer) -> BandaiNamcoClip:
         """The ``index``-th clip (in name order)."""
@@ -160,28 +244,13 @@ class BandaiNamcoCorpus:
         """One clip as a :class:`BvhMotion`, ready for :func:`~bezmotion.data.bvh.write_bvh`."""
         clip = self.clip(index)
         return BvhMotion(
-            self.skeleton(index), clip.quat_local, clip.pos_local, self.channels, clip.frame_time, self.end_sites
+            self.clip_skeleton(index), clip.quat_local, clip.pos_local, self.channels, clip.frame_time, self.end_sites
         )
 
 
 def is_validation_clip(clip_id: int) -> bool:
     """Whether a clip with this take number belongs to the validation split (every 10th)."""
     return clip_id % VALIDATION_EVERY == 0
-
-
-def bandai_namco_split(corpus: BandaiNamcoCorpus) -> tuple[np.ndarray, np.ndarray]:
-    """Deterministic train / validation split by clip: ``(train_indices, validation_indices)``.
-
-    The dataset publishes no split and no performer ids. Every 10th take of each content
-    × style class (ids 10, 20, …) goes to validation: 262 of the 2,902 clips (9.0 %),
-    at least one of each of the 70 classes (the smallest has 17 takes), so both labels
-    are stratified. The rule looks only at a clip's own name, so it does not depend on
-    archive order or on which subset was loaded, and whole clips never straddle the
-    split. Takes of one class share a performer and session, so this measures
-    generalisation to unseen takes, not to unseen performers.
-    """
-    is_val = np.asarray(corpus.clip_ids) % VALIDATION_EVERY == 0
-    return np.flatnonzero(~is_val), np.flatnonzero(is_val)
 
 
 # ------------------------------------------------------------------------------- loading
@@ -210,17 +279,14 @@ def load_bandai_namco(
     """
     source = check_source(source, "Bandai-Namco")
     selected = None if clip_ids is None else sorted({int(i) for i in clip_ids})
-    key = source_fingerprint(source, corpus="bandai-namco", version=_FORMAT_VERSION, clip_ids=selected)
+    inputs = _fingerprint_inputs(source)
+    key = fingerprint(*inputs, corpus="bandai-namco", version=_FORMAT_VERSION, clip_ids=selected)
     arrays = cached_arrays(
         "bandai-namco", key, lambda: _parse_corpus(source, selected, progress=progress), use_cache=use_cache
     )
-    return _corpus_from_arrays(arrays)
-
-
-def source_fingerprint(source: str | os.PathLike, **params) -> str:
-    """Cache key of a Bandai-Namco source (the archive, or the motion and label files of a
-    folder) together with ``params``; see :func:`bezmotion.data.cache.fingerprint`."""
-    return fingerprint(*_fingerprint_inputs(check_source(source, "Bandai-Namco")), **params)
+    corpus = _corpus_from_arrays(arrays)
+    selection = None if selected is None else tuple(selected)
+    return dataclasses.replace(corpus, cache_inputs=tuple(inputs), clip_selection=selection)
 
 
 def _fingerprint_inputs(source: Path) -> list[Path]:
@@ -230,11 +296,12 @@ def _fingerprint_inputs(source: Path) -> list[Path]:
     return inputs
 
 
-def _parse_clip_name(name: str, where: str) -> tuple[str, str, int]:
+def _parse_clip_name(name: str, where: str) -> tuple[str, str, str, int]:
+    """``(release, content, style, take)`` of a clip name such as ``dataset-2_walk_normal_001``."""
     match = _CLIP_NAME.fullmatch(name)
     if match is None:
-        raise ValueError(f"{where}: clip names look like 'dataset-2_<content>_<style>_<id>', got {name!r}")
-    return match["content"], match["style"], int(match["clip_id"])
+        raise ValueError(f"{where}: clip names look like 'dataset-<N>_<content>_<style>_<id>', got {name!r}")
+    return match["release"], match["content"], match["style"], int(match["clip_id"])
 
 
 def _decode(data: bytes, where: str) -> str:
@@ -273,7 +340,7 @@ def _read_members(source: Path, selected: list[int] | None, progress: bool):
                     raise ValueError(f"{source}: more than one {rel} found (the last at {path})")
                 label_files[field] = _decode(data, where).split()
                 continue
-            _, _, clip_id = _parse_clip_name(path.stem, where)
+            *_, clip_id = _parse_clip_name(path.stem, where)
             if wanted is not None and clip_id not in wanted:
                 continue
             if path.name in seen_at:
@@ -289,12 +356,12 @@ def _read_members(source: Path, selected: list[int] | None, progress: bool):
 
 def _check_labels(source: Path, name: str, index: Mapping[str, int], label_files: Mapping[str, list[str]]) -> None:
     """The JSON indices (0-based) must name the same content and style as the file name."""
-    content, style, _ = _parse_clip_name(name, str(source))
+    release, content, style, _ = _parse_clip_name(name, str(source))
     for field, expected in (("content", content), ("style", style)):
         labels, i = label_files[field], index[field]
         if not 0 <= i < len(labels):
             raise ValueError(f"{source}: {name}.json: {field} index {i} outside 0..{len(labels) - 1}")
-        if labels[i] != LABEL_PREFIX + expected:
+        if labels[i] != f"{release}_{expected}":
             raise ValueError(
                 f"{source}: {name}.json: {field} index {i} is {labels[i]!r} but the file name says {expected!r}"
             )
@@ -316,6 +383,19 @@ def _check_same_hierarchy(
         )
 
 
+def _release_of(source: Path, names: Sequence[str], label_files: Mapping[str, list[str]]) -> str:
+    """The release prefix (``dataset-N``) shared by every clip name and label line."""
+    release = _parse_clip_name(names[0], str(source))[0]
+    for name in names:
+        if _parse_clip_name(name, str(source))[0] != release:
+            raise ValueError(f"{source}: clip {name!r} is not from release {release!r} like {names[0]!r}")
+    for field, path in _LABEL_FILES.items():
+        other = [line for line in label_files[field] if not line.startswith(f"{release}_")]
+        if other:
+            raise ValueError(f"{source}: {path}: label {other[0]!r} does not start with the clips' prefix {release + '_'!r}")
+    return release
+
+
 def _parse_corpus(source: Path, selected: list[int] | None, *, progress: bool) -> dict[str, np.ndarray]:
     motions, label_index, label_files = _read_members(source, selected, progress)
     missing_cfg = sorted(set(_LABEL_FILES) - set(label_files))
@@ -333,6 +413,7 @@ def _parse_corpus(source: Path, selected: list[int] | None, *, progress: bool) -
 
     names = sorted(motions)
     reference = motions[names[0]]
+    release = _release_of(source, names, label_files)
     for name in names:
         _check_labels(source, name, label_index[name], label_files)
         _check_same_hierarchy(source, name, motions[name], names[0], reference)
@@ -341,26 +422,20 @@ def _parse_corpus(source: Path, selected: list[int] | None, *, progress: bool) -
         "names": np.asarray(names),
         "content_ids": np.asarray([label_index[n]["content"] for n in names], np.int64),
         "style_ids": np.asarray([label_index[n]["style"] for n in names], np.int64),
-        "clip_ids": np.asarray([_parse_clip_name(n, str(source))[2] for n in names], np.int64),
-        "content_labels": np.asarray([s.removeprefix(LABEL_PREFIX) for s in label_files["content"]]),
-        "style_labels": np.asarray([s.removeprefix(LABEL_PREFIX) for s in label_files["style"]]),
+        "clip_ids": np.asarray([_parse_clip_name(n, str(source))[3] for n in names], np.int64),
+        "content_labels": np.asarray([s.removeprefix(f"{release}_") for s in label_files["content"]]),
+        "style_labels": np.asarray([s.removeprefix(f"{release}_") for s in label_files["style"]]),
         "frame_times": np.asarray([m.frame_time for m in clips], np.float64),
         "starts": np.concatenate([[0], np.cumsum([m.num_frames for m in clips])]).astype(np.int64),
         "offsets": np.stack([np.asarray(m.skeleton.offsets, np.float64) for m in clips]),
         "quat_local": np.concatenate([m.quat_local for m in clips]),
         "pos_local": np.concatenate([m.pos_local for m in clips]),
-        "parents": np.asarray(reference.skeleton.parents, np.int64),
-        "joint_names": np.asarray(reference.skeleton.names),
         "channels": np.asarray([" ".join(c) for c in reference.channels]),
-        "end_site_parents": np.asarray([p for p, _ in reference.end_sites], np.int64),
-        "end_site_offsets": np.asarray([o for _, o in reference.end_sites], np.float64).reshape(-1, 3),
+        **hierarchy_arrays(reference),
     }
 
 
 def _corpus_from_arrays(arrays: Mapping[str, np.ndarray]) -> BandaiNamcoCorpus:
-    end_sites = tuple(
-        (int(p), tuple(float(v) for v in o)) for p, o in zip(arrays["end_site_parents"], arrays["end_site_offsets"])
-    )
     return BandaiNamcoCorpus(
         names=tuple(str(n) for n in arrays["names"]),
         content_ids=arrays["content_ids"],
@@ -373,8 +448,6 @@ def _corpus_from_arrays(arrays: Mapping[str, np.ndarray]) -> BandaiNamcoCorpus:
         offsets=arrays["offsets"],
         quat_local=arrays["quat_local"],
         pos_local=arrays["pos_local"],
-        parents=tuple(int(p) for p in arrays["parents"]),
-        joint_names=tuple(str(n) for n in arrays["joint_names"]),
         channels=tuple(tuple(c.split()) for c in arrays["channels"]),
-        end_sites=end_sites,
+        **hierarchy_from_arrays(arrays),
     )

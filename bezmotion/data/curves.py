@@ -6,20 +6,20 @@ joints, translated so the hips start at the origin in XZ, labelled with foot con
 and fitted once with :func:`bezmotion.bezier.fit_curves`. Results are cached on disk
 (:mod:`bezmotion.data.cache`), so the fit runs once per corpus and configuration.
 
-Splits: LaFAN1 subjects 1–4 train and subject 5 validates (as in the paper);
-Bandai-Namco uses :func:`bezmotion.data.bandai_namco.bandai_namco_split` — every 10th take
-of each content × style class validates, whole clips on one side.
-
-Any other corpus works through :class:`MotionClips` (e.g. :meth:`MotionClips.from_bvh`)
-and :func:`build_curve_dataset` with a characteristic-joint map.
+:func:`curve_dataset` takes any :class:`~bezmotion.data.corpus.Corpus` and one of its
+official splits (LaFAN1: subjects 1–4 train, subject 5 validates, as in the paper;
+Bandai-Namco: every 10th take of each content × style class validates; a BVH folder: its
+own rule). Any other motion works through :class:`~bezmotion.data.corpus.MotionClips`
+(e.g. :meth:`~bezmotion.data.corpus.MotionClips.from_bvh`) and :func:`build_curve_dataset`
+with a characteristic-joint map.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-import os
-from collections.abc import Callable, Iterator, Mapping, Sequence
+import re
+from collections.abc import Iterator, Mapping, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -27,10 +27,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from bezmotion.bezier import DEFAULT_STRIDE, BezierLayout, fit_curves
-from bezmotion.data import bandai_namco as _bandai_namco
-from bezmotion.data import lafan1 as _lafan1
-from bezmotion.data.bvh import BvhMotion
-from bezmotion.data.cache import cached_arrays, fingerprint
+from bezmotion.data.cache import cached_arrays
 from bezmotion.data.characteristic import (
     CHARACTERISTIC_JOINTS,
     align_to_start,
@@ -38,120 +35,12 @@ from bezmotion.data.characteristic import (
     characteristic_trajectories,
     contact_labels,
 )
+from bezmotion.data.corpus import Corpus, MotionClips, check_split, motion_clips
 
 DEFAULT_WINDOW = 31  # frames; BMM trains on 31-frame windows (§5.2)
 DEFAULT_OFFSET = 5  # frames between consecutive window starts
-SPLITS = ("train", "validation")
 _CHUNK = 1024  # windows per compiled fitting call (fixed, so one compilation serves all)
 _FORMAT_VERSION = 1  # bump when the cached arrays change meaning
-
-
-@dataclasses.dataclass(frozen=True)
-class MotionClips:
-    """Clips of one hierarchy, frames concatenated along time (any corpus, NumPy float64).
-
-    Attributes:
-      parents, joint_names: the hierarchy.
-      quat_local: ``(frames, joints, 4)`` local rotations (w, x, y, z).
-      pos_local: ``(frames, joints, 3)`` local translations with animated channels
-        filled in (the root's world position on joint 0 for LaFAN1), cm.
-      starts: ``(clips + 1,)`` clip ``i`` is frames ``starts[i]:starts[i+1]``.
-      fps: frames per second.
-    """
-
-    parents: tuple[int, ...]
-    joint_names: tuple[str, ...]
-    quat_local: np.ndarray
-    pos_local: np.ndarray
-    starts: np.ndarray
-    fps: float
-
-    def __post_init__(self):
-        if len(self.joint_names) != len(self.parents):
-            raise ValueError(f"MotionClips: {len(self.joint_names)} joint names for {len(self.parents)} joints")
-        if not (np.isfinite(self.fps) and self.fps > 0):
-            raise ValueError(f"MotionClips.fps must be positive, got {self.fps}")
-        if self.quat_local.ndim != 3:
-            raise ValueError(f"MotionClips.quat_local must be (frames, joints, 4), got {self.quat_local.shape}")
-        frames, joints = self.quat_local.shape[:2]
-        if self.quat_local.shape != (frames, len(self.parents), 4) or self.pos_local.shape != (frames, joints, 3):
-            raise ValueError(
-                f"MotionClips: quat_local {self.quat_local.shape} and pos_local {self.pos_local.shape} must be "
-                f"(frames, {len(self.parents)}, 4) and (frames, {len(self.parents)}, 3)"
-            )
-        starts = np.asarray(self.starts)
-        if starts.ndim != 1 or starts.size == 0 or starts[0] != 0 or starts[-1] != frames or np.any(np.diff(starts) < 0):
-            raise ValueError(f"MotionClips.starts must rise from 0 to {frames}, got {starts}")
-
-    @property
-    def num_clips(self) -> int:
-        return len(self.starts) - 1
-
-    def window_starts(self, window: int, offset: int) -> tuple[np.ndarray, np.ndarray]:
-        """``(clip_index, start_frame)`` of every ``window``-frame window, ``offset`` apart,
-        that fits inside its clip (``start + window ≤ clip length``)."""
-        if window < 2 or offset < 1:
-            raise ValueError(f"window must be ≥ 2 and offset ≥ 1, got window={window}, offset={offset}")
-        starts = [np.arange(0, n - window + 1, offset, dtype=np.int64) for n in np.diff(self.starts)]
-        clip_index = np.repeat(np.arange(self.num_clips, dtype=np.int64), [len(s) for s in starts])
-        start_frame = np.concatenate(starts) if starts else np.zeros(0, np.int64)
-        return clip_index, start_frame
-
-    @classmethod
-    def from_lafan1(cls, corpus: _lafan1.Lafan1Corpus, files: Sequence[int] | np.ndarray) -> MotionClips:
-        """The given LaFAN1 files (raw, no benchmark preprocessing)."""
-        files = [int(f) for f in files]
-        quat, pos = [], []
-        for f in files:
-            q, root = corpus.clip(f)
-            p = np.broadcast_to(corpus.offsets[f], q.shape[:1] + corpus.offsets.shape[1:]).copy()
-            p[:, 0] = root
-            quat.append(q)
-            pos.append(p)
-        lengths = [len(q) for q in quat]
-        return cls(
-            _lafan1.PARENTS, _lafan1.JOINT_NAMES, _concat(quat, (0, 22, 4)), _concat(pos, (0, 22, 3)),
-            np.concatenate([[0], np.cumsum(lengths)]).astype(np.int64), float(_lafan1.FPS),
-        )  # fmt: skip
-
-    @classmethod
-    def from_bandai_namco(
-        cls, corpus: _bandai_namco.BandaiNamcoCorpus, clips: Sequence[int] | np.ndarray
-    ) -> MotionClips:
-        """The given Bandai-Namco clips (indices into the corpus)."""
-        clips = [int(i) for i in clips]
-        spans = [(int(corpus.starts[i]), int(corpus.starts[i + 1])) for i in clips]
-        frames = np.concatenate([np.arange(s, e) for s, e in spans]) if spans else np.zeros(0, np.int64)
-        frame_times = np.unique(corpus.frame_times[clips]) if clips else np.asarray([1.0 / _bandai_namco.FPS])
-        if len(frame_times) > 1:
-            raise ValueError(f"the selected Bandai-Namco clips mix frame times {frame_times.tolist()}")
-        fps = 1.0 / float(frame_times[0])
-        return cls(
-            corpus.parents, corpus.joint_names, corpus.quat_local[frames], corpus.pos_local[frames],
-            np.concatenate([[0], np.cumsum([e - s for s, e in spans])]).astype(np.int64), round(fps, 6),
-        )  # fmt: skip
-
-    @classmethod
-    def from_bvh(cls, motions: Sequence[BvhMotion]) -> MotionClips:
-        """Clips read with :func:`bezmotion.data.bvh.read_bvh`; all must share hierarchy and frame rate."""
-        if not motions:
-            raise ValueError("MotionClips.from_bvh needs at least one motion")
-        first = motions[0]
-        for i, m in enumerate(motions):
-            if m.skeleton.parents != first.skeleton.parents or m.skeleton.names != first.skeleton.names:
-                raise ValueError(f"motion {i} has a different hierarchy from motion 0")
-            if not np.isclose(m.frame_time, first.frame_time):
-                raise ValueError(f"motion {i} has frame time {m.frame_time}, motion 0 has {first.frame_time}")
-        return cls(
-            first.skeleton.parents, first.skeleton.names,
-            np.concatenate([m.quat_local for m in motions]), np.concatenate([m.pos_local for m in motions]),
-            np.concatenate([[0], np.cumsum([len(m.quat_local) for m in motions])]).astype(np.int64),
-            round(1.0 / first.frame_time, 6),
-        )  # fmt: skip
-
-
-def _concat(arrays: list[np.ndarray], empty_shape: tuple[int, ...]) -> np.ndarray:
-    return np.concatenate(arrays) if arrays else np.zeros(empty_shape)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -171,7 +60,7 @@ class CurveDataset:
       dense_contacts: ``(windows, frames, 2)`` foot contacts at every frame.
       fit_rms: ``(windows, 6)`` RMS fit error per joint (cm).
       clip_index, start_frame: ``(windows,)`` where each window comes from (indices into
-        the :class:`MotionClips` it was built from).
+        the :class:`~bezmotion.data.corpus.MotionClips` it was built from).
     """
 
     layout: BezierLayout
@@ -285,7 +174,7 @@ def build_curve_dataset(
     progress: bool = True,
     description: str = "fitting curves",
 ) -> CurveDataset:
-    """Fit curves to every window of ``clips`` (no cache; see the corpus functions for that).
+    """Fit curves to every window of ``clips`` (no cache; :func:`curve_dataset` caches a corpus split).
 
     Args:
       clips: the motion.
@@ -323,113 +212,57 @@ def build_curve_dataset(
     return CurveDataset(layout, clips.fps, clip_index=clip_index, start_frame=start_frame, **arrays)
 
 
-def _check_split(split: str) -> None:
-    if split not in SPLITS:
-        raise ValueError(f"split must be one of {SPLITS}, got {split!r}")
-
-
-def lafan1_clips(source: str | os.PathLike, split: str, *, use_cache: bool = True) -> MotionClips:
-    """The clips behind :func:`lafan1_curve_dataset` (its ``clip_index`` indexes these)."""
-    _check_split(split)
-    corpus = _lafan1.load_lafan1(source, use_cache=use_cache)
-    return MotionClips.from_lafan1(corpus, corpus.files_of(_lafan1.TRAIN_SUBJECTS if split == "train" else _lafan1.TEST_SUBJECTS))
-
-
-def bandai_namco_clips(
-    source: str | os.PathLike, split: str, *, use_cache: bool = True, progress: bool = True
-) -> MotionClips:
-    """The clips behind :func:`bandai_namco_curve_dataset` (its ``clip_index`` indexes these)."""
-    _check_split(split)
-    corpus = _bandai_namco.load_bandai_namco(source, use_cache=use_cache, progress=progress)
-    train, validation = _bandai_namco.bandai_namco_split(corpus)
-    return MotionClips.from_bandai_namco(corpus, train if split == "train" else validation)
-
-
-def _corpus_curve_dataset(
-    label: str,
-    mapping: str,
-    load_clips: Callable[[], MotionClips],
-    source_key: Callable[..., str],
+def curve_dataset(
+    corpus: Corpus,
+    split: str = "train",
     *,
-    split: str,
-    window: int,
-    stride: int,
-    offset: int,
-    pin_positions: bool,
-    use_cache: bool,
-    progress: bool,
+    mapping: str | Mapping[str, str] | None = None,
+    window: int = DEFAULT_WINDOW,
+    stride: int = DEFAULT_STRIDE,
+    offset: int = DEFAULT_OFFSET,
+    pin_positions: bool = True,
+    use_cache: bool = True,
+    progress: bool = True,
 ) -> CurveDataset:
-    """Build (or load from the cache) one split of a corpus's curve dataset."""
+    """One split of a corpus's curve dataset, fitted once per configuration and cached.
+
+    Args:
+      corpus: any corpus with rotations (:func:`~bezmotion.data.sources.load_corpus`).
+      split: ``"train"`` or ``"validation"`` (the corpus's official split).
+      mapping: the characteristic-joint map (default ``corpus.characteristic_map``).
+      window, stride, offset, pin_positions, progress: as in :func:`build_curve_dataset`.
+      use_cache: ``False`` always fits and never touches the cache.
+    Returns:
+      The dataset; its ``clip_index`` indexes ``motion_clips(corpus, split)`` (the split's
+      clips in corpus order). Clips shorter than ``window`` contribute no windows.
+    Raises:
+      ValueError: unknown split, a positions-only corpus, or no characteristic-joint map.
+    """
+    check_split(split)
+    if corpus.skeleton is None:
+        raise ValueError(f"{corpus.name}: a positions-only corpus has no rotations to fit curves to")
+    mapping = corpus.characteristic_map if mapping is None else mapping
+    if mapping is None:
+        raise ValueError(f"{corpus.name}: the corpus names no characteristic joints; pass mapping={{role: joint}}")
     params = dict(split=split, window=window, stride=stride, offset=offset, pin=pin_positions, v=_FORMAT_VERSION)
+    if mapping != corpus.name:  # the bundled corpora's own preset is implied by their name (keys unchanged)
+        params["mapping"] = mapping if isinstance(mapping, str) else dict(sorted(mapping.items()))
 
     def build() -> dict[str, np.ndarray]:
         return build_curve_dataset(
-            load_clips(), mapping, window=window, stride=stride, offset=offset, pin_positions=pin_positions,
-            progress=progress, description=f"fitting {label} {split} curves",
+            motion_clips(corpus, split), mapping, window=window, stride=stride, offset=offset,
+            pin_positions=pin_positions, progress=progress, description=f"fitting {corpus.name} {split} curves",
         ).to_arrays()  # fmt: skip
 
-    name = f"{mapping.replace('_', '-')}-curves"
-    key = source_key(corpus=name, **params) if use_cache else ""
+    name = re.sub(r"[^A-Za-z0-9.-]+", "-", corpus.name) + "-curves"
+    key = corpus.source_key(corpus=name, **params) if use_cache else ""
     return CurveDataset.from_arrays(cached_arrays(name, key, build, use_cache=use_cache))
-
-
-def lafan1_curve_dataset(
-    source: str | os.PathLike,
-    split: str = "train",
-    *,
-    window: int = DEFAULT_WINDOW,
-    stride: int = DEFAULT_STRIDE,
-    offset: int = DEFAULT_OFFSET,
-    pin_positions: bool = True,
-    use_cache: bool = True,
-    progress: bool = True,
-) -> CurveDataset:
-    """LaFAN1 curve dataset: ``"train"`` = subjects 1–4, ``"validation"`` = subject 5.
-
-    ``clip_index`` indexes the files of that split's subjects in corpus order
-    (``corpus.files_of(subjects)``). Fitted once per configuration and cached.
-    """
-    _check_split(split)
-    return _corpus_curve_dataset(
-        "LaFAN1", "lafan1", functools.partial(lafan1_clips, source, split, use_cache=use_cache), functools.partial(fingerprint, source), split=split, window=window,
-        stride=stride, offset=offset, pin_positions=pin_positions, use_cache=use_cache, progress=progress,
-    )  # fmt: skip
-
-
-def bandai_namco_curve_dataset(
-    source: str | os.PathLike,
-    split: str = "train",
-    *,
-    window: int = DEFAULT_WINDOW,
-    stride: int = DEFAULT_STRIDE,
-    offset: int = DEFAULT_OFFSET,
-    pin_positions: bool = True,
-    use_cache: bool = True,
-    progress: bool = True,
-) -> CurveDataset:
-    """Bandai-Namco curve dataset, split by clip with
-    :func:`~bezmotion.data.bandai_namco.bandai_namco_split` (every 10th take validates).
-
-    ``clip_index`` indexes that split's clips (``bandai_namco_split(corpus)[0 or 1]``).
-    Clips shorter than ``window`` contribute no windows.
-    """
-    _check_split(split)
-    return _corpus_curve_dataset(
-        "Bandai-Namco", "bandai_namco",
-        functools.partial(bandai_namco_clips, source, split, use_cache=use_cache, progress=progress), functools.partial(_bandai_namco.source_fingerprint, source),
-        split=split, window=window, stride=stride, offset=offset, pin_positions=pin_positions, use_cache=use_cache,
-        progress=progress,
-    )  # fmt: skip
 
 
 __all__ = [
     "CHARACTERISTIC_JOINTS",
     "CurveDataset",
-    "MotionClips",
-    "bandai_namco_clips",
-    "bandai_namco_curve_dataset",
     "build_curve_dataset",
     "characteristic_windows",
-    "lafan1_clips",
-    "lafan1_curve_dataset",
+    "curve_dataset",
 ]

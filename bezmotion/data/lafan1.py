@@ -19,6 +19,7 @@ import os
 import zipfile
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import ClassVar
 
 import jax
 import jax.numpy as jnp
@@ -27,6 +28,7 @@ from tqdm.auto import tqdm
 
 from bezmotion.data.bvh import parse_bvh
 from bezmotion.data.cache import cached_arrays, fingerprint
+from bezmotion.data.corpus import MotionClips, check_split, clip_starts, concat_frames, no_source_key
 from bezmotion.data.windows import center_xz, face_forward_at_frame, foot_contacts, sliding_window_starts
 from bezmotion.geometry.skeleton import Skeleton, forward_kinematics
 
@@ -48,7 +50,11 @@ _FORMAT_VERSION = 1  # bump when the cached arrays change meaning
 
 @dataclasses.dataclass(frozen=True)
 class Lafan1Corpus:
-    """All parsed LaFAN1 clips, concatenated along time.
+    """All parsed LaFAN1 clips, concatenated along time; a :class:`~bezmotion.data.corpus.Corpus`.
+
+    Split: subjects 1–4 train, subject 5 validates (the official benchmark's test set).
+    Reference skeleton: the offsets of the first training file (files differ only in the
+    root's OFFSET line, which the animated root replaces, and by ≤ 3.3e-5 cm elsewhere).
 
     Attributes:
       sequences: sequence name per file (``"walk4"``), sorted by file name.
@@ -58,6 +64,7 @@ class Lafan1Corpus:
       offsets: ``(files, 22, 3)`` each file's OFFSET lines (they differ by ~1e-5 cm).
       quat_local: ``(frames, 22, 4)`` local rotations, continuity-fixed per file.
       root_pos: ``(frames, 3)`` root position (cm).
+      cache_inputs: the files the corpus was read from (hashed into cache keys).
     """
 
     sequences: tuple[str, ...]
@@ -66,12 +73,32 @@ class Lafan1Corpus:
     offsets: np.ndarray
     quat_local: np.ndarray
     root_pos: np.ndarray
+    cache_inputs: tuple[Path, ...] = ()
+
+    name: ClassVar[str] = "lafan1"
+    characteristic_map: ClassVar[str] = "lafan1"
+    end_sites: ClassVar[tuple] = ()
+    fps: ClassVar[float] = float(FPS)
+
+    def __len__(self) -> int:
+        return len(self.sequences)
 
     @property
     def num_files(self) -> int:
         return len(self.sequences)
 
-    def skeleton(self, file_index: int = 0) -> Skeleton:
+    @property
+    def clip_names(self) -> tuple[str, ...]:
+        """File stems, ``"<sequence>_subject<N>"``."""
+        return tuple(f"{seq}_subject{subject}" for seq, subject in zip(self.sequences, self.subjects))
+
+    @property
+    def skeleton(self) -> Skeleton:
+        """The reference skeleton: the first training file's (file 0's if there is none)."""
+        train = self.files_of(TRAIN_SUBJECTS)
+        return self.clip_skeleton(train[0] if train else 0)
+
+    def clip_skeleton(self, file_index: int) -> Skeleton:
         """The skeleton (offsets) of one file."""
         return Skeleton(PARENTS, JOINT_NAMES, np.asarray(self.offsets[file_index]))
 
@@ -80,12 +107,42 @@ class Lafan1Corpus:
         s, e = self.starts[file_index], self.starts[file_index + 1]
         return self.quat_local[s:e], self.root_pos[s:e]
 
+    def labels(self, index: int) -> dict[str, str | int]:
+        """``{"file", "sequence", "subject"}`` of one file."""
+        return {"file": self.clip_names[index], "sequence": self.sequences[index], "subject": self.subjects[index]}
+
     def files_of(self, subjects: Sequence[int]) -> list[int]:
         """Indices of the files recorded by the given subjects."""
         unknown = sorted(set(subjects) - set(range(1, 6)))
         if unknown:
             raise ValueError(f"LaFAN1 subjects are 1-5, got {unknown}")
         return [i for i, s in enumerate(self.subjects) if s in subjects]
+
+    def split(self, split: str) -> np.ndarray:
+        """Files of subjects 1–4 (``"train"``) or 5 (``"validation"``), in corpus order."""
+        check_split(split)
+        return np.asarray(self.files_of(TRAIN_SUBJECTS if split == "train" else TEST_SUBJECTS), np.int64)
+
+    def motion(self, indices: Sequence[int] | np.ndarray) -> MotionClips:
+        """The given files, raw (no benchmark preprocessing): each file's own offsets, with
+        the animated root position on joint 0."""
+        quat, pos = [], []
+        for f in (int(i) for i in indices):
+            q, root = self.clip(f)
+            p = np.broadcast_to(self.offsets[f], q.shape[:1] + self.offsets.shape[1:]).copy()
+            p[:, 0] = root
+            quat.append(q)
+            pos.append(p)
+        return MotionClips(
+            PARENTS, JOINT_NAMES, concat_frames(quat, (0, 22, 4)), concat_frames(pos, (0, 22, 3)),
+            clip_starts([len(q) for q in quat]), self.fps,
+        )  # fmt: skip
+
+    def source_key(self, **params) -> str:
+        """:func:`~bezmotion.data.cache.fingerprint` of the zip or folder read, with ``params``."""
+        if not self.cache_inputs:
+            raise no_source_key(self.name)
+        return fingerprint(*self.cache_inputs, **params)
 
 
 def _split_file_name(name: str) -> tuple[str, int]:
@@ -161,6 +218,7 @@ def load_lafan1(source: str | os.PathLike, *, use_cache: bool = True) -> Lafan1C
         offsets=arrays["offsets"],
         quat_local=arrays["quat_local"],
         root_pos=arrays["root_pos"],
+        cache_inputs=(source,),
     )
 
 

@@ -20,7 +20,7 @@ from bezmotion.data.anidance import (
     load_anidance,
     parse_anidance_csv,
 )
-from bezmotion.data.bandai_namco import bandai_namco_split, is_validation_clip, load_bandai_namco
+from bezmotion.data.bandai_namco import is_validation_clip, load_bandai_namco
 from bezmotion.data.bvh import format_bvh, parse_bvh, read_bvh
 
 FIXTURE = DEMO_CLIP  # the bundled real clip (attribution: bezmotion/assets/README.md)
@@ -111,7 +111,7 @@ def test_bandai_namco_from_directory_parent_and_archive_agree(tmp_path: Path):
     run, walk1, walk10 = (corpus.clip(i) for i in range(3))
     assert (run.content, run.style, run.clip_id, run.num_frames) == ("run", "active", 2, 12)
     assert (walk10.content, walk10.style, walk10.clip_id) == ("walk", "normal", 10)
-    assert walk1.frame_time == 0.0333333 and corpus.skeleton().names[:2] == ("joint_Root", "Hips")
+    assert walk1.frame_time == 0.0333333 and corpus.skeleton.names[:2] == ("joint_Root", "Hips")
     reference = read_bvh(FIXTURE)
     np.testing.assert_array_equal(walk1.quat_local, reference.quat_local)
     np.testing.assert_array_equal(walk1.pos_local, reference.pos_local)
@@ -124,7 +124,7 @@ def test_bandai_namco_from_directory_parent_and_archive_agree(tmp_path: Path):
 
 def test_bandai_namco_split_is_by_clip_id(tmp_path: Path):
     corpus = load_bandai_namco(make_bandai(tmp_path), progress=False)
-    train, validation = bandai_namco_split(corpus)
+    train, validation = corpus.split("train"), corpus.split("validation")
     assert [corpus.names[i] for i in validation] == ["dataset-2_walk_normal_010"]
     assert sorted(np.concatenate([train, validation])) == list(range(len(corpus)))
     assert [is_validation_clip(i) for i in (1, 9, 10, 20, 101)] == [False, False, True, True, False]
@@ -328,7 +328,7 @@ def test_real_bandai_namco_subset_from_the_archive():
     for clip in corpus.clips():
         assert clip.name == f"dataset-2_{clip.content}_{clip.style}_{clip.clip_id:03d}"
         assert clip.frame_time == 0.0333333
-    train, validation = bandai_namco_split(corpus)
+    train, validation = corpus.split("train"), corpus.split("validation")
     assert len(train) == len(validation) == 70
     assert all(corpus.clip_ids[validation] == 10)
     np.testing.assert_allclose(np.linalg.norm(corpus.quat_local, axis=-1), 1.0, atol=1e-12)

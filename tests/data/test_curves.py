@@ -44,14 +44,8 @@ from bezmotion.data.characteristic import (
     characteristic_trajectories,
     contact_labels,
 )
-from bezmotion.data.curves import (
-    CurveDataset,
-    MotionClips,
-    bandai_namco_curve_dataset,
-    build_curve_dataset,
-    characteristic_windows,
-    lafan1_curve_dataset,
-)
+from bezmotion.data.corpus import MotionClips
+from bezmotion.data.curves import CurveDataset, build_curve_dataset, characteristic_windows, curve_dataset
 from bezmotion.geometry.rotations import matrix_from_rot6d
 from bezmotion.geometry.skeleton import forward_kinematics
 from helpers import REPO_ROOT, SHARED_DATA
@@ -469,31 +463,33 @@ def test_motion_clips_from_bandai_namco(mini_bandai, demo_dataset, tmp_path, mon
     monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path))
     corpus = load_bandai_namco(mini_bandai, progress=False)
     assert corpus.names == tuple(sorted(MINI_BANDAI))  # run_002, walk_001, walk_010
-    clips = MotionClips.from_bandai_namco(corpus, [2, 1])  # any selection, in the order given
+    clips = corpus.motion([2, 1])  # any selection, in the order given
     assert clips.starts.tolist() == [0, 35, 75] and clips.fps == demo_dataset.fps
     assert clips.joint_names == DEMO.skeleton.names and clips.parents == DEMO.skeleton.parents
     np.testing.assert_array_equal(clips.quat_local[35:], DEMO.quat_local)
     np.testing.assert_array_equal(clips.pos_local[:35], DEMO.pos_local[:35])
-    assert MotionClips.from_bandai_namco(corpus, []).num_clips == 0
+    assert corpus.motion([]).num_clips == 0
 
 
 def test_bandai_namco_curve_dataset_splits_by_take(mini_bandai, demo_dataset, tmp_path, monkeypatch):
     monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path))
-    train = bandai_namco_curve_dataset(mini_bandai, "train", progress=False)
+    corpus = load_bandai_namco(mini_bandai, progress=False)
+    train = curve_dataset(corpus, "train", progress=False)
     # Train clips in corpus (name) order: run_002 (12 frames: no window), walk_001 (the demo clip).
     assert train.clip_index.tolist() == [1, 1] and train.start_frame.tolist() == [0, 5]
     for name in ("ctrl_pos", "ctrl_tangent", "ctrl_rot6d", "dense_pos", "fit_rms"):
         np.testing.assert_array_equal(getattr(train, name), getattr(demo_dataset, name), err_msg=name)
     assert train.layout == demo_dataset.layout and train.fps == demo_dataset.fps
-    validation = bandai_namco_curve_dataset(mini_bandai, "validation", progress=False)
+    validation = curve_dataset(corpus, "validation", progress=False)
     assert validation.clip_index.tolist() == [0] and validation.start_frame.tolist() == [0]  # 5 + 31 > 35
     np.testing.assert_array_equal(validation.dense_pos, demo_dataset.dense_pos[:1])
     assert len(list(tmp_path.glob("bandai-namco-curves-*.npz"))) == 2
 
 
-def test_bandai_namco_curve_dataset_bad_split(tmp_path):
+def test_bandai_namco_curve_dataset_bad_split(mini_bandai, tmp_path, monkeypatch):
+    monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path))
     with pytest.raises(ValueError, match=r"split must be one of \('train', 'validation'\), got 'test'"):
-        bandai_namco_curve_dataset(tmp_path / "missing.tar.xz", "test")  # checked before touching the source
+        curve_dataset(load_bandai_namco(mini_bandai, progress=False), "test")
 
 
 # ------------------------------------------------------------------- LaFAN1 (synthetic zip)
@@ -505,8 +501,9 @@ def lafan1_curves(synthetic_zip, tmp_path_factory):
     cache = tmp_path_factory.mktemp("curve-cache")
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("BEZMOTION_CACHE", str(cache))
-        train = lafan1_curve_dataset(synthetic_zip, "train", progress=False)
-        validation = lafan1_curve_dataset(synthetic_zip, "validation", progress=False)
+        corpus = lafan1.load_lafan1(synthetic_zip, use_cache=False)
+        train = curve_dataset(corpus, "train", progress=False)
+        validation = curve_dataset(corpus, "validation", progress=False)
     return cache, train, validation
 
 
@@ -547,30 +544,32 @@ def test_lafan1_curve_dataset_is_cached(lafan1_curves, synthetic_zip, monkeypatc
         raise AssertionError("build_curve_dataset called: the cache missed")
 
     monkeypatch.setattr(curves, "build_curve_dataset", no_fitting)
-    assert_datasets_equal(lafan1_curve_dataset(synthetic_zip, "train", progress=False), train)
-    assert_datasets_equal(lafan1_curve_dataset(synthetic_zip, "validation", progress=False), validation)
+    corpus = lafan1.load_lafan1(synthetic_zip, use_cache=False)
+    assert_datasets_equal(curve_dataset(corpus, "train", progress=False), train)
+    assert_datasets_equal(curve_dataset(corpus, "validation", progress=False), validation)
     # Any other configuration is another entry, and use_cache=False always fits.
     for changed in ({"stride": 5}, {"window": 30}, {"offset": 4}, {"pin_positions": False}, {"use_cache": False}):
         with pytest.raises(AssertionError, match="the cache missed"):
-            lafan1_curve_dataset(synthetic_zip, "train", progress=False, **changed)
+            curve_dataset(corpus, "train", progress=False, **changed)
     assert len(list(cache.glob("lafan1-curves-*.npz"))) == 2
 
 
 def test_lafan1_curve_dataset_new_stride_is_a_new_entry(synthetic_zip, lafan1_curves, tmp_path, monkeypatch):
     _, _, validation = lafan1_curves
     monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path))
-    strided = lafan1_curve_dataset(synthetic_zip, "validation", stride=10, offset=15, progress=False)
+    corpus = lafan1.load_lafan1(synthetic_zip, use_cache=False)
+    strided = curve_dataset(corpus, "validation", stride=10, offset=15, progress=False)
     assert len(list(tmp_path.glob("lafan1-curves-*.npz"))) == 1
     assert strided.layout == BezierLayout(31, 10) and strided.ctrl_pos.shape == (18, 4, 6, 3)
     np.testing.assert_array_equal(strided.dense_pos, validation.dense_pos[::3])  # offset 15 = every third window
     np.testing.assert_array_equal(strided.ctrl_pos, validation.dense_pos[::3][:, [0, 10, 20, 30]])
-    lafan1_curve_dataset(synthetic_zip, "validation", stride=10, offset=15, window=31, progress=False)
+    curve_dataset(corpus, "validation", stride=10, offset=15, window=31, progress=False)
     assert len(list(tmp_path.glob("lafan1-curves-*.npz"))) == 1  # same configuration: same entry
 
 
-def test_lafan1_curve_dataset_bad_split(tmp_path):
+def test_lafan1_curve_dataset_bad_split(synthetic_zip):
     with pytest.raises(ValueError, match=r"split must be one of \('train', 'validation'\), got 'test'"):
-        lafan1_curve_dataset(tmp_path / "missing.zip", "test")  # checked before touching the source
+        curve_dataset(lafan1.load_lafan1(synthetic_zip, use_cache=False), "test")
 
 
 # --------------------------------------------------------------- experiment and benchmark
@@ -632,7 +631,7 @@ def test_lafan1_validation_curves_on_the_real_subset(tmp_path, monkeypatch):
     if not zip_path.exists():
         pytest.skip(f"{zip_path} not found")
     monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path))  # cold: parse (~5 s) and fit (~3 s)
-    ds = lafan1_curve_dataset(zip_path, "validation", progress=False)
+    ds = curve_dataset(lafan1.load_lafan1(zip_path), "validation", progress=False)
     assert len(ds) == 3020 and np.bincount(ds.clip_index).tolist() == [1004, 943, 1073]  # subject 5's 3 files
     np.testing.assert_array_equal(ds.dense_pos[:, 0, HIPS, [0, 2]], 0.0)
     # Measured: mean fit RMS 0.276 cm; the mean per-joint error is the 0.211 cm that

@@ -84,7 +84,7 @@ def test_windows_follow_the_official_steps(synthetic_zip, tmp_path, monkeypatch)
     np.testing.assert_allclose(w.root_pos[3, :, 1], raw_root[s : s + 50, 1], atol=1e-9)
     # Contacts come from the raw window: recompute them from plain FK positions.
     with jax.enable_x64(True):
-        _, pos = corpus.skeleton(f).fk(jnp.asarray(raw_q[s : s + 50]), jnp.asarray(raw_root[s : s + 50]))
+        _, pos = corpus.clip_skeleton(f).fk(jnp.asarray(raw_q[s : s + 50]), jnp.asarray(raw_root[s : s + 50]))
     step = np.sum(np.diff(np.asarray(pos)[:, [3, 4]], axis=0) ** 2, axis=-1) < 0.02
     np.testing.assert_array_equal(w.contacts_left[3], np.concatenate([step, step[-1:]]))
 

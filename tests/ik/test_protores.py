@@ -26,7 +26,9 @@ from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.data.bvh import read_bvh
 from bezmotion.geometry.rotations import rot6d_from_quat
 from bezmotion.geometry.skeleton import Skeleton
-from bezmotion.ik.frames import load_frames
+from bezmotion.data.bvh_folder import load_bvh_folder
+from bezmotion.data.sources import load_corpus
+from bezmotion.ik.frames import corpus_frames
 from bezmotion.ik.protocol import Character, IKTargets, Pose, pose_fk, pose_from_motion, targets_from_pose
 from bezmotion.ik.protores import (
     Effectors,
@@ -355,9 +357,11 @@ def test_bad_input_raises_with_the_value(clip, model, tmp_path):
     with pytest.raises(ValueError, match="dense_batch_size"):
         IKTrainConfig(batch_size=8, dense_batch_size=8)
     with pytest.raises(ValueError, match="'amass'"):
-        load_frames("amass")
+        load_corpus("amass")
+    (tmp_path / "clips").mkdir()
+    (tmp_path / "clips" / "walk.bvh").write_text(DEMO_CLIP.read_text())
     with pytest.raises(ValueError, match="'test'"):
-        load_frames("lafan1", "test")
+        corpus_frames(load_bvh_folder(tmp_path / "clips", characteristic="bandai_namco", use_cache=False), "test")
     with pytest.raises(FileNotFoundError, match="not a saved learned IK"):
         load_ik_model(tmp_path / "empty")
     with pytest.raises(ValueError, match="21 joints, the character 'bandai_namco' has 22"):

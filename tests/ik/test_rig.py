@@ -73,7 +73,7 @@ def lafan1_case() -> Case:
         pos[:, 0] = root
         quats.append(quat[::97])  # a spread of obstacles, ground work and falls
         positions.append(pos[::97])
-    skeleton = corpus.skeleton(corpus.files_of([5])[0])
+    skeleton = corpus.clip_skeleton(corpus.files_of([5])[0])
     character = Character.from_skeleton(skeleton, "lafan1")
     return _case(character, "lafan1", np.concatenate(quats), np.concatenate(positions))
 
