@@ -17,7 +17,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from bezmotion.bmm.evaluation import EvalSet, map_in_chunks
-from bezmotion.data.curves import CurveDataset, MotionClips
+from bezmotion.data.corpus import MotionClips
+from bezmotion.data.curves import CurveDataset
 from bezmotion.ik.protocol import Character, IKFn, Pose, pose_fk, pose_from_motion, targets_from_pose
 from bezmotion.metrics import foot_skating_ratio, mean_position_error
 from bezmotion.pipeline.inbetweening import _inbetween
@@ -48,7 +49,7 @@ def window_poses(character: Character, clips: MotionClips, dataset: CurveDataset
     the dataset (the start hips at the origin in XZ).
 
     Args:
-      clips: the clips ``dataset`` was built from (e.g. :func:`~bezmotion.data.curves.lafan1_clips`).
+      clips: the clips ``dataset`` was built from (e.g. :func:`~bezmotion.data.corpus.motion_clips`).
     """
     frames = dataset.layout.num_frames
     first = clips.starts[dataset.clip_index[rows]] + dataset.start_frame[rows]

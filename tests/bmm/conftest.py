@@ -22,7 +22,8 @@ from bezmotion.bmm.denoiser import init_denoiser
 from bezmotion.bmm.features import FeatureStats
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, SampledCurves, sample_curves
 from bezmotion.data.bvh import read_bvh
-from bezmotion.data.curves import MotionClips, build_curve_dataset
+from bezmotion.data.corpus import MotionClips
+from bezmotion.data.curves import build_curve_dataset
 
 
 @pytest.fixture(scope="session")

@@ -21,7 +21,8 @@ from bezmotion.bmm.denoiser import init_denoiser
 from bezmotion.bmm.features import FeatureStats
 from bezmotion.bmm.sampling import BezierMotionModel, Handles
 from bezmotion.data.characteristic import HIPS
-from bezmotion.data.curves import MotionClips, build_curve_dataset
+from bezmotion.data.corpus import MotionClips
+from bezmotion.data.curves import build_curve_dataset
 from bezmotion.pipeline import inbetween
 
 
