@@ -196,7 +196,9 @@ def sample_curves(
     Args:
       model: the trained BMM.
       start, end: ``(*batch, 6, 3)`` world positions of the characteristic joints at the
-        first and last frame of the window (cm).
+        first and last frame of the window (cm). Their values are not checked here (a NaN
+        gives NaN curves): :func:`bezmotion.pipeline.inbetweening.inbetween` checks its
+        poses, and :meth:`Handles.from_frames` its positions.
       handles: sparse intermediate handles, batched like ``start``.
       key: PRNG key; split per motion when batched.
       steps: DDIM steps (the paper uses 10).
