@@ -14,7 +14,6 @@
 
 from __future__ import annotations
 
-import argparse
 import functools
 import sys
 import tempfile
@@ -29,6 +28,17 @@ from bezmotion.bezier import BezierLayout, fit_curves
 from bezmotion.data.corpus import SPLITS, motion_clips
 from bezmotion.data.curves import DEFAULT_OFFSET, DEFAULT_WINDOW, CurveDataset, build_curve_dataset, characteristic_windows
 from bezmotion.data.sources import default_source, load_corpus
+from bezmotion.options import option, options, parse_options
+
+
+@options
+class Options:
+    data: str | None = option(None, help="the shared data folder (lafan1/, bandai-namco/); optional")
+    windows: int = option(4096, help="windows per fitting call (default 4096)")
+    stride: int = 6
+    repeats: int = option(5, help="timed repeats; the median is reported")
+    skip_build: bool = option(False, help="only measure throughput")
+    out: str | None = option(None, help="write the result as JSON to this file (atomically)")
 
 
 def windows_for_throughput(data: Path | None, count: int, window: int) -> tuple[np.ndarray, str]:
@@ -97,14 +107,7 @@ def dataset_build(data: Path) -> dict:
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data", default=None, help="the shared data folder (lafan1/, bandai-namco/); optional")
-    parser.add_argument("--windows", type=int, default=4096, help="windows per fitting call (default 4096)")
-    parser.add_argument("--stride", type=int, default=6)
-    parser.add_argument("--repeats", type=int, default=5, help="timed repeats; the median is reported")
-    parser.add_argument("--skip-build", action="store_true", help="only measure throughput")
-    parser.add_argument("--out", default=None, help="write the result as JSON to this file (atomically)")
-    args = parser.parse_args(argv)
+    args = parse_options(Options, argv, description=__doc__)
 
     data = Path(args.data) if args.data else None
     points, source = windows_for_throughput(data, args.windows, DEFAULT_WINDOW)

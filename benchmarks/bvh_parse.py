@@ -16,7 +16,6 @@ are absent are skipped and reported as such.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import statistics
@@ -34,10 +33,20 @@ from bezmotion.data.anidance import load_anidance
 from bezmotion.data.bandai_namco import load_bandai_namco
 from bezmotion.data.bvh import read_bvh
 from bezmotion.data.cache import CACHE_ENV
+from bezmotion.options import option, options, parse_options
 from bezmotion.data.sources import data_dir
 
 SHARED_DATA = data_dir()
 LAFAN1_MEMBER = "walk4_subject1.bvh"
+
+
+@options
+class Options:
+    lafan1_zip: Path = SHARED_DATA / "lafan1" / "lafan1-subset.zip"
+    bandai: Path = SHARED_DATA / "bandai-namco" / "bandai-namco-2.tar.xz"
+    anidance: Path = SHARED_DATA / "anidance" / "anidance.tar.xz"
+    repeats: int = option(5, help="warm repeats of the BVH parse; the median is reported")
+    out: str | None = option(None, help="write the result as JSON to this file (atomically)")
 
 
 def _seconds(fn: Callable[[], Any]) -> tuple[float, Any]:
@@ -91,13 +100,7 @@ def _load_anidance_quietly(source: Path):
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--lafan1-zip", type=Path, default=SHARED_DATA / "lafan1" / "lafan1-subset.zip")
-    parser.add_argument("--bandai", type=Path, default=SHARED_DATA / "bandai-namco" / "bandai-namco-2.tar.xz")
-    parser.add_argument("--anidance", type=Path, default=SHARED_DATA / "anidance" / "anidance.tar.xz")
-    parser.add_argument("--repeats", type=int, default=5, help="warm repeats of the BVH parse; the median is reported")
-    parser.add_argument("--out", default=None, help="write the result as JSON to this file (atomically)")
-    args = parser.parse_args(argv)
+    args = parse_options(Options, argv, description=__doc__)
 
     result: dict[str, Any] = {"benchmark": "bvh_parse", "command": " ".join(sys.argv), "machine": machine_info()}
     benches = {

@@ -14,7 +14,6 @@ it, and prints the table.
 
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
@@ -28,8 +27,19 @@ from bezmotion.data import lafan1
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.data.corpus import motion_clips
 from bezmotion.data.curves import DEFAULT_OFFSET, DEFAULT_WINDOW, characteristic_windows
+from bezmotion.options import option, options, parse_options
 
 VARIANTS = {"pinned": True, "free": False}  # name -> pin_positions
+
+
+@options
+class Options:
+    data: str = option(help="LaFAN1 zip or a directory of its .bvh files")
+    out: str = option(help="output JSON file (.md and .png are written beside it)")
+    window: int = option(DEFAULT_WINDOW, help="frames per window (default 31)")
+    offset: int = option(DEFAULT_OFFSET, help="frames between window starts (default 5)")
+    max_stride: int = option(12, help="largest stride (default 12)")
+    no_cache: bool = option(False, help="re-parse the BVH files instead of using the cache")
 
 
 @jax.jit
@@ -94,14 +104,7 @@ def plot(results: dict, strides: list[int], path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--data", required=True, help="LaFAN1 zip or a directory of its .bvh files")
-    parser.add_argument("--out", required=True, help="output JSON file (.md and .png are written beside it)")
-    parser.add_argument("--window", type=int, default=DEFAULT_WINDOW, help="frames per window (default 31)")
-    parser.add_argument("--offset", type=int, default=DEFAULT_OFFSET, help="frames between window starts (default 5)")
-    parser.add_argument("--max-stride", type=int, default=12, help="largest stride (default 12)")
-    parser.add_argument("--no-cache", action="store_true", help="re-parse the BVH files instead of using the cache")
-    args = parser.parse_args(argv)
+    args = parse_options(Options, argv, description=__doc__)
     if not 1 <= args.max_stride < args.window:
         raise SystemExit(f"--max-stride must be between 1 and window - 1 = {args.window - 1}, got {args.max_stride}")
 

@@ -24,7 +24,6 @@ report beside it, and the trained model under ``<run-dir>/model``.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import functools
 import time
@@ -45,22 +44,52 @@ from bezmotion.bmm.evaluation import (
 )
 from bezmotion.bezier import BezierLayout
 from bezmotion.training.checkpoint import CheckpointStore
-from bezmotion.data.cache import cache_dir
 from bezmotion.data.curves import CurveDataset, curve_dataset
 from bezmotion.data.sources import default_source, load_corpus
 from bezmotion.bmm.denoiser import PREDICTIONS, BMMConfig
 from bezmotion.bmm.features import FeatureStats
 from bezmotion.bmm.sampling import BezierMotionModel, sample_curves, save_model
 from bezmotion.bmm.train import CurveArrays, BMMTrainConfig, init_bmm_train_states, make_bmm_train_step
+from bezmotion.options import option, options, parse_options, presets
 from bezmotion.training import compile_train_step, count_parameters, data_mesh, run_training
+from _common import runs_dir
 
 DEFAULT_DATA = {name: default_source(name) for name in ("lafan1", "bandai_namco")}
 STEP_COUNTS = (5, 10, 25, 50, 100)
-CONFIGS = {
-    "cpu": BMMConfig.cpu,
-    "paper": BMMConfig.paper,
-    "tiny": lambda **kw: BMMConfig.cpu(**{"width": 32, "ff_width": 64, "num_heads": 2, "num_layers": 1, **kw}),
-}
+CONFIGS = presets(BMMConfig)
+
+
+@options
+class Options:
+    out: str = option(help="output JSON (a .md report is written beside it)")
+    corpus: str = option("lafan1", choices=DEFAULT_DATA, help="training and evaluation corpus (default lafan1)")
+    data: str | None = option(
+        None,
+        help="the corpus archive or folder (default ../shared/data/lafan1/lafan1-subset.zip or ../shared/data/bandai-namco/bandai-namco-2.tar.xz)",
+    )
+    bandai_namco: str | None = option(None, help="also train on Bandai-Namco's training clips (archive or folder)")
+    config: str = option("cpu", choices=CONFIGS, help="model size (default cpu; tiny: smoke tests)")
+    prediction: str = option(
+        "x0", choices=PREDICTIONS, help="decoder output: x0 (the paper) or residual over the reference curves through the conditions (ours)"
+    )
+    steps: int = option(6000, help="training steps (default 6000)")
+    batch_size: int = BMMTrainConfig.batch_size
+    learning_rate: float = BMMTrainConfig.learning_rate
+    min_snr_gamma: float = option(BMMTrainConfig.min_snr_gamma, help="Min-SNR-γ loss weighting (paper: 5; 0 = off)")
+    seeds: tuple[int, ...] = option((0,), help="seeds trained together (vmapped)")
+    run_dir: str | None = option(None, help="checkpoints and the final model (default: <cache>/runs/bmm_lafan1_<config>)")
+    checkpoint_every: int = 500
+    eval_windows: int = option(1000, help="subject-5 windows evaluated (default 1000; 0 = all)")
+    guidance: float = option(1.0, help="classifier-free guidance scale at sampling (1 = off)")
+    table6_steps: tuple[int, ...] = option(STEP_COUNTS, help="DDIM step counts compared (default 5 10 25 50 100)")
+    no_progress: bool = False
+
+    def __post_init__(self):
+        if self.run_dir is None:
+            suffix = "" if self.prediction == "x0" else f"_{self.prediction}"
+            object.__setattr__(self, "run_dir", str(runs_dir(f"bmm_{self.corpus}_{self.config}{suffix}")))
+        if self.bandai_namco and self.corpus != "lafan1":
+            raise ValueError("--bandai-namco adds Bandai-Namco to LaFAN1 training; with --corpus bandai_namco it is already the corpus")
 
 
 def concat_datasets(parts: list[CurveDataset]) -> CurveDataset:
@@ -146,38 +175,8 @@ def format_report(results: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", required=True, help="output JSON (a .md report is written beside it)")
-    parser.add_argument("--corpus", choices=tuple(DEFAULT_DATA), default="lafan1", help="training and evaluation corpus (default lafan1)")
-    parser.add_argument(
-        "--data", default=None,
-        help="the corpus archive or folder (default ../shared/data/lafan1/lafan1-subset.zip or ../shared/data/bandai-namco/bandai-namco-2.tar.xz)",
-    )  # fmt: skip
-    parser.add_argument("--bandai-namco", default=None, help="also train on Bandai-Namco's training clips (archive or folder)")
-    parser.add_argument("--config", choices=tuple(CONFIGS), default="cpu", help="model size (default cpu; tiny: smoke tests)")
-    parser.add_argument(
-        "--prediction", choices=PREDICTIONS, default="x0",
-        help="decoder output: x0 (the paper) or residual over the reference curves through the conditions (ours)",
-    )  # fmt: skip
-    parser.add_argument("--steps", type=int, default=6000, help="training steps (default 6000)")
-    parser.add_argument("--batch-size", type=int, default=64)
-    parser.add_argument("--learning-rate", type=float, default=1e-4)
-    parser.add_argument("--min-snr-gamma", type=float, default=5.0, help="Min-SNR-γ loss weighting (paper: 5; 0 = off)")
-    parser.add_argument("--seeds", type=int, nargs="+", default=[0], help="seeds trained together (vmapped)")
-    parser.add_argument("--run-dir", default=None, help="checkpoints and the final model (default: <cache>/runs/bmm_lafan1_<config>)")
-    parser.add_argument("--checkpoint-every", type=int, default=500)
-    parser.add_argument("--eval-windows", type=int, default=1000, help="subject-5 windows evaluated (default 1000; 0 = all)")
-    parser.add_argument("--guidance", type=float, default=1.0, help="classifier-free guidance scale at sampling (1 = off)")
-    parser.add_argument(
-        "--table6-steps", type=int, nargs="+", default=list(STEP_COUNTS), help="DDIM step counts compared (default 5 10 25 50 100)"
-    )
-    parser.add_argument("--no-progress", action="store_true")
-    args = parser.parse_args(argv)
-    suffix = "" if args.prediction == "x0" else f"_{args.prediction}"
-    args.run_dir = args.run_dir or str(cache_dir() / "runs" / f"bmm_{args.corpus}_{args.config}{suffix}")
-    args.data = args.data or str(DEFAULT_DATA[args.corpus])
-    if args.bandai_namco and args.corpus != "lafan1":
-        parser.error("--bandai-namco adds Bandai-Namco to LaFAN1 training; with --corpus bandai_namco it is already the corpus")
+    args = parse_options(Options, argv, description=__doc__)
+    args = dataclasses.replace(args, data=args.data or str(DEFAULT_DATA[args.corpus]))
 
     started = time.perf_counter()
     corpus = load_corpus(args.corpus, source=args.data, progress=not args.no_progress)

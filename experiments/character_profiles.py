@@ -9,7 +9,6 @@ each characteristic joint's mean global orientation relative to the facing, over
 
 from __future__ import annotations
 
-import argparse
 import json
 from pathlib import Path
 
@@ -20,9 +19,16 @@ from bezmotion.data.corpus import motion_clips
 from bezmotion.data.sources import load_corpus
 from bezmotion.geometry.skeleton import Skeleton
 from bezmotion.ik.protocol import Character, pose_from_motion
+from bezmotion.options import option, options, parse_options
 from bezmotion.pipeline import CharacterProfile
 
 SOURCES = ("lafan1", "bandai_namco")
+
+
+@options
+class Options:
+    out_dir: str = option(help="folder the profiles are written to")
+    corpora: tuple[str, ...] = option(SOURCES, choices=SOURCES, help="corpora to measure (default: all)")
 
 
 def corpus_profile(corpus: str, every: int = 10) -> tuple[Character, CharacterProfile]:
@@ -39,10 +45,7 @@ def corpus_profile(corpus: str, every: int = 10) -> tuple[Character, CharacterPr
 
 
 def main(argv: list[str] | None = None) -> None:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out-dir", required=True)
-    parser.add_argument("--corpora", nargs="+", choices=tuple(SOURCES), default=list(SOURCES))
-    args = parser.parse_args(argv)
+    args = parse_options(Options, argv, description=__doc__)
     out = Path(args.out_dir)
     out.mkdir(parents=True, exist_ok=True)
     for corpus in args.corpora:

@@ -18,7 +18,6 @@ IK is the analogue of the paper's Table 1 BMM row (0.8914 / 1.7090 cm, skating 0
 
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
@@ -28,7 +27,6 @@ import numpy as np
 from bezmotion.io import write_results
 from bezmotion.assets import PROFILES_DIR
 from bezmotion.bmm.evaluation import floor_height_from, make_eval_set
-from bezmotion.data.cache import cache_dir
 from bezmotion.data.corpus import motion_clips
 from bezmotion.data.curves import curve_dataset
 from bezmotion.data.sources import load_corpus
@@ -37,9 +35,26 @@ from bezmotion.ik.rig import make_rig, rig_ik
 from bezmotion.pipeline import CharacterProfile, Transfer
 from bezmotion.pipeline.evaluation import PipelineMetricsConfig, evaluate_pipeline, ground_truth_pose_metrics, window_poses
 from bezmotion.bmm.sampling import load_model
+from bezmotion.options import option, options, parse_options
+from _common import runs_dir
 
 CORPORA = ("lafan1", "bandai_namco")
 PAPER_LAFAN1 = {"handles_error_cm": 0.8914, "ood_handles_error_cm": 1.7090, "foot_skating_ratio": 0.2176, "gt_foot_skating_ratio": 0.1209}
+
+
+@options
+class Options:
+    out: str = option(help="output JSON (a .md report is written beside it)")
+    targets: tuple[str, ...] = option(CORPORA, choices=CORPORA, help="target skeletons (default: all)")
+    windows: int = option(500, help="validation windows per skeleton (0 = all)")
+    bmm_dir: str | None = option(None, help="BMM per corpus ({corpus} is filled in; default <cache>/runs/bmm_{corpus}_cpu_residual/model)")
+    ik_dir: str | None = option(None, help="learned IK per corpus ({corpus} is filled in; default <cache>/runs/ik_{corpus}/model)")
+
+    def __post_init__(self):
+        if self.bmm_dir is None:
+            object.__setattr__(self, "bmm_dir", str(runs_dir("bmm_{corpus}_cpu_residual", "model")))
+        if self.ik_dir is None:
+            object.__setattr__(self, "ik_dir", str(runs_dir("ik_{corpus}", "model")))
 
 
 def evaluate_target(args, target: str, bmms: dict, profiles: dict) -> dict:
@@ -100,14 +115,7 @@ def format_report(results: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", required=True, help="output JSON (a .md report is written beside it)")
-    runs = cache_dir() / "runs"
-    parser.add_argument("--bmm-dir", default=str(runs / "bmm_{corpus}_cpu_residual" / "model"), help="BMM per corpus ({corpus} is filled in)")
-    parser.add_argument("--ik-dir", default=str(runs / "ik_{corpus}" / "model"), help="learned IK per corpus ({corpus} is filled in)")
-    parser.add_argument("--windows", type=int, default=500, help="validation windows per skeleton (0 = all)")
-    parser.add_argument("--targets", nargs="+", choices=tuple(CORPORA), default=list(CORPORA))
-    args = parser.parse_args(argv)
+    args = parse_options(Options, argv, description=__doc__)
     started = time.perf_counter()
     bmms = {corpus: load_model(Path(args.bmm_dir.format(corpus=corpus))) for corpus in CORPORA}
     profiles = {corpus: CharacterProfile.load(PROFILES_DIR / f"{corpus}.json") for corpus in CORPORA}

@@ -25,7 +25,6 @@ Writes the JSON, a Markdown report (``.md``) and a plot (``.png``) beside it.
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
@@ -37,7 +36,6 @@ import numpy as np
 
 from bezmotion.io import save_figure, write_results
 from bezmotion.bezier import BezierLayout, fit_curves, reconstruct_dense
-from bezmotion.data.cache import cache_dir
 from bezmotion.data.lafan1 import TEST_SUBJECTS
 from bezmotion.data.sources import default_source, load_corpus
 from bezmotion.geometry.rotations import safe_norm
@@ -46,9 +44,22 @@ from bezmotion.ik.protocol import IKTargets, Pose, pose_fk, targets_from_pose
 from bezmotion.ik.protores import ProtoResModel, load_ik_model, protores_ik_fn
 from bezmotion.training import count_parameters
 from bezmotion.ik.training import CHARACTERISTIC, TABLE2, body_joints, effector_configurations, effector_mpjpe
+from bezmotion.options import option, options, parse_options
+from _common import runs_dir
 
 WINDOW = 31
 STRIDES = (1, 2, 3, 5, 6, 10, 15, 30)
+
+
+@options
+class Options:
+    out: str = option(help="output JSON (.md and .png written beside it)")
+    data: str | None = option(None, help="LaFAN1 zip or folder (default ../shared/data/lafan1/lafan1-subset.zip)")
+    model_dir: str | None = option(None, help="saved learned IK (default ~/.cache/bezmotion/runs/ik_lafan1/model)")
+    train_steps: int = option(8000, help="steps to train with when no model is found")
+    eval_step: int = option(1, help="Table 2 on every n-th subject-5 frame (default 1: all)")
+    offset: int = option(10, help="frames between Figure 8 window starts (default 10)")
+    strides: str = option(",".join(map(str, STRIDES)), help="Figure 8 strides (default 1,2,3,5,6,10,15,30)")
 
 
 def table2(model: ProtoResModel, poses: Pose) -> dict:
@@ -172,21 +183,13 @@ def plot(results: dict, path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", required=True, help="output JSON (.md and .png written beside it)")
-    parser.add_argument("--data", default=None, help="LaFAN1 zip or folder (default ../shared/data/lafan1/lafan1-subset.zip)")
-    parser.add_argument("--model-dir", default=None, help="saved learned IK (default ~/.cache/bezmotion/runs/ik_lafan1/model)")
-    parser.add_argument("--train-steps", type=int, default=8000, help="steps to train with when no model is found")
-    parser.add_argument("--eval-step", type=int, default=1, help="Table 2 on every n-th subject-5 frame (default 1: all)")
-    parser.add_argument("--offset", type=int, default=10, help="frames between Figure 8 window starts (default 10)")
-    parser.add_argument("--strides", default=",".join(map(str, STRIDES)), help="Figure 8 strides (default 1,2,3,5,6,10,15,30)")
-    args = parser.parse_args(argv)
+    args = parse_options(Options, argv, description=__doc__)
     strides = tuple(int(s) for s in args.strides.split(","))
     if any(not 1 <= s <= WINDOW - 1 for s in strides):
         raise SystemExit(f"--strides must lie in 1…{WINDOW - 1}, got {strides}")
     started = time.perf_counter()
     data = args.data or str(default_source("lafan1"))
-    model_dir = Path(args.model_dir).expanduser() if args.model_dir else cache_dir() / "runs" / "ik_lafan1" / "model"
+    model_dir = Path(args.model_dir).expanduser() if args.model_dir else runs_dir("ik_lafan1", "model")
     if not (model_dir / "config.json").exists():
         print(f"no learned IK at {model_dir}: training one ({args.train_steps} steps)")
         sys.path.insert(0, str(Path(__file__).resolve().parent))

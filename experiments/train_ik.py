@@ -18,18 +18,17 @@ Default ``--out-dir``: ``~/.cache/bezmotion/runs/ik_<corpus>``.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import json
 import time
 from pathlib import Path
+from typing import Literal
 
 import jax
 import numpy as np
 
 from bezmotion.io import atomic_write_text
 from bezmotion.training.checkpoint import CheckpointStore
-from bezmotion.data.cache import cache_dir
 from bezmotion.data.sources import CORPORA, load_corpus
 from bezmotion.ik.frames import corpus_frames
 from bezmotion.ik.protores import ProtoResConfig, ProtoResModel, character_to_json, save_ik_model
@@ -41,38 +40,39 @@ from bezmotion.ik.training import (
     init_ik_train_state,
     make_ik_train_step,
 )
+from bezmotion.options import option, options, parse_options, presets
 from bezmotion.training import compile_train_step, count_parameters, run_training
+from _common import runs_dir
 
-CONFIGS = {"cpu": ProtoResConfig.cpu, "paper": ProtoResConfig.paper, "tiny": ProtoResConfig.tiny}
-
-
-def default_run_dir(corpus: str) -> Path:
-    return cache_dir() / "runs" / f"ik_{corpus}"
+CONFIGS = presets(ProtoResConfig)
 
 
-def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--corpus", choices=CORPORA, required=True)
-    parser.add_argument("--data", default=None, help="corpus archive or folder (default: ../shared/data, or the extracted Bandai-Namco in the cache)")
-    parser.add_argument("--out-dir", default=None, help="run folder (default ~/.cache/bezmotion/runs/ik_<corpus>)")
-    parser.add_argument("--steps", type=int, default=9000)
-    parser.add_argument("--config", choices=sorted(CONFIGS), default="cpu")
-    parser.add_argument("--batch-size", type=int, default=IKTrainConfig.batch_size)
-    parser.add_argument("--learning-rate", type=float, default=IKTrainConfig.learning_rate)
-    parser.add_argument("--output-rotations", choices=("local", "global"), default=None, help="override the preset's")
-    parser.add_argument("--effector-skip", action=argparse.BooleanOptionalAction, default=None, help="override the preset's")
-    parser.add_argument("--rot-weight", type=float, default=IKTrainConfig.rot_weight)
-    parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--frame-step", type=int, default=1, help="train on every n-th frame (default 1)")
-    parser.add_argument("--checkpoint-every", type=int, default=500)
-    parser.add_argument("--eval-step", type=int, default=4, help="validate on every n-th validation frame (default 4)")
-    parser.add_argument("--no-progress", action="store_true")
-    return parser.parse_args(argv)
+@options
+class Options:
+    corpus: str = option(choices=CORPORA)
+    data: str | None = option(None, help="corpus archive or folder (default: ../shared/data, or the extracted Bandai-Namco in the cache)")
+    out_dir: str | None = option(None, help="run folder (default ~/.cache/bezmotion/runs/ik_<corpus>)")
+    steps: int = 9000
+    config: str = option("cpu", choices=CONFIGS)
+    batch_size: int = IKTrainConfig.batch_size
+    learning_rate: float = IKTrainConfig.learning_rate
+    output_rotations: Literal["local", "global"] | None = option(None, help="override the preset's")
+    effector_skip: bool | None = option(None, help="override the preset's")
+    rot_weight: float = IKTrainConfig.rot_weight
+    seed: int = 0
+    frame_step: int = option(1, help="train on every n-th frame (default 1)")
+    checkpoint_every: int = 500
+    eval_step: int = option(4, help="validate on every n-th validation frame (default 4)")
+    no_progress: bool = False
 
 
-def train_ik(args: argparse.Namespace) -> dict:
+def parse_args(argv: list[str] | None = None) -> Options:
+    return parse_options(Options, argv, description=__doc__)
+
+
+def train_ik(args: Options) -> dict:
     """Train (or resume) and save; returns the summary written to ``training.json``."""
-    out_dir = Path(args.out_dir).expanduser() if args.out_dir else default_run_dir(args.corpus)
+    out_dir = Path(args.out_dir).expanduser() if args.out_dir else runs_dir(f"ik_{args.corpus}")
     started = time.perf_counter()
     corpus = load_corpus(args.corpus, source=args.data, progress=not args.no_progress)
     character, poses = corpus_frames(corpus, "train", frame_step=args.frame_step)
