@@ -23,11 +23,13 @@ import numpy as np
 
 from _common import machine_info, report, time_jitted
 from bezmotion.xla_options import inference_compiler_options
-from bezmotion.data.lafan1 import N_PAST
-from bezmotion.delta.model import DeltaConfig, count_parameters, delta_inbetweener, init_delta
+from bezmotion.data.lafan1 import JOINT_NAMES, N_PAST, PARENTS
+from bezmotion.delta.model import DeltaConfig, delta_inbetweener, init_delta
+from bezmotion.geometry import Skeleton
 from bezmotion.options import option, options, parse_options, presets
+from bezmotion.training import count_parameters
 
-CONFIGS = presets(DeltaConfig)
+CONFIGS = presets(DeltaConfig, parents=PARENTS)  # LaFAN1's skeleton, the paper's
 
 
 @options
@@ -57,10 +59,11 @@ def example_inputs(config: DeltaConfig, batch: int):
 def measure(config: DeltaConfig, *, gap: int, batch: int, repeats: int, batch_repeats: int) -> dict:
     graphdef, params = init_delta(config, key=jax.random.key(0))
     offsets, single_inputs = example_inputs(config, 1)
+    skeleton = Skeleton(config.parents, JOINT_NAMES, offsets)
     _, batch_inputs = example_inputs(config, batch)
 
     def inbetween(params, past_quat, past_root, target_quat, target_root):
-        return delta_inbetweener(graphdef, params, offsets)(past_quat, past_root, target_quat, target_root, gap)
+        return delta_inbetweener(graphdef, params, skeleton)(past_quat, past_root, target_quat, target_root, gap)
 
     options = dict(inference_compiler_options()) or None
     single = time_jitted(inbetween, (params, *single_inputs), repeats=repeats, compiler_options=options)

@@ -1,19 +1,40 @@
-"""Non-learned in-betweeners.
+"""Non-learned in-betweeners: every baseline the learned models are compared with, and
+the residual bases the Δ-interpolator predicts over.
 
-- The LaFAN1 benchmark's zero-velocity and interpolation baselines: both take the last
-  past key frame and the target key frame (local rotations and root position) and
-  return the ``n`` transition frames between them; leading axes batch.
+- **Transition baselines** of the LaFAN1 benchmark: :func:`zero_velocity` and
+  :func:`interpolation` take the last past key frame and the target key frame (local
+  rotations and root position) and return the ``n`` transition frames between them;
+  leading axes batch. :func:`zero_velocity_inbetweener` and
+  :func:`interpolation_inbetweener` wrap them in the benchmark's in-betweener signature
+  ``(past_quat (B, past, J, 4), past_root (B, past, 3), target_quat (B, J, 4),
+  target_root (B, 3), n) -> (quat (B, n, J, 4), root (B, n, 3))`` (see
+  :mod:`bezmotion.evaluation.lafan1`).
+- **Key-frame baselines** for any layout of known frames (one example; ``jax.vmap`` over
+  a batch): :func:`keyframe_interpolation` (lerp the root, slerp local rotations),
+  :func:`keyframe_position_interpolation` and :func:`keyframe_position_zero_velocity`
+  (global point positions). The known frames (:class:`KeyFrames`,
+  :class:`KeyPositions`, also the Δ-interpolator's input) carry their frame indices and
+  a validity mask, so padded fixed-size layouts work. With 10 past frames and one target,
+  :func:`keyframe_interpolation` is the benchmark's :func:`interpolation`.
+  :func:`zero_velocity_position_inbetweener` and :func:`interpolation_position_inbetweener`
+  wrap the position ones in the Anidance benchmark's in-betweener signature (see
+  :mod:`bezmotion.evaluation.anidance`).
 - :func:`handle_interpolation`, BMM's reference: Bézier curves through the start, end
   and handle control points only.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
 from bezmotion.geometry.rotations import slerp
+
+# ------------------------------------------------------------------ transition baselines
 
 
 def transition_weights(n: int, dtype=jnp.float32) -> Float[Array, "n"]:
@@ -47,6 +68,131 @@ def interpolation(
     return quat, root
 
 
+def zero_velocity_inbetweener(past_quat, past_root, target_quat, target_root, n: int):
+    """:func:`zero_velocity` as a transition in-betweener (copies the last past frame)."""
+    return zero_velocity(past_quat[:, -1], past_root[:, -1], n)
+
+
+def interpolation_inbetweener(past_quat, past_root, target_quat, target_root, n: int):
+    """:func:`interpolation` as a transition in-betweener (lerp root, slerp local rotations
+    from the last past frame to the target)."""
+    return interpolation(past_quat[:, -1], past_root[:, -1], target_quat, target_root, n)
+
+
+# ------------------------------------------------------------------- key-frame baselines
+
+
+class KeyFrames(NamedTuple):
+    """The known frames of one example (add leading axes to batch).
+
+    Attributes:
+      quat_local: ``(keys, J, 4)`` local rotations (root: global).
+      root_pos: ``(keys, 3)`` root positions (cm).
+      frame: ``(keys,)`` frame index of each key in the window (increasing over valid keys).
+      valid: ``(keys,)`` which slots hold a key frame; the others are padding, never
+        read (the Δ-interpolator's first ``n_past`` slots, the past context, must be valid).
+    """
+
+    quat_local: Float[Array, "*batch keys joints 4"]
+    root_pos: Float[Array, "*batch keys 3"]
+    frame: Int[Array, "*batch keys"]
+    valid: Bool[Array, "*batch keys"]
+
+
+class KeyPositions(NamedTuple):
+    """The known frames of one example in the positions representation (add leading axes
+    to batch).
+
+    Attributes:
+      pos: ``(keys, P, 3)`` global point positions (cm); point 0 is the root.
+      frame: ``(keys,)`` frame index of each key (increasing over valid keys).
+      valid: ``(keys,)`` which slots hold a key frame; the others are padding, never
+        read (the Δ-interpolator's first ``n_past`` slots, the past context, must be valid).
+    """
+
+    pos: Float[Array, "*batch keys points 3"]
+    frame: Int[Array, "*batch keys"]
+    valid: Bool[Array, "*batch keys"]
+
+
+
+def _bracketing_keys(
+    frame: Int[Array, "keys"], valid: Bool[Array, "keys"], missing_frame: Int[Array, "missing"], dtype
+) -> tuple[Int[Array, "missing"], Int[Array, "missing"], Array]:
+    """For each missing frame: the slots of the nearest valid keys before and after it and
+    its lerp weight between them (0 at ``prev``). A frame with a key on one side only gets
+    that key on both sides (weight 0)."""
+    t = missing_frame[:, None]
+    before = valid[None, :] & (frame[None, :] < t)
+    after = valid[None, :] & (frame[None, :] > t)
+    prev = jnp.argmax(jnp.where(before, frame[None, :], jnp.iinfo(frame.dtype).min), axis=-1)
+    nxt = jnp.argmin(jnp.where(after, frame[None, :], jnp.iinfo(frame.dtype).max), axis=-1)
+    prev = jnp.where(before.any(-1), prev, nxt)
+    nxt = jnp.where(after.any(-1), nxt, prev)
+    span = frame[nxt] - frame[prev]
+    w = jnp.where(span > 0, (missing_frame - frame[prev]).astype(dtype) / jnp.maximum(span, 1).astype(dtype), 0.0)
+    return prev, nxt, w
+
+
+def keyframe_interpolation(
+    keys: KeyFrames, missing_frame: Int[Array, "missing"]
+) -> tuple[Float[Array, "missing joints 4"], Float[Array, "missing 3"]]:
+    """Lerp the root and slerp every local rotation between the valid key frames just
+    before and just after each missing frame (weights by frame index).
+
+    With 10 past frames and one target this is the benchmark's :func:`interpolation`,
+    weights ``k/(n+1)``. A frame with a key on one side only copies that key. One
+    example; ``jax.vmap`` over a batch. Returns ``(quat (missing, J, 4), root (missing, 3))``.
+    """
+    prev, nxt, w = _bracketing_keys(keys.frame, keys.valid, missing_frame, keys.root_pos.dtype)
+    quat = slerp(keys.quat_local[prev], keys.quat_local[nxt], w[:, None])
+    root = keys.root_pos[prev] + w[:, None] * (keys.root_pos[nxt] - keys.root_pos[prev])
+    return quat, root
+
+
+def keyframe_position_interpolation(keys: KeyPositions, missing_frame: Int[Array, "missing"]) -> Float[Array, "missing points 3"]:
+    """Lerp every point between the valid key frames just before and just after each
+    missing frame, weights by frame index (the Anidance benchmark's LERP baseline; with key
+    frames every 6 frames, piecewise linear through them). A frame with a key on one side
+    only copies that key. One example; ``jax.vmap`` over a batch."""
+    prev, nxt, w = _bracketing_keys(keys.frame, keys.valid, missing_frame, keys.pos.dtype)
+    return keys.pos[prev] + w[:, None, None] * (keys.pos[nxt] - keys.pos[prev])
+
+
+def keyframe_position_zero_velocity(keys: KeyPositions, missing_frame: Int[Array, "missing"]) -> Float[Array, "missing points 3"]:
+    """Every missing frame copies the nearest valid key frame before it (the zero-velocity
+    baseline; with one past frame and one target, the past frame). One example."""
+    prev, _, _ = _bracketing_keys(keys.frame, keys.valid, missing_frame, keys.pos.dtype)
+    return keys.pos[prev]
+
+
+PositionInBetweener = Callable[[Array, tuple[int, ...], tuple[int, ...]], Array]
+"""``inbetween(key_pos (B, K, P, 3), key_frame (K ints), missing_frame (M ints)) -> (B, M, P, 3)``."""
+
+
+def _position_inbetweener(baseline) -> PositionInBetweener:
+    """A one-example key-frame position baseline as a batched in-betweener of static layout."""
+
+    def inbetween(
+        key_pos: Float[Array, "batch keys points 3"], key_frame: tuple[int, ...], missing_frame: tuple[int, ...]
+    ) -> Float[Array, "batch missing points 3"]:
+        frame = jnp.asarray(key_frame, jnp.int32)
+        valid = jnp.ones(frame.shape, bool)
+        missing = jnp.asarray(missing_frame, jnp.int32)
+        return jax.vmap(lambda pos: baseline(KeyPositions(pos, frame, valid), missing))(key_pos)
+
+    return inbetween
+
+
+#: Each missing frame copies the nearest key frame before it (:func:`keyframe_position_zero_velocity`).
+zero_velocity_position_inbetweener = _position_inbetweener(keyframe_position_zero_velocity)
+#: Each missing frame is lerped between the key frames around it (:func:`keyframe_position_interpolation`).
+interpolation_position_inbetweener = _position_inbetweener(keyframe_position_interpolation)
+
+
+# --------------------------------------------------------------------- handle baseline
+
+
 def handle_interpolation(
     mask: Bool[Array, "*batch controls joints"], target: Float[Array, "*batch controls joints 3"]
 ) -> tuple[Float[Array, "*batch controls joints 3"], Float[Array, "*batch controls joints 3"]]:
@@ -76,3 +222,21 @@ def handle_interpolation(
     first = (pos[..., 1:2, :, :] - pos[..., :1, :, :]) / 3.0
     last = (pos[..., -1:, :, :] - pos[..., -2:-1, :, :]) / 3.0
     return pos, jnp.concatenate([first, inner, last], axis=-3)
+
+
+__all__ = [
+    "KeyFrames",
+    "KeyPositions",
+    "PositionInBetweener",
+    "handle_interpolation",
+    "interpolation",
+    "interpolation_inbetweener",
+    "interpolation_position_inbetweener",
+    "keyframe_interpolation",
+    "keyframe_position_interpolation",
+    "keyframe_position_zero_velocity",
+    "transition_weights",
+    "zero_velocity",
+    "zero_velocity_inbetweener",
+    "zero_velocity_position_inbetweener",
+]

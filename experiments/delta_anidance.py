@@ -76,7 +76,8 @@ from _delta import (
     train_delta_mode,
 )
 from bezmotion.delta.train import DeltaPositionArrays, DeltaTrainConfig
-from bezmotion.delta.model import TABLE3_MODES, DeltaConfig, count_parameters, delta_position_inbetweener
+from bezmotion.delta.model import TABLE3_MODES, DeltaConfig, delta_position_inbetweener
+from bezmotion.training import count_parameters
 
 DEFAULT_DATA = default_source("anidance")
 TRAIN_WINDOW = 128

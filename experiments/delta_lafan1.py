@@ -31,7 +31,7 @@ import time
 import jax
 
 from bezmotion.io import write_results
-from bezmotion.data.lafan1 import TEST_SUBJECTS, TRAIN_SUBJECTS, lafan1_statistics, lafan1_windows, load_lafan1
+from bezmotion.data.lafan1 import JOINT_NAMES, PARENTS, TEST_SUBJECTS, TRAIN_SUBJECTS, lafan1_statistics, lafan1_windows, load_lafan1
 from bezmotion.data.sources import default_source
 from _delta import (
     MODE_NAMES,
@@ -53,14 +53,16 @@ from bezmotion.evaluation.lafan1 import (
     evaluate_transitions,
     format_table,
 )
-from bezmotion.delta.model import TABLE3_MODES, DeltaConfig, count_parameters, delta_inbetweener
+from bezmotion.delta.model import TABLE3_MODES, DeltaConfig, delta_inbetweener
+from bezmotion.geometry import Skeleton
+from bezmotion.training import count_parameters
 
 DEFAULT_DATA = default_source("lafan1")
 TRAIN_WINDOW, TRAIN_OFFSET = 50, 20
 CONFIGS = {
-    "cpu": DeltaConfig.cpu,
-    "paper": DeltaConfig.paper,
-    "tiny": lambda **kw: DeltaConfig.cpu(**{"width": 32, "num_blocks": 1, "num_heads": 2, "embedding_dim": 8, **kw}),
+    "cpu": lambda **kw: DeltaConfig.cpu(parents=PARENTS, **kw),
+    "paper": lambda **kw: DeltaConfig.paper(parents=PARENTS, **kw),
+    "tiny": lambda **kw: DeltaConfig.tiny(parents=PARENTS, **kw),
 }
 def table3(results: dict, variant: str, lengths) -> str:
     header = "| Δ-mode input | output | " + " | ".join(f"{m.upper()} n={n}" for m in ("l2q", "l2p", "npss") for n in lengths) + " |"
@@ -111,6 +113,7 @@ def main(argv: list[str] | None = None) -> dict:
     corpus = load_lafan1(args.data, use_cache=not args.no_cache)
     train_windows = lafan1_windows(corpus, TRAIN_SUBJECTS, TRAIN_WINDOW, TRAIN_OFFSET)
     bench = Lafan1Benchmark(lafan1_windows(corpus, TEST_SUBJECTS, TEST_WINDOW, TEST_OFFSET), lafan1_statistics(corpus))
+    skeleton = Skeleton(PARENTS, JOINT_NAMES, bench.stats.offsets)  # the benchmark's constant skeleton
     data = DeltaArrays.from_windows(train_windows)
     train_config = DeltaTrainConfig.for_steps(args.steps, batch_size=args.batch_size, learning_rate=args.learning_rate)
     modes = TABLE3_MODES if args.modes == "table3" else TABLE3_MODES[:1]
@@ -138,7 +141,7 @@ def main(argv: list[str] | None = None) -> dict:
             for i, seed in enumerate(args.seeds):
                 params = jax.tree.map(lambda x, i=i: x[i], state.params)
                 results["model"]["params"] = count_parameters(params)
-                inbetween = delta_inbetweener(graphdef, params, bench.stats.offsets, batch_size=args.eval_batch)
+                inbetween = delta_inbetweener(graphdef, params, skeleton, batch_size=args.eval_batch)
                 per_seed[str(seed)] = evaluate_transitions(bench, inbetween, lengths, variant=variant)
             entry[variant] = {"mean": mean_over_seeds(list(per_seed.values())), "seeds": per_seed}
         results["ablation"][mode_label(mode)] = entry

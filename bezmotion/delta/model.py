@@ -6,7 +6,7 @@ Tokens, for one example with ``K`` key-frame slots and ``M`` missing-frame slots
 - a **key-frame token** per known frame: per joint its global position and 6D rotation
   (root: global; other joints: local), minus the reference ``X_ref`` — the root position
   and root 6D rotation of the last past frame — when ``input_delta="last"``
-  (``../shared/REFERENCE.md`` §2: 22 × 9 = 198 numbers);
+  (9 numbers per joint: 198 for LaFAN1's 22 joints);
 - a **missing-frame token** per frame to predict: no content (zeros).
 
 Each token is concatenated with two learned 32-d embeddings, of its frame index in the
@@ -33,8 +33,14 @@ batch. It is a flax NNX module used functionally: :func:`init_delta` returns
 calls it, and :func:`delta_inbetweener` wraps trained parameters as an in-betweener for
 :func:`bezmotion.evaluation.lafan1.evaluate_transitions`.
 
+**Any skeleton.** The skeleton's topology is part of the model: ``DeltaConfig.parents``
+(saved with the config) fixes the joints, the heads' sizes and the FK; the offsets come
+with the data (each training window's, or the :class:`~bezmotion.geometry.Skeleton`
+given to :func:`delta_inbetweener`, which must have the same parents). The non-learned
+bases the residuals are added to live in :mod:`bezmotion.baselines`.
+
 **Positions only** (``representation="positions"``, for corpora without rotations such as
-Anidance, ``../shared/REFERENCE.md`` §2): a key-frame token holds the ``P × 3`` global
+Anidance, the paper's §5): a key-frame token holds the ``P × 3`` global
 point positions, minus the root (point 0) of the last past frame when
 ``input_delta="last"``; one linear head decodes ``P × 3`` positions added to the same
 kinds of baseline (lerp between the key frames around each missing frame, the last past
@@ -47,8 +53,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Callable
-from typing import NamedTuple
+from collections.abc import Callable, Mapping
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -56,9 +62,9 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
-from bezmotion.data.lafan1 import PARENTS
-from bezmotion.geometry.rotations import quat_fix_continuity, quat_from_rot6d, rot6d_from_quat, slerp
-from bezmotion.geometry.skeleton import forward_kinematics
+from bezmotion.baselines import KeyFrames, KeyPositions, keyframe_interpolation, keyframe_position_interpolation
+from bezmotion.geometry.rotations import quat_fix_continuity, quat_from_rot6d, rot6d_from_quat
+from bezmotion.geometry.skeleton import Skeleton, forward_kinematics
 
 REPRESENTATIONS: tuple[str, ...] = ("rotations", "positions")
 INPUT_DELTAS: tuple[str, ...] = ("last", "none")
@@ -81,7 +87,10 @@ class DeltaConfig:
     8 heads, 3-layer block MLPs, 32-d embeddings, dropout 0.2).
 
     Attributes:
-      parents: the skeleton's parent indices, root first (default: LaFAN1's 22 joints).
+      parents: the skeleton's parent indices, root first (``Skeleton.parents``; LaFAN1:
+        ``bezmotion.data.lafan1.PARENTS``), for the rotations representation: it fixes
+        the joints and the FK. Saved with the config (read back with :meth:`from_dict`).
+        ``None`` for the positions representation, which has no skeleton.
       n_past: past context frames; key slot ``n_past - 1`` is the last past frame, the
         reference of both Δ-modes (LaFAN1 benchmark: 10).
       width, num_blocks, num_heads: transformer sizes.
@@ -99,11 +108,10 @@ class DeltaConfig:
       representation: ``"rotations"`` (6D rotations + root position, FK; LaFAN1) or
         ``"positions"`` (global point positions only; Anidance).
       num_points: points per frame of the positions representation, the root first
-        (Anidance: 24); ``None`` for rotations, whose joints ``parents`` defines (and
-        which the positions representation ignores).
+        (Anidance: 24); ``None`` for rotations, whose joints ``parents`` defines.
     """
 
-    parents: tuple[int, ...] = PARENTS
+    parents: tuple[int, ...] | None = None
     n_past: int = 10
     width: int = 1024
     num_blocks: int = 6
@@ -119,12 +127,8 @@ class DeltaConfig:
     num_points: int | None = None
 
     def __post_init__(self):
-        parents = self.parents
-        if (
-            not isinstance(parents, tuple) or not parents or parents[0] != -1
-            or any(not isinstance(p, int) or not 0 <= p < j for j, p in enumerate(parents) if j > 0)
-        ):  # fmt: skip
-            raise ValueError(f"DeltaConfig.parents must be a tuple starting with -1 whose parents precede their children, got {parents!r}")
+        if self.representation not in REPRESENTATIONS:
+            raise ValueError(f"DeltaConfig.representation must be one of {REPRESENTATIONS}, got {self.representation!r}")
         for name in ("n_past", "width", "num_blocks", "num_heads", "mlp_layers", "embedding_dim", "max_frames"):
             value = getattr(self, name)
             if not isinstance(value, int) or isinstance(value, bool) or value < 1:
@@ -144,8 +148,6 @@ class DeltaConfig:
             raise ValueError(f"DeltaConfig.output_delta must be one of {OUTPUT_DELTAS}, got {self.output_delta!r}")
         if not (isinstance(self.position_scale, float | int) and self.position_scale > 0):
             raise ValueError(f"DeltaConfig.position_scale must be positive, got {self.position_scale!r}")
-        if self.representation not in REPRESENTATIONS:
-            raise ValueError(f"DeltaConfig.representation must be one of {REPRESENTATIONS}, got {self.representation!r}")
         if self.representation == "positions":
             n = self.num_points
             if not isinstance(n, int) or isinstance(n, bool) or n < 1:
@@ -155,6 +157,23 @@ class DeltaConfig:
                 f"DeltaConfig.num_points={self.num_points!r} is only for the positions representation; "
                 "with rotations the skeleton (parents) fixes the joints"
             )
+        parents = self.parents
+        if self.representation == "positions":
+            if parents is not None:
+                raise ValueError(
+                    f"DeltaConfig.parents={parents!r} is only for the rotations representation; "
+                    "positions have no skeleton (num_points fixes the points)"
+                )
+        elif parents is None:
+            raise ValueError(
+                "DeltaConfig.parents is required for the rotations representation: pass the skeleton's "
+                "parent indices (e.g. DeltaConfig.cpu(parents=skeleton.parents))"
+            )
+        elif (
+            not isinstance(parents, tuple) or not parents or parents[0] != -1
+            or any(not isinstance(p, int) or not 0 <= p < j for j, p in enumerate(parents) if j > 0)
+        ):  # fmt: skip
+            raise ValueError(f"DeltaConfig.parents must be a tuple starting with -1 whose parents precede their children, got {parents!r}")
 
     @property
     def num_joints(self) -> int:
@@ -172,8 +191,16 @@ class DeltaConfig:
         return self.num_joints * 3 if self.representation == "positions" else self.num_joints * 6 + 3
 
     @classmethod
+    def from_dict(cls, values: Mapping[str, Any]) -> DeltaConfig:
+        """The config from ``dataclasses.asdict(config)`` as a checkpoint's ``config.json``
+        holds it (JSON has made ``parents`` a list)."""
+        parents = values.get("parents")
+        return cls(**{**values, "parents": None if parents is None else tuple(parents)})
+
+    @classmethod
     def paper(cls, **overrides) -> DeltaConfig:
-        """The paper's size (44.5 M parameters; REFERENCE §2 quotes ≈ 44.9 M for the original code)."""
+        """The paper's size (44.5 M parameters on LaFAN1's skeleton; ≈ 44.9 M are quoted
+        for the original code)."""
         return cls(**overrides)
 
     @classmethod
@@ -185,39 +212,6 @@ class DeltaConfig:
     def tiny(cls, **overrides) -> DeltaConfig:
         """A size for smoke tests: the CPU size at width 32, one block of two heads, 8-d embeddings."""
         return cls.cpu(**{"width": 32, "num_blocks": 1, "num_heads": 2, "embedding_dim": 8, **overrides})
-
-
-class KeyFrames(NamedTuple):
-    """The known frames of one example (add leading axes to batch).
-
-    Attributes:
-      quat_local: ``(keys, J, 4)`` local rotations (root: global).
-      root_pos: ``(keys, 3)`` root positions (cm).
-      frame: ``(keys,)`` frame index of each key in the window (increasing over valid keys).
-      valid: ``(keys,)`` which slots hold a key frame; the others are padding. Slots
-        ``0 … n_past-1`` are the past context and must be valid.
-    """
-
-    quat_local: Float[Array, "*batch keys joints 4"]
-    root_pos: Float[Array, "*batch keys 3"]
-    frame: Int[Array, "*batch keys"]
-    valid: Bool[Array, "*batch keys"]
-
-
-class KeyPositions(NamedTuple):
-    """The known frames of one example in the positions representation (add leading axes
-    to batch).
-
-    Attributes:
-      pos: ``(keys, P, 3)`` global point positions (cm); point 0 is the root.
-      frame: ``(keys,)`` frame index of each key (increasing over valid keys).
-      valid: ``(keys,)`` which slots hold a key frame; the others are padding. Slots
-        ``0 … n_past-1`` are the past context and must be valid.
-    """
-
-    pos: Float[Array, "*batch keys points 3"]
-    frame: Int[Array, "*batch keys"]
-    valid: Bool[Array, "*batch keys"]
 
 
 class DeltaPositionsOutput(NamedTuple):
@@ -376,6 +370,12 @@ class DeltaInterpolator(nnx.Module):
         cfg = self.config
         if cfg.representation != "rotations":
             raise ValueError(f"this model has the {cfg.representation!r} representation: call .positions(...) instead")
+        j = cfg.num_joints
+        if offsets.shape[-2:] != (j, 3) or keys.quat_local.shape[-2:] != (j, 4):
+            raise ValueError(
+                f"offsets of shape {offsets.shape} and key rotations of shape {keys.quat_local.shape} do not fit the "
+                f"model's {j}-joint skeleton (DeltaConfig.parents), which needs ({j}, 3) and (keys, {j}, 4)"
+            )
         ref = cfg.n_past - 1
         dtype = keys.root_pos.dtype
         rot6d = rot6d_from_quat(keys.quat_local)
@@ -433,64 +433,14 @@ class DeltaInterpolator(nnx.Module):
         return DeltaPositionsOutput(pos[:n_keys], pos[n_keys:])
 
 
-def _bracketing_keys(
-    frame: Int[Array, "keys"], valid: Bool[Array, "keys"], missing_frame: Int[Array, "missing"], dtype
-) -> tuple[Int[Array, "missing"], Int[Array, "missing"], Array]:
-    """For each missing frame: the slots of the nearest valid keys before and after it and
-    its lerp weight between them (0 at ``prev``). A frame with a key on one side only gets
-    that key on both sides (weight 0)."""
-    t = missing_frame[:, None]
-    before = valid[None, :] & (frame[None, :] < t)
-    after = valid[None, :] & (frame[None, :] > t)
-    prev = jnp.argmax(jnp.where(before, frame[None, :], jnp.iinfo(frame.dtype).min), axis=-1)
-    nxt = jnp.argmin(jnp.where(after, frame[None, :], jnp.iinfo(frame.dtype).max), axis=-1)
-    prev = jnp.where(before.any(-1), prev, nxt)
-    nxt = jnp.where(after.any(-1), nxt, prev)
-    span = frame[nxt] - frame[prev]
-    w = jnp.where(span > 0, (missing_frame - frame[prev]).astype(dtype) / jnp.maximum(span, 1).astype(dtype), 0.0)
-    return prev, nxt, w
-
-
-def interpolation_baseline(
-    keys: KeyFrames, missing_frame: Int[Array, "missing"]
-) -> tuple[Float[Array, "missing joints 4"], Float[Array, "missing 3"]]:
-    """Lerp the root and slerp every local rotation between the valid key frames just
-    before and just after each missing frame (weights by frame index). With 10 past frames
-    and one target this is the benchmark's interpolation baseline, weights ``k/(n+1)``.
-    A frame with a key on one side only copies that key."""
-    prev, nxt, w = _bracketing_keys(keys.frame, keys.valid, missing_frame, keys.root_pos.dtype)
-    quat = slerp(keys.quat_local[prev], keys.quat_local[nxt], w[:, None])
-    root = keys.root_pos[prev] + w[:, None] * (keys.root_pos[nxt] - keys.root_pos[prev])
-    return quat, root
-
-
-def position_interpolation_baseline(
-    keys: KeyPositions, missing_frame: Int[Array, "missing"]
-) -> Float[Array, "missing points 3"]:
-    """Lerp every point between the valid key frames just before and just after each
-    missing frame, weights by frame index (the Anidance benchmark's LERP baseline; with key
-    frames every 6 frames, piecewise linear through them). A frame with a key on one side
-    only copies that key. One example; ``jax.vmap`` over a batch."""
-    prev, nxt, w = _bracketing_keys(keys.frame, keys.valid, missing_frame, keys.pos.dtype)
-    return keys.pos[prev] + w[:, None, None] * (keys.pos[nxt] - keys.pos[prev])
-
-
-def position_zero_velocity_baseline(
-    keys: KeyPositions, missing_frame: Int[Array, "missing"]
-) -> Float[Array, "missing points 3"]:
-    """Every missing frame copies the nearest valid key frame before it (the zero-velocity
-    baseline; with one past frame and one target, the past frame). One example."""
-    prev, _, _ = _bracketing_keys(keys.frame, keys.valid, missing_frame, keys.pos.dtype)
-    return keys.pos[prev]
-
-
 def _baselines(config: DeltaConfig, keys: KeyFrames, missing_frame):
     """``(6D (keys + missing, J, 6), root (keys + missing, 3))``, key slots first: what the
-    heads' outputs are added to."""
+    heads' outputs are added to (:func:`bezmotion.baselines.keyframe_interpolation`, the
+    last past frame, or zeros; known frames are their own interpolation baseline)."""
     n_keys, n_missing, j = keys.frame.shape[0], missing_frame.shape[0], config.num_joints
     dtype = keys.root_pos.dtype
     if config.output_delta == "interpolation":
-        quat, root = interpolation_baseline(keys, missing_frame)
+        quat, root = keyframe_interpolation(keys, missing_frame)
         quat = jnp.concatenate([keys.quat_local, quat], axis=0)
         return rot6d_from_quat(quat), jnp.concatenate([keys.root_pos, root], axis=0)
     if config.output_delta == "last":
@@ -505,7 +455,7 @@ def _position_baselines(config: DeltaConfig, keys: KeyPositions, missing_frame):
     output is added to (known frames are their own interpolation baseline)."""
     n = keys.frame.shape[0] + missing_frame.shape[0]
     if config.output_delta == "interpolation":
-        return jnp.concatenate([keys.pos, position_interpolation_baseline(keys, missing_frame)], axis=0)
+        return jnp.concatenate([keys.pos, keyframe_position_interpolation(keys, missing_frame)], axis=0)
     if config.output_delta == "last":
         return jnp.broadcast_to(keys.pos[config.n_past - 1], (n, *keys.pos.shape[1:]))
     return jnp.zeros((n, *keys.pos.shape[1:]), keys.pos.dtype)
@@ -557,11 +507,12 @@ def transition_layout(n_past: int, n: int) -> tuple[np.ndarray, np.ndarray]:
 def delta_inbetweener(
     graphdef: nnx.GraphDef,
     params: nnx.State,
-    offsets: Float[Array, "joints 3"] | Float[np.ndarray, "joints 3"],
+    skeleton: Skeleton,
     *,
     batch_size: int | None = None,
 ) -> Callable[..., tuple[Array, Array]]:
-    """The trained model as an in-betweener for :func:`bezmotion.evaluation.lafan1.evaluate_transitions`.
+    """The trained model as an in-betweener of motion on ``skeleton``, for example for
+    :func:`bezmotion.evaluation.lafan1.evaluate_transitions`.
 
     ``inbetween(past_quat (B, n_past, J, 4), past_root (B, n_past, 3), target_quat (B, J, 4),
     target_root (B, 3), n) -> (quat (B, n, J, 4), root (B, n, 3))`` with ``n`` a Python int.
@@ -571,13 +522,15 @@ def delta_inbetweener(
 
     Args:
       graphdef, params: from :func:`init_delta` (or training).
-      offsets: ``(J, 3)`` the skeleton offsets (cm) used for the key frames' features
-        (the benchmark's constant skeleton).
+      skeleton: the motion's skeleton: its parents must be the model's
+        (``DeltaConfig.parents``) and its ``(J, 3)`` offsets (cm) place the key frames'
+        joints for their features (the LaFAN1 benchmark: one constant skeleton).
       batch_size: examples per vectorised chunk (``jax.lax.map``), bounding memory; ``None``
         runs the whole batch at once.
     """
     if batch_size is not None and (not isinstance(batch_size, int) or batch_size < 1):
         raise ValueError(f"batch_size must be a positive integer or None, got {batch_size!r}")
+    _check_skeleton(nnx.merge(graphdef, params).config, skeleton)
     dtype = jax.tree.leaves(params)[0].dtype
 
     def inbetween(past_quat, past_root, target_quat, target_root, n):
@@ -595,7 +548,7 @@ def delta_inbetweener(
         key_frame, missing_frame = (jnp.asarray(a) for a in transition_layout(cfg.n_past, n))
         valid = jnp.ones(key_frame.shape, bool)
         gap = jnp.asarray(n, jnp.int32)
-        offs = jnp.asarray(offsets, dtype)
+        offs = jnp.asarray(skeleton.offsets, dtype)
         key_quat = jnp.concatenate([past_quat, target_quat[:, None]], axis=1).astype(dtype)
         key_root = jnp.concatenate([past_root, target_root[:, None]], axis=1).astype(dtype)
 
@@ -655,6 +608,19 @@ def delta_position_inbetweener(
     return inbetween
 
 
+def _check_skeleton(config: DeltaConfig, skeleton: Skeleton) -> None:
+    """A rotations model in-betweens motion of the skeleton it was built for, one offsets set."""
+    if config.representation != "rotations":
+        raise ValueError(f"delta_inbetweener needs a rotations model, got representation={config.representation!r}")
+    if skeleton.parents != config.parents:
+        raise ValueError(
+            f"the skeleton's parents {skeleton.parents} differ from the model's DeltaConfig.parents {config.parents}: "
+            "a Δ-interpolator in-betweens the skeleton it was trained on"
+        )
+    if tuple(skeleton.offsets.shape) != (skeleton.num_joints, 3):
+        raise ValueError(f"the skeleton's offsets have shape {tuple(skeleton.offsets.shape)}, expected ({skeleton.num_joints}, 3)")
+
+
 def _check_frames(config: DeltaConfig, key_frame, missing_frame) -> None:
     """Validate a static key / missing frame layout before tracing."""
     ints = all(isinstance(f, int | np.integer) and not isinstance(f, bool) for f in (*key_frame, *missing_frame))
@@ -672,10 +638,6 @@ def _check_frames(config: DeltaConfig, key_frame, missing_frame) -> None:
         )
 
 
-def count_parameters(params: nnx.State) -> int:
-    return int(sum(np.prod(x.shape) for x in jax.tree.leaves(params)))
-
-
 __all__ = [
     "INPUT_DELTAS",
     "OUTPUT_DELTAS",
@@ -689,12 +651,8 @@ __all__ = [
     "KeyPositions",
     "apply_delta",
     "apply_delta_positions",
-    "count_parameters",
     "delta_inbetweener",
     "delta_position_inbetweener",
     "init_delta",
-    "interpolation_baseline",
-    "position_interpolation_baseline",
-    "position_zero_velocity_baseline",
     "transition_layout",
 ]

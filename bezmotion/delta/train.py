@@ -2,11 +2,15 @@
 
 ``step(state, data) -> (state, metrics)`` is pure: it draws its batch (windows, gap
 lengths, start frames, dropout) from ``state.key``, so a run is fully determined by its
-seed and resumes bit-identically from a checkpoint. It reuses :mod:`bezmotion.bmm.train`'s
-``TrainState``, ``compile_train_step`` (several seeds vmapped over a stacked state) and
-``run_training`` (atomic orbax checkpoints, Ctrl-C / SIGTERM handling).
+seed and resumes bit-identically from a checkpoint. The generic pieces are
+:mod:`bezmotion.training`'s: ``TrainState``, ``apply_gradients`` (the update),
+``warmup_then_decay`` (the schedule), ``compile_train_step`` (several seeds vmapped over
+a stacked state) and ``run_training`` (atomic orbax checkpoints, Ctrl-C / SIGTERM
+handling). The trainer knows no corpus: it takes windows as arrays
+(:class:`DeltaArrays`, :class:`DeltaPositionArrays`) of the skeleton the model was built
+for (``DeltaConfig.parents``).
 
-Paper settings (Appendix B, Table 5; ``../shared/REFERENCE.md`` §2): Adam, batch 64,
+Paper settings (Oreshkin et al. 2023, Appendix B, Table 5): Adam, batch 64,
 lr warmed linearly from 1e-6 to 2e-4 over 50 epochs, then ×0.1 every 200 epochs (300
 in all); gap length ``n ∈ [5, 39]`` with ``p(n) ∝ 1/n``; 10 past frames and one target at
 a uniformly random start in the 50-frame training window; loss
@@ -36,16 +40,15 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
-from bezmotion.data.anidance import AnidanceWindows
-from bezmotion.data.lafan1 import Lafan1Windows
 from bezmotion.geometry.skeleton import forward_kinematics
 from bezmotion.delta.model import (
     DeltaConfig,
@@ -57,7 +60,7 @@ from bezmotion.delta.model import (
     apply_delta_positions,
     init_delta,
 )
-from bezmotion.training import TrainState, fresh_train_state, run_training, stack_seeds
+from bezmotion.training import TrainState, apply_gradients, fresh_train_state, run_training, stack_seeds, warmup_then_decay
 
 
 @dataclasses.dataclass(frozen=True)
@@ -130,6 +133,26 @@ class DeltaTrainConfig:
         return cls(**{"warmup_steps": warmup, "decay_every": max(1, (2 * num_steps) // 3), **overrides})
 
 
+@runtime_checkable
+class RotationWindows(Protocol):
+    """Training windows of local rotations, e.g. LaFAN1's preprocessed windows (any corpus)."""
+
+    @property
+    def quat_local(self) -> Float[np.ndarray, "windows frames joints 4"]: ...
+    @property
+    def root_pos(self) -> Float[np.ndarray, "windows frames 3"]: ...
+    @property
+    def offsets(self) -> Float[np.ndarray, "windows joints 3"]: ...
+
+
+@runtime_checkable
+class PositionWindows(Protocol):
+    """Training windows of global point positions, e.g. Anidance's (any corpus)."""
+
+    @property
+    def positions(self) -> Float[np.ndarray, "windows frames points 3"]: ...
+
+
 class DeltaArrays(NamedTuple):
     """Training windows as device arrays, the ``data`` argument of the step (float32).
 
@@ -144,8 +167,9 @@ class DeltaArrays(NamedTuple):
     offsets: Float[Array, "windows joints 3"]
 
     @classmethod
-    def from_windows(cls, windows: Lafan1Windows) -> DeltaArrays:
-        """From preprocessed LaFAN1 windows (training protocol: 50 frames, offset 20)."""
+    def from_windows(cls, windows: RotationWindows) -> DeltaArrays:
+        """From windows with ``quat_local``, ``root_pos`` and ``offsets`` arrays (LaFAN1's
+        training protocol: 50 frames, offset 20)."""
         return cls(*(jnp.asarray(a, jnp.float32) for a in (windows.quat_local, windows.root_pos, windows.offsets)))
 
 
@@ -159,18 +183,18 @@ class DeltaPositionArrays(NamedTuple):
     positions: Float[Array, "windows frames points 3"]
 
     @classmethod
-    def from_windows(cls, windows: AnidanceWindows) -> DeltaPositionArrays:
-        """From Anidance windows (benchmark protocol: 128 frames, offset 64)."""
+    def from_windows(cls, windows: PositionWindows) -> DeltaPositionArrays:
+        """From windows with a ``positions`` array (Anidance's protocol: 128 frames, offset 64)."""
         return cls(jnp.asarray(windows.positions, jnp.float32))
 
 
 def learning_rate_schedule(config: DeltaTrainConfig) -> optax.Schedule:
-    """Linear warm-up from ``initial_learning_rate`` to ``learning_rate``, then a step decay."""
-    warmup = optax.linear_schedule(config.initial_learning_rate, config.learning_rate, config.warmup_steps)
-    decay = optax.exponential_decay(
-        config.learning_rate, config.decay_every, config.decay_factor, staircase=True
-    )  # fmt: skip
-    return optax.join_schedules([warmup, decay], [config.warmup_steps])
+    """Linear warm-up from ``initial_learning_rate`` to ``learning_rate``, then ×``decay_factor``
+    every ``decay_every`` steps."""
+    decay = optax.exponential_decay(config.learning_rate, config.decay_every, config.decay_factor, staircase=True)
+    return warmup_then_decay(
+        decay, init_value=config.initial_learning_rate, peak_value=config.learning_rate, warmup_steps=config.warmup_steps
+    )
 
 
 def make_optimizer(config: DeltaTrainConfig) -> optax.GradientTransformation:
@@ -398,7 +422,7 @@ def make_delta_train_step(
     graphdef: nnx.GraphDef, model_config: DeltaConfig, train_config: DeltaTrainConfig, *, window_frames: int
 ) -> Callable[[TrainState, DeltaArrays | DeltaPositionArrays], tuple[TrainState, dict[str, Array]]]:
     """The (un-jitted) single-seed training step; compile it with
-    :func:`bezmotion.bmm.train.compile_train_step`.
+    :func:`bezmotion.training.compile_train_step`.
 
     Args:
       graphdef: from :func:`init_delta_train_state`.
@@ -423,6 +447,8 @@ def make_delta_train_step(
         )
     positions = model_config.representation == "positions"
     data_type = DeltaPositionArrays if positions else DeltaArrays
+    # What one frame of the data must look like: the model's points, or its skeleton's joints.
+    frame_shape = (model_config.num_joints, 3) if positions else (model_config.num_joints, 4)
     optimizer = make_optimizer(train_config)
     schedule = learning_rate_schedule(train_config)
 
@@ -448,15 +474,19 @@ def make_delta_train_step(
             )
         if data[0].shape[1] != window_frames:
             raise ValueError(f"the step was built for {window_frames}-frame windows, got {data[0].shape[1]}")
+        joints = model_config.num_joints
+        if data[0].shape[2:] != frame_shape:
+            what = "points" if positions else "joints (DeltaConfig.parents)"
+            raise ValueError(f"windows of {data[0].shape[2:]} per frame do not fit the model's {joints} {what}: expected {frame_shape}")
+        if not positions and data.offsets.shape[1:] != (joints, 3):
+            raise ValueError(f"offsets of shape {data.offsets.shape} do not fit the model's {joints}-joint skeleton: expected (windows, {joints}, 3)")
         key, index_key, example_key = jax.random.split(state.key, 3)
         index = jax.random.randint(index_key, (train_config.batch_size,), 0, data[0].shape[0])
         batch = tuple(a[index] for a in data)
         rngs = jax.random.split(example_key, train_config.batch_size)
-        (loss, terms), grads = jax.value_and_grad(loss_fn, has_aux=True)(state.params, batch, rngs)
-        updates, opt_state = optimizer.update(grads, state.opt_state, state.params)
-        params = optax.apply_updates(state.params, updates)
-        metrics = {"loss": loss, "grad_norm": optax.global_norm(grads), "learning_rate": schedule(state.step), **terms}
-        return TrainState(params, opt_state, None, state.step + 1, key), metrics
+        learning_rate = schedule(state.step)
+        state, metrics = apply_gradients(state, optimizer, loss_fn, batch, rngs, next_key=key)
+        return state, {**metrics, "learning_rate": learning_rate}
 
     return step
 
@@ -467,7 +497,7 @@ def run_delta_training(
     data: DeltaArrays | DeltaPositionArrays,
     **kwargs: Any,
 ) -> tuple[TrainState, list[dict[str, float | int]]]:
-    """:func:`bezmotion.bmm.train.run_training` for Δ-interpolator data (same keyword arguments:
+    """:func:`bezmotion.training.run_training` for Δ-interpolator data (same keyword arguments:
     ``num_steps``, ``store``, ``checkpoint_every``, ``config``, ``progress``, ``log_every``)."""
     return run_training(step_fn, state, data, **kwargs)
 

@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 
 import jax
 import jax.numpy as jnp
@@ -54,12 +54,11 @@ from bezmotion.data.anidance import (
     load_anidance,
 )
 from bezmotion.metrics import l2p
-from bezmotion.delta.model import KeyPositions, position_interpolation_baseline, position_zero_velocity_baseline
+from bezmotion.baselines import PositionInBetweener, interpolation_position_inbetweener, zero_velocity_position_inbetweener
 
 ANIDANCE_LENGTHS: tuple[int, ...] = (5, 15, 30)
 KEYFRAME_PERIOD = 6
 PROTOCOLS: tuple[str, ...] = ("gap", "infill")
-PositionInBetweener = Callable[[Array, tuple[int, ...], tuple[int, ...]], Array]
 
 
 @dataclasses.dataclass(frozen=True)
@@ -125,24 +124,6 @@ def in_stored_layout(inbetween_world: PositionInBetweener) -> PositionInBetweene
     return inbetween
 
 
-def _baseline_inbetweener(baseline) -> PositionInBetweener:
-    def inbetween(
-        key_pos: Float[Array, "batch keys points 3"], key_frame: tuple[int, ...], missing_frame: tuple[int, ...]
-    ) -> Float[Array, "batch missing points 3"]:
-        frame = jnp.asarray(key_frame, jnp.int32)
-        valid = jnp.ones(frame.shape, bool)
-        missing = jnp.asarray(missing_frame, jnp.int32)
-        return jax.vmap(lambda pos: baseline(KeyPositions(pos, frame, valid), missing))(key_pos)
-
-    return inbetween
-
-
-#: Each missing frame copies the nearest key frame before it.
-zero_velocity_position_inbetweener = _baseline_inbetweener(position_zero_velocity_baseline)
-#: Each missing frame is lerped between the key frames around it.
-interpolation_position_inbetweener = _baseline_inbetweener(position_interpolation_baseline)
-
-
 def evaluate_anidance(
     bench: AnidanceBenchmark,
     inbetween: PositionInBetweener,
@@ -187,7 +168,7 @@ _l2p_jit = jax.jit(l2p)
 
 
 def evaluate_anidance_baselines(bench: AnidanceBenchmark, lengths: Sequence[int] = ANIDANCE_LENGTHS) -> dict:
-    """Zero-velocity and LERP under both protocols: ``{protocol: {"zerov": …, "interp": …}}``."""
+    """Zero-velocity and LERP (:mod:`bezmotion.baselines`) under both protocols: ``{protocol: {"zerov": …, "interp": …}}``."""
     return {
         protocol: {
             "zerov": evaluate_anidance(bench, zero_velocity_position_inbetweener, lengths, protocol=protocol),
@@ -218,6 +199,4 @@ __all__ = [
     "evaluate_anidance_baselines",
     "format_anidance_table",
     "in_stored_layout",
-    "interpolation_position_inbetweener",
-    "zero_velocity_position_inbetweener",
 ]

@@ -33,7 +33,7 @@ from bezmotion.data.lafan1 import (
 )
 from bezmotion.geometry.skeleton import forward_kinematics
 from bezmotion.metrics import align_to_context, l2p, l2q, npss
-from bezmotion.baselines import interpolation, zero_velocity
+from bezmotion.baselines import interpolation_inbetweener, zero_velocity_inbetweener
 
 TRANSITION_LENGTHS: tuple[int, ...] = (5, 15, 30, 45)
 TEST_WINDOW, TEST_OFFSET = 65, 40
@@ -58,16 +58,6 @@ def lafan1_benchmark(source: str | os.PathLike, *, use_cache: bool = True) -> La
     corpus = load_lafan1(source, use_cache=use_cache)
     test = lafan1_windows(corpus, TEST_SUBJECTS, TEST_WINDOW, TEST_OFFSET)
     return Lafan1Benchmark(test, lafan1_statistics(corpus))
-
-
-def zero_velocity_inbetweener(past_quat, past_root, target_quat, target_root, n):
-    """The zero-velocity baseline as an in-betweener (copies the last past frame)."""
-    return zero_velocity(past_quat[:, -1], past_root[:, -1], n)
-
-
-def interpolation_inbetweener(past_quat, past_root, target_quat, target_root, n):
-    """The interpolation baseline as an in-betweener (lerp root, slerp local rotations)."""
-    return interpolation(past_quat[:, -1], past_root[:, -1], target_quat, target_root, n)
 
 
 @functools.partial(jax.jit, static_argnames="variant")
@@ -141,7 +131,7 @@ def evaluate_transitions(
 def evaluate_baselines(
     bench: Lafan1Benchmark, lengths: Sequence[int] = TRANSITION_LENGTHS, *, variant: str = "official"
 ) -> dict:
-    """Both baselines on the benchmark, in the experiment's JSON layout."""
+    """Both baselines (:mod:`bezmotion.baselines`) on the benchmark, in the experiment's JSON layout."""
     return {
         "n_windows": bench.num_windows,
         "zerov": evaluate_transitions(bench, zero_velocity_inbetweener, lengths, variant=variant),
@@ -167,7 +157,5 @@ __all__ = [
     "evaluate_baselines",
     "evaluate_transitions",
     "format_table",
-    "interpolation_inbetweener",
     "lafan1_benchmark",
-    "zero_velocity_inbetweener",
 ]

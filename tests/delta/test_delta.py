@@ -32,23 +32,22 @@ from bezmotion.delta.train import (
     make_delta_train_step,
     run_delta_training,
 )
-from bezmotion.evaluation.lafan1 import TEST_OFFSET, TEST_WINDOW, Lafan1Benchmark, evaluate_transitions, interpolation_inbetweener
-from bezmotion.geometry.skeleton import forward_kinematics
-from bezmotion.baselines import interpolation
+from bezmotion.evaluation.lafan1 import TEST_OFFSET, TEST_WINDOW, Lafan1Benchmark, evaluate_transitions
+from bezmotion.geometry.skeleton import Skeleton, forward_kinematics
+from bezmotion.baselines import interpolation, interpolation_inbetweener
 from bezmotion.delta.model import (
     DeltaConfig,
     DeltaInterpolator,
     KeyFrames,
     apply_delta,
-    count_parameters,
     delta_inbetweener,
     init_delta,
     transition_layout,
 )
-from bezmotion.training import compile_train_step
+from bezmotion.training import compile_train_step, count_parameters
 
 N_PAST, MAX_GAP, WINDOW = 10, 39, 50
-SIZES = {"width": 32, "num_heads": 2, "mlp_layers": 2, "embedding_dim": 8}
+SIZES = {"parents": lafan1.PARENTS, "width": 32, "num_heads": 2, "mlp_layers": 2, "embedding_dim": 8}
 FORWARD = DeltaConfig(num_blocks=2, dropout=0.2, **SIZES)  # Last / I: the paper's Δ-interpolator
 
 
@@ -112,7 +111,7 @@ def no_delta_input() -> SimpleNamespace:
 
 
 def test_config_sizes_and_validation():
-    paper, cpu = DeltaConfig.paper(), DeltaConfig.cpu()
+    paper, cpu = DeltaConfig.paper(parents=lafan1.PARENTS), DeltaConfig.cpu(parents=lafan1.PARENTS)
     assert (paper.width, paper.num_blocks, paper.num_heads, paper.embedding_dim, paper.dropout) == (1024, 6, 8, 32, 0.2)
     assert (paper.input_delta, paper.output_delta, paper.num_joints, paper.frame_features) == ("last", "interpolation", 22, 198)
     assert cpu.width <= 256 and cpu.num_blocks <= 3
@@ -134,7 +133,7 @@ def test_config_sizes_and_validation():
 def test_paper_size_has_the_published_parameter_count():
     """44.5 M parameters (REFERENCE §2 quotes ≈ 44.9 M for the original code), counted on
     abstract shapes so nothing is allocated."""
-    model = nnx.eval_shape(lambda: DeltaInterpolator(DeltaConfig.paper(), rngs=nnx.Rngs(0)))
+    model = nnx.eval_shape(lambda: DeltaInterpolator(DeltaConfig.paper(parents=lafan1.PARENTS), rngs=nnx.Rngs(0)))
     count = count_parameters(nnx.state(model, nnx.Param))
     w, blocks = 1024, 6
     per_block = 4 * (w * w + w) + 2 * w + 3 * (w * w + w)  # q, k, v, out; LayerNorm; MLP
@@ -269,7 +268,8 @@ def test_inbetweener_runs_the_official_benchmark(forward, corpus):
     protocol (signs included: its output is made sign-continuous like the data)."""
     test = lafan1.lafan1_windows(corpus, lafan1.TEST_SUBJECTS, TEST_WINDOW, TEST_OFFSET)
     bench = Lafan1Benchmark(test, lafan1.lafan1_statistics(corpus))
-    inbetween = delta_inbetweener(forward.graphdef, forward.params, bench.stats.offsets, batch_size=4)
+    skeleton = Skeleton(lafan1.PARENTS, lafan1.JOINT_NAMES, bench.stats.offsets)
+    inbetween = delta_inbetweener(forward.graphdef, forward.params, skeleton, batch_size=4)
     ours = evaluate_transitions(bench, inbetween, lengths=(5,))
     reference = evaluate_transitions(bench, interpolation_inbetweener, lengths=(5,))
     for metric in ("l2q", "l2p", "npss"):
@@ -278,7 +278,7 @@ def test_inbetweener_runs_the_official_benchmark(forward, corpus):
     with pytest.raises(ValueError, match="beyond the model's max_frames=65"):
         inbetween(w.quat_local[:1, :N_PAST], w.root_pos[:1, :N_PAST], w.quat_local[:1, 0], w.root_pos[:1, 0], 55)
     with pytest.raises(ValueError, match="batch_size must be a positive integer"):
-        delta_inbetweener(forward.graphdef, forward.params, bench.stats.offsets, batch_size=0)
+        delta_inbetweener(forward.graphdef, forward.params, skeleton, batch_size=0)
 
 
 # ---------------------------------------------------------------------------- training

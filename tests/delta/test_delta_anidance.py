@@ -29,11 +29,16 @@ from bezmotion.evaluation.anidance import (
     evaluate_anidance,
     evaluate_anidance_baselines,
     in_stored_layout,
+)
+from bezmotion.baselines import (
     interpolation_position_inbetweener,
+    keyframe_position_interpolation,
+    keyframe_position_zero_velocity,
     zero_velocity_position_inbetweener,
 )
 from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.data.anidance import COLUMNS, AnidanceStatistics, AnidanceWindows
+from bezmotion.data.lafan1 import PARENTS
 from bezmotion.delta.train import (
     DeltaArrays,
     DeltaPositionArrays,
@@ -50,8 +55,6 @@ from bezmotion.delta.model import (
     apply_delta_positions,
     delta_position_inbetweener,
     init_delta,
-    position_interpolation_baseline,
-    position_zero_velocity_baseline,
 )
 from bezmotion.training import compile_train_step
 from helpers import SHARED_DATA, requires_shared
@@ -112,7 +115,7 @@ def models() -> dict[str, SimpleNamespace]:
 
 def test_positions_config_and_errors(models):
     assert (LAST_I.num_joints, LAST_I.frame_features, LAST_I.output_features) == (24, 72, 72)
-    assert DeltaConfig().frame_features == 198 and DeltaConfig().output_features == 22 * 6 + 3
+    assert DeltaConfig(parents=PARENTS).frame_features == 198 and DeltaConfig(parents=PARENTS).output_features == 22 * 6 + 3
     for overrides, message in (
         ({"representation": "positions"}, "num_points must be a positive integer for the positions representation, got None"),
         ({"num_points": 24}, "num_points=24 is only for the positions representation"),
@@ -131,7 +134,7 @@ def test_positions_config_and_errors(models):
     frames = jnp.asarray([0, 6], jnp.int32)
     keys = KeyPositions(jnp.zeros((2, P, 3)), frames, jnp.ones(2, bool))
     with pytest.raises(ValueError, match="call it with offsets and KeyFrames"):
-        apply_delta_positions(*init_delta(DeltaConfig(**SIZES), key=jax.random.key(0)), keys, jnp.arange(1, 6), jnp.int32(5))
+        apply_delta_positions(*init_delta(DeltaConfig(parents=PARENTS, **SIZES), key=jax.random.key(0)), keys, jnp.arange(1, 6), jnp.int32(5))
     rotation_keys = KeyFrames(jnp.zeros((2, P, 4)), jnp.zeros((2, 3)), frames, jnp.ones(2, bool))
     with pytest.raises(ValueError, match="call .positions"):
         nnx.merge(m.graphdef, m.params)(jnp.zeros((P, 3)), rotation_keys, jnp.arange(1, 6), jnp.int32(5))
@@ -164,7 +167,7 @@ def test_baselines_against_hand_computed_values():
     pos[3] = [[9.0, 0.0, 3.0], [40.0, 20.0, 0.0]]
     keys = KeyPositions(jnp.asarray(pos), jnp.asarray([0, 6, 0, 9]), jnp.asarray([True, True, False, True]))
     missing = jnp.asarray([1, 3, 7, 8])
-    lerp = np.asarray(position_interpolation_baseline(keys, missing))
+    lerp = np.asarray(keyframe_position_interpolation(keys, missing))
     expected = np.array([
         [[1.0, 2.0, -1.0], [10.0, 20.0, 30.0]],   # 1/6 of the way from frame 0 to frame 6
         [[3.0, 6.0, -3.0], [10.0, 20.0, 30.0]],   # half way
@@ -172,7 +175,7 @@ def test_baselines_against_hand_computed_values():
         [[8.0, 4.0, 0.0], [30.0, 20.0, 10.0]],    # 2/3
     ])  # fmt: skip
     np.testing.assert_allclose(lerp, expected, atol=1e-12)
-    zerov = np.asarray(position_zero_velocity_baseline(keys, missing))
+    zerov = np.asarray(keyframe_position_zero_velocity(keys, missing))
     np.testing.assert_array_equal(zerov, pos[[0, 0, 1, 1]])
     # The benchmark's batched in-betweeners agree (key slots without padding).
     batch = jnp.asarray(np.stack([pos[[0, 1, 3]], pos[[0, 1, 3]] + 5.0]))
