@@ -43,11 +43,11 @@ beside it.
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import time
 import warnings
 from pathlib import Path
+from typing import ClassVar, Literal
 
 import jax
 
@@ -67,28 +67,24 @@ from bezmotion.data.anidance import anidance_statistics, anidance_windows, load_
 from bezmotion.data.sources import default_source
 from _delta import (
     MODE_NAMES,
+    DeltaOptions,
     ModeRun,
-    add_delta_arguments,
     check_resumable,
     mean_over_seeds,
     mode_label,
-    resolve_run_dir,
     train_delta_mode,
 )
 from bezmotion.delta.train import DeltaPositionArrays, DeltaTrainConfig
 from bezmotion.delta.model import TABLE3_MODES, DeltaConfig, delta_position_inbetweener
 from bezmotion.training import count_parameters
+from bezmotion.options import option, options, parse_options, presets
 
 DEFAULT_DATA = default_source("anidance")
 TRAIN_WINDOW = 128
 N_PAST = 1
 NUM_POINTS = 24
 POSITIONS = {"representation": "positions", "num_points": NUM_POINTS, "n_past": N_PAST}
-CONFIGS = {
-    "cpu": lambda **kw: DeltaConfig.cpu(**POSITIONS, **kw),
-    "paper": lambda **kw: DeltaConfig.paper(**POSITIONS, **kw),
-    "tiny": lambda **kw: DeltaConfig.cpu(**{**POSITIONS, "width": 32, "num_blocks": 1, "num_heads": 2, "embedding_dim": 8, **kw}),
-}
+CONFIGS = presets(DeltaConfig, **POSITIONS)
 MODES = {
     "main": TABLE3_MODES[:1],
     "table2": (TABLE3_MODES[0], ("none", "none")),  # the paper's two Δ-interpolator rows
@@ -108,6 +104,29 @@ PROTOCOL_TITLES = {
     "gap": "single gap (key frames 0 and n; the n − 1 frames between predicted)",
     "infill": f"in-filling (key frames every {KEYFRAME_PERIOD} frames: 0, {KEYFRAME_PERIOD}, … < n, and n)",
 }
+
+
+@options
+class Options(DeltaOptions):
+    RUN_NAME: ClassVar[str] = "delta_anidance"
+    data: str = option(str(DEFAULT_DATA), help="anidance.tar.xz or its extracted folder (default ../shared/data/anidance/anidance.tar.xz)")
+    lengths: tuple[int, ...] = option(ANIDANCE_LENGTHS, help=f"transition lengths (default {' '.join(map(str, ANIDANCE_LENGTHS))})")
+    modes: str = option(
+        "table2", choices=MODES, help="Δ-modes to train: table2 (Last/I and No/No, default), main (Last/I), table3 (all five)"
+    )
+    train_layout: str = option(
+        "mixed", choices=TRAIN_LAYOUTS, help="key frames every 6 frames in training: infill (the paper), gap, mixed (half; default)"
+    )
+    points: Literal["world", "stored"] = option(
+        "world", help="train on world positions (default) or the stored layout (bones relative to the center)"
+    )
+    min_gap: int = option(4, help="fewest frames between the past key frame and the target in training (default 4: the benchmark's n = 5)")
+    max_gap: int = 39
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.steps < 0:
+            raise ValueError(f"--steps must be non-negative, got {self.steps}")
 
 
 def table_rows(results: dict, protocol: str) -> dict[str, dict[str, float]]:
@@ -150,20 +169,7 @@ def format_report(results: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    add_delta_arguments(
-        parser, configs=CONFIGS, lengths=ANIDANCE_LENGTHS, default_data=DEFAULT_DATA, run_name="delta_anidance",
-        data_help="anidance.tar.xz or its extracted folder (default ../shared/data/anidance/anidance.tar.xz)",
-    )  # fmt: skip
-    parser.add_argument("--modes", choices=tuple(MODES), default="table2", help="Δ-modes to train: table2 (Last/I and No/No, default), main (Last/I), table3 (all five)")
-    parser.add_argument("--train-layout", choices=tuple(TRAIN_LAYOUTS), default="mixed", help="key frames every 6 frames in training: infill (the paper), gap, mixed (half; default)")
-    parser.add_argument("--points", choices=("world", "stored"), default="world", help="train on world positions (default) or the stored layout (bones relative to the center)")
-    parser.add_argument("--min-gap", type=int, default=4, help="fewest frames between the past key frame and the target in training (default 4: the benchmark's n = 5)")
-    parser.add_argument("--max-gap", type=int, default=39)
-    args = parser.parse_args(argv)
-    if args.steps < 0:
-        parser.error(f"--steps must be non-negative, got {args.steps}")
-    resolve_run_dir(args)
+    args = parse_options(Options, argv, description=__doc__)
     lengths = tuple(args.lengths)
 
     started = time.perf_counter()

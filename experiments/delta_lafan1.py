@@ -24,9 +24,9 @@ parameter model and runs unchanged on a GPU. n = 45 lies beyond the training gap
 
 from __future__ import annotations
 
-import argparse
 import dataclasses
 import time
+from typing import ClassVar, Literal
 
 import jax
 
@@ -35,11 +35,10 @@ from bezmotion.data.lafan1 import JOINT_NAMES, PARENTS, TEST_SUBJECTS, TRAIN_SUB
 from bezmotion.data.sources import default_source
 from _delta import (
     MODE_NAMES,
+    DeltaOptions,
     ModeRun,
-    add_delta_arguments,
     mean_over_seeds,
     mode_label,
-    resolve_run_dir,
     train_delta_mode,
 )
 from bezmotion.delta.train import DeltaArrays, DeltaTrainConfig
@@ -56,14 +55,26 @@ from bezmotion.evaluation.lafan1 import (
 from bezmotion.delta.model import TABLE3_MODES, DeltaConfig, delta_inbetweener
 from bezmotion.geometry import Skeleton
 from bezmotion.training import count_parameters
+from bezmotion.options import option, options, parse_options, presets
 
 DEFAULT_DATA = default_source("lafan1")
 TRAIN_WINDOW, TRAIN_OFFSET = 50, 20
-CONFIGS = {
-    "cpu": lambda **kw: DeltaConfig.cpu(parents=PARENTS, **kw),
-    "paper": lambda **kw: DeltaConfig.paper(parents=PARENTS, **kw),
-    "tiny": lambda **kw: DeltaConfig.tiny(parents=PARENTS, **kw),
-}
+CONFIGS = presets(DeltaConfig, parents=PARENTS)
+
+
+@options
+class Options(DeltaOptions):
+    RUN_NAME: ClassVar[str] = "delta_lafan1"
+    data: str = option(str(DEFAULT_DATA), help="LaFAN1 zip or BVH folder (default ../shared/data/lafan1/lafan1-subset.zip)")
+    lengths: tuple[int, ...] = option(TRANSITION_LENGTHS, help=f"transition lengths (default {' '.join(map(str, TRANSITION_LENGTHS))})")
+    modes: Literal["table3", "main"] = option("table3", help="train all Table 3 Δ-modes or Last/I only")
+
+    def __post_init__(self):
+        super().__post_init__()
+        if self.steps < 1:
+            raise ValueError(f"--steps must be positive, got {self.steps}")
+
+
 def table3(results: dict, variant: str, lengths) -> str:
     header = "| Δ-mode input | output | " + " | ".join(f"{m.upper()} n={n}" for m in ("l2q", "l2p", "npss") for n in lengths) + " |"
     lines = [header, "|" + "---|" * (2 + 3 * len(lengths))]
@@ -97,16 +108,7 @@ def format_report(results: dict, lengths) -> str:
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    add_delta_arguments(
-        parser, configs=CONFIGS, lengths=TRANSITION_LENGTHS, default_data=DEFAULT_DATA, run_name="delta_lafan1",
-        data_help="LaFAN1 zip or BVH folder (default ../shared/data/lafan1/lafan1-subset.zip)",
-    )  # fmt: skip
-    parser.add_argument("--modes", choices=("table3", "main"), default="table3", help="train all Table 3 Δ-modes or Last/I only")
-    args = parser.parse_args(argv)
-    if args.steps < 1:
-        parser.error(f"--steps must be positive, got {args.steps}")
-    resolve_run_dir(args)
+    args = parse_options(Options, argv, description=__doc__)
     lengths = tuple(args.lengths)
 
     started = time.perf_counter()

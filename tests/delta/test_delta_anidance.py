@@ -345,11 +345,12 @@ def write_synthetic_anidance(folder: Path) -> Path:
     return folder
 
 
-def test_experiment_end_to_end_untrained_is_lerp_and_resumes(tmp_path):
+def test_experiment_end_to_end_untrained_is_lerp_and_resumes(tmp_path, monkeypatch):
     """The experiment on a synthetic corpus with ``--steps 0`` (no compile of a training
     step; training is tested above): the untrained Δ-interpolator scores exactly as LERP
     under both protocols, chunked evaluation included; the rerun restores its checkpoint,
     and a run directory with other settings is refused."""
+    monkeypatch.syspath_prepend(str(REPO_ROOT / "experiments"))  # the script imports _delta and _common from its folder
     path = REPO_ROOT / "experiments" / "delta_anidance.py"
     spec = importlib.util.spec_from_file_location("_under_test_delta_anidance", path)
     experiment = importlib.util.module_from_spec(spec)
