@@ -507,6 +507,8 @@ __all__ = [
     "DeltaPositionArrays",
     "DeltaTrainConfig",
     "ExampleLayout",
+    "PositionWindows",
+    "RotationWindows",
     "draw_layout",
     "example_layout",
     "example_losses",
