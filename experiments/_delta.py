@@ -81,6 +81,15 @@ class ModeRun:
         }
         return cls(Path(args.run_dir) / label / "checkpoints", config)
 
+    def check_resumable(self) -> None:
+        """Refuse, before any work, a run folder whose checkpoints were trained with other
+        settings (the schedule depends on ``--steps`` too); see :meth:`CheckpointStore.check_resumable`."""
+        store = CheckpointStore(self.directory)
+        try:
+            store.check_resumable(self.config)
+        finally:
+            store.close()
+
 
 def train_delta_mode(args: DeltaOptions, run: ModeRun, model_config: DeltaConfig, train_config: DeltaTrainConfig, data, *, window_frames: int):
     """Train (or resume) one Δ-mode for all seeds at once; returns ``(graphdef, state, history, seconds)``."""
@@ -89,8 +98,8 @@ def train_delta_mode(args: DeltaOptions, run: ModeRun, model_config: DeltaConfig
         make_delta_train_step(graphdef, model_config, train_config, window_frames=window_frames), num_seeds=len(args.seeds)
     )
     device = jax.devices()[0]
+    run.check_resumable()
     store = CheckpointStore(run.directory)
-    store.check_resumable(run.config)  # the schedule depends on --steps too: refuse other settings
     started = time.perf_counter()
     # Restored checkpoints are device-committed; commit fresh states too (one compilation).
     state, history = run_delta_training(

@@ -69,7 +69,6 @@ from _delta import (
     MODE_NAMES,
     DeltaOptions,
     ModeRun,
-    check_resumable,
     mean_over_seeds,
     mode_label,
     train_delta_mode,
@@ -191,7 +190,7 @@ def main(argv: list[str] | None = None) -> dict:
     data_settings = {"points": args.points, "train_layout": args.train_layout}
     plan = lambda config: ModeRun.plan(args, config, train_config, data=data_settings, suffix=f"-{args.train_layout}-{args.points}")  # noqa: E731
     for model_config in model_configs:  # before any work
-        check_resumable(plan(model_config).directory, plan(model_config).config)
+        plan(model_config).check_resumable()
 
     results: dict = {
         "data": str(args.data),

@@ -20,7 +20,7 @@ from bezmotion.pipeline.evaluation import (
     window_poses,
 )
 from bezmotion.pipeline.export import default_channels, pose_to_bvh
-from bezmotion.pipeline.inbetweening import InbetweenResult, inbetween
+from bezmotion.pipeline.inbetweening import InbetweenResult, inbetween, inbetween_traced
 from bezmotion.pipeline.transfer import CharacterProfile, Transfer, curves_to_target, facing_yaw, floor_anchor, mean_rotation, to_source_space
 
 __all__ = [
@@ -36,6 +36,7 @@ __all__ = [
     "full_body_handles_error",
     "ground_truth_pose_metrics",
     "inbetween",
+    "inbetween_traced",
     "mean_rotation",
     "mpjpe",
     "pose_metrics",

@@ -21,7 +21,7 @@ from bezmotion.data.corpus import MotionClips
 from bezmotion.data.curves import CurveDataset
 from bezmotion.ik.protocol import Character, IKFn, Pose, pose_fk, pose_from_motion, targets_from_pose
 from bezmotion.metrics import foot_skating_ratio, mean_position_error
-from bezmotion.pipeline.inbetweening import _inbetween
+from bezmotion.pipeline.inbetweening import inbetween_traced
 from bezmotion.pipeline.transfer import Transfer
 from bezmotion.metrics import handles_error
 from jaxtyping import Array, Float
@@ -108,7 +108,7 @@ def ground_truth_pose_metrics(
 def _run_chunk(bmm, ik_params, character, transfer, inputs, key, *, ik_fn, steps, foot_lock) -> Pose:
     """:func:`~bezmotion.pipeline.inbetweening.inbetween` of a chunk of windows; one compilation per IK,
     settings and shapes, shared by every call (evaluate_pipeline's in-distribution and OOD runs)."""
-    one = functools.partial(_inbetween, ik_fn=ik_fn, steps=steps, guidance=1.0, foot_lock=foot_lock, keep_keyframes=True)
+    one = functools.partial(inbetween_traced, ik_fn=ik_fn, steps=steps, guidance=1.0, foot_lock=foot_lock, keep_keyframes=True)
     start, end, handles = inputs
     keys = jax.random.split(key, start.root_pos.shape[0])
     run = lambda s, e, h, k: one(bmm, ik_params, character, s, e, h, transfer, k).pose  # noqa: E731

@@ -47,7 +47,7 @@ class InbetweenResult(NamedTuple):
     rot6d: Float[Array, "frames 6 6"]
 
 
-def _inbetween(
+def inbetween_traced(
     bmm: BezierMotionModel,
     ik_params: Any,
     character: Character,
@@ -63,6 +63,12 @@ def _inbetween(
     foot_lock: bool,
     keep_keyframes: bool,
 ) -> InbetweenResult:
+    """The traceable body of :func:`inbetween`, for callers that batch or compile it
+    themselves (``jax.vmap`` over windows in :mod:`bezmotion.pipeline.evaluation`).
+
+    Same arguments as :func:`inbetween` (``transfer`` required, ``key`` positional) but no
+    input checks and no compiler options: the caller validates and compiles.
+    """
     cfg = bmm.config
     first, last = targets_from_pose(character, start), targets_from_pose(character, end)
     anchor = floor_anchor(first.position[HIPS])
@@ -98,7 +104,7 @@ def _checked_finite(pose: Pose, name: str) -> Pose:
     Concrete values are checked here, before compiling (``ValueError``). Inside a caller's
     ``jax.jit`` they are known only at run time, so the check becomes part of that
     computation (``eqx.error_if``: the same message when it runs). Eager calls keep the
-    check out of the compiled :func:`_inbetween`.
+    check out of the compiled :func:`inbetween_traced`.
     """
     message = f"the {name} pose contains non-finite values"
     if any(isinstance(x, jax.core.Tracer) for x in pose):
@@ -112,7 +118,7 @@ def _checked_finite(pose: Pose, name: str) -> Pose:
 @functools.cache
 def _compiled(options: tuple[tuple[str, str], ...]):
     return jax.jit(
-        _inbetween, static_argnames=("ik_fn", "steps", "guidance", "foot_lock", "keep_keyframes"),
+        inbetween_traced, static_argnames=("ik_fn", "steps", "guidance", "foot_lock", "keep_keyframes"),
         compiler_options=dict(options) or None,
     )  # fmt: skip
 
