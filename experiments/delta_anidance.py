@@ -65,14 +65,7 @@ from bezmotion.evaluation.anidance import (
 )
 from bezmotion.data.anidance import anidance_statistics, anidance_windows, load_anidance
 from bezmotion.data.sources import default_source
-from _delta import (
-    MODE_NAMES,
-    DeltaOptions,
-    ModeRun,
-    mean_over_seeds,
-    mode_label,
-    train_delta_mode,
-)
+from _delta import MODE_NAMES, DeltaOptions, ModeRun, mean_over_seeds, mode_label, train_delta_mode
 from bezmotion.delta.train import DeltaPositionArrays, DeltaTrainConfig
 from bezmotion.delta.model import TABLE3_MODES, DeltaConfig, delta_position_inbetweener
 from bezmotion.training import count_parameters

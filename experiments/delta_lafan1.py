@@ -33,14 +33,7 @@ import jax
 from bezmotion.io import write_results
 from bezmotion.data.lafan1 import JOINT_NAMES, PARENTS, TEST_SUBJECTS, TRAIN_SUBJECTS, lafan1_statistics, lafan1_windows, load_lafan1
 from bezmotion.data.sources import default_source
-from _delta import (
-    MODE_NAMES,
-    DeltaOptions,
-    ModeRun,
-    mean_over_seeds,
-    mode_label,
-    train_delta_mode,
-)
+from _delta import MODE_NAMES, DeltaOptions, ModeRun, mean_over_seeds, mode_label, train_delta_mode
 from bezmotion.delta.train import DeltaArrays, DeltaTrainConfig
 from bezmotion.evaluation.lafan1 import (
     METRIC_VARIANTS,
