@@ -1,4 +1,4 @@
-"""What the experiment scripts share beyond the package: where their trainings live.
+"""What the experiment scripts share beyond the package: which corpus, where trainings live.
 
 Each script declares its options once, as an options class (:mod:`bezmotion.options`),
 and writes its results with :func:`bezmotion.io.write_results` (JSON and a Markdown
@@ -7,9 +7,21 @@ report beside it).
 
 from __future__ import annotations
 
+import json
+import os
 from pathlib import Path
 
 from bezmotion.data.cache import cache_dir
+from bezmotion.data.corpus import Corpus
+from bezmotion.data.sources import CORPORA, load_corpus
+
+#: ``--corpus`` help shared by the scripts that train on any corpus.
+CORPUS_HELP = f"one of {', '.join(CORPORA)}, or a folder of BVH files of one skeleton (your own clips)"
+#: ``--characteristic`` help: how a folder's six characteristic joints are named.
+CHARACTERISTIC_HELP = (
+    "for a BVH folder: its six characteristic joints, a preset (lafan1, bandai_namco) or a JSON file "
+    '{"hips": …, "head": …, "left_hand": …, "right_hand": …, "left_foot": …, "right_foot": …}'
+)
 
 
 def runs_dir(*parts: str) -> Path:
@@ -19,3 +31,34 @@ def runs_dir(*parts: str) -> Path:
     it is read at the call, so a test can move it.
     """
     return cache_dir().joinpath("runs", *parts)
+
+
+def open_corpus(name_or_path: str, *, data: str | None = None, characteristic: str | None = None, progress: bool = True) -> Corpus:
+    """A published corpus by name (from ``data`` or its default archive), or a folder of BVH files.
+
+    Args:
+      name_or_path: ``lafan1``, ``bandai_namco``, ``anidance`` or a folder path.
+      data: the published corpus's archive or folder (names only).
+      characteristic: a folder's characteristic joints: a preset name or a JSON file
+        mapping each role to a joint name (folders only).
+    Raises:
+      ValueError: ``characteristic`` given for a published corpus, or an unreadable map.
+    """
+    if name_or_path in CORPORA:
+        if characteristic is not None:
+            raise ValueError(f"--characteristic is for BVH folders; {name_or_path} knows its joints")
+        return load_corpus(name_or_path, source=data, progress=progress)
+    if data is not None:
+        raise ValueError(f"--data is for the published corpora {CORPORA}; {name_or_path!r} is a folder already")
+    mapping: str | dict[str, str] | None = characteristic
+    if characteristic is not None and characteristic.endswith(".json"):
+        try:
+            mapping = json.loads(Path(characteristic).read_text())
+        except (OSError, json.JSONDecodeError) as error:
+            raise ValueError(f"--characteristic {characteristic}: not a readable JSON map ({error})") from error
+    return load_corpus(name_or_path, progress=progress, characteristic=mapping)
+
+
+def corpus_label(name_or_path: str) -> str:
+    """A corpus's short name for run folders: the name itself, or a folder's base name."""
+    return name_or_path if name_or_path in CORPORA else Path(os.path.normpath(name_or_path)).name

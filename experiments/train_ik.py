@@ -2,9 +2,10 @@
 
     python experiments/train_ik.py --corpus lafan1 --steps 9000
     python experiments/train_ik.py --corpus bandai_namco --steps 9000
+    python experiments/train_ik.py --corpus path/to/my_clips --characteristic my_joints.json
 
 Trains on every frame of the corpus's training split (LaFAN1 subjects 1–4; Bandai-Namco
-all but every 10th take), posed on one skeleton per corpus (:mod:`bezmotion.ik.frames`),
+all but every 10th take; a folder of BVH files: all but every 10th file), posed on one skeleton per corpus (:mod:`bezmotion.ik.frames`),
 with the effector sampling and losses of :mod:`bezmotion.ik.training`. Checkpoints go to
 ``<out-dir>/checkpoints`` every ``--checkpoint-every`` steps (and on Ctrl-C / SIGTERM);
 running the same command again resumes from the latest one, bit-identically. At the end
@@ -29,7 +30,6 @@ import numpy as np
 
 from bezmotion.io import atomic_write_text
 from bezmotion.training.checkpoint import CheckpointStore
-from bezmotion.data.sources import CORPORA, load_corpus
 from bezmotion.ik.frames import corpus_frames
 from bezmotion.ik.protores import ProtoResConfig, ProtoResModel, character_to_json, save_ik_model
 from bezmotion.ik.training import (
@@ -42,15 +42,16 @@ from bezmotion.ik.training import (
 )
 from bezmotion.options import option, options, parse_options, presets
 from bezmotion.training import compile_train_step, count_parameters, run_training
-from _common import runs_dir
+from _common import CHARACTERISTIC_HELP, CORPUS_HELP, corpus_label, open_corpus, runs_dir
 
 CONFIGS = presets(ProtoResConfig)
 
 
 @options
 class Options:
-    corpus: str = option(choices=CORPORA)
-    data: str | None = option(None, help="corpus archive or folder (default: ../shared/data, or the extracted Bandai-Namco in the cache)")
+    corpus: str = option(help=CORPUS_HELP)
+    data: str | None = option(None, help="a published corpus's archive or folder (default: under ../shared/data)")
+    characteristic: str | None = option(None, help=CHARACTERISTIC_HELP)
     out_dir: str | None = option(None, help="run folder (default ~/.cache/bezmotion/runs/ik_<corpus>)")
     steps: int = 9000
     config: str = option("cpu", choices=CONFIGS)
@@ -72,11 +73,15 @@ def parse_args(argv: list[str] | None = None) -> Options:
 
 def train_ik(args: Options) -> dict:
     """Train (or resume) and save; returns the summary written to ``training.json``."""
-    out_dir = Path(args.out_dir).expanduser() if args.out_dir else runs_dir(f"ik_{args.corpus}")
+    out_dir = Path(args.out_dir).expanduser() if args.out_dir else runs_dir(f"ik_{corpus_label(args.corpus)}")
     started = time.perf_counter()
-    corpus = load_corpus(args.corpus, source=args.data, progress=not args.no_progress)
+    corpus = open_corpus(args.corpus, data=args.data, characteristic=args.characteristic, progress=not args.no_progress)
     character, poses = corpus_frames(corpus, "train", frame_step=args.frame_step)
-    print(f"{args.corpus}: {poses.root_pos.shape[0]} training frames of {character.num_joints} joints ({time.perf_counter() - started:.1f} s)")
+    _, validation = corpus_frames(corpus, "validation", frame_step=args.eval_step)
+    if not validation.root_pos.shape[0]:
+        # A folder of fewer than ten files has no validation take (every 10th validates).
+        print(f"{corpus.name} has no validation frames: the model is trained but not validated")
+    print(f"{corpus.name}: {poses.root_pos.shape[0]} training frames of {character.num_joints} joints ({time.perf_counter() - started:.1f} s)")
     overrides = {k: v for k, v in (("output_rotations", args.output_rotations), ("effector_skip", args.effector_skip)) if v is not None}
     model_config = CONFIGS[args.config](character.num_joints, **overrides)
     train_config = IKTrainConfig(
@@ -122,9 +127,10 @@ def train_ik(args: Options) -> dict:
     model = ProtoResModel(state.params, character, graphdef, model_config)
     save_ik_model(out_dir / "model", model)
 
-    _, validation = corpus_frames(corpus, "validation", frame_step=args.eval_step)
-    errors = {name: float(np.mean(effector_mpjpe(model, validation, joints))) for name, joints in configurations.items()}
-    errors[CHARACTERISTIC + " (positions only)"] = float(np.mean(effector_mpjpe(model, validation, configurations[CHARACTERISTIC], rotations=False)))
+    errors: dict[str, float] = {}
+    if validation.root_pos.shape[0]:
+        errors = {name: float(np.mean(effector_mpjpe(model, validation, joints))) for name, joints in configurations.items()}
+        errors[CHARACTERISTIC + " (positions only)"] = float(np.mean(effector_mpjpe(model, validation, configurations[CHARACTERISTIC], rotations=False)))
     summary = {
         "corpus": args.corpus,
         "config": args.config,
@@ -139,7 +145,7 @@ def train_ik(args: Options) -> dict:
         **config,
     }
     atomic_write_text(out_dir / "training.json", json.dumps(summary, indent=2, default=str) + "\n")
-    print(f"saved {out_dir / 'model'}; validation MPJPE (cm):")
+    print(f"saved {out_dir / 'model'}" + ("; validation MPJPE (cm):" if errors else ""))
     for name, value in errors.items():
         print(f"  {name}: {value:.3f}")
     return summary
