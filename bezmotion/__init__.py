@@ -24,8 +24,10 @@ from bezmotion.bezier import BezierLayout, evaluate, fit_curves
 # The Bézier Motion Model: sampling curves through handles, saving and loading.
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, SampledCurves, load_model, sample_curves, save_model
 
-# Mocap files and the six characteristic joints.
+# Mocap files, corpora (published or a folder of your BVH files) and the six characteristic joints.
 from bezmotion.data.bvh import BvhMotion, read_bvh, write_bvh
+from bezmotion.data.corpus import Corpus
+from bezmotion.data.sources import load_corpus
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 
 # Skeletons and kinematics.
@@ -54,6 +56,7 @@ __all__ = [
     "BvhMotion",
     "Character",
     "CharacterProfile",
+    "Corpus",
     "Handles",
     "IKFn",
     "IKTargets",
@@ -68,6 +71,7 @@ __all__ = [
     "forward_kinematics",
     "inbetween",
     "inverse_kinematics",
+    "load_corpus",
     "load_ik_model",
     "load_model",
     "make_rig",
