@@ -1,4 +1,5 @@
-"""Motion data: BVH files, corpora behind one interface, and the curve datasets BMM trains on.
+"""Motion data: BVH files, corpora behind one interface, the curve datasets BMM trains on and the
+rotation windows the Δ-interpolator trains on.
 
 Every corpus — LaFAN1, Bandai-Namco, Anidance, a folder of BVH files — is a
 :class:`Corpus` (name, reference skeleton, labelled clips, official train/validation split,
@@ -8,6 +9,7 @@ frame rate); :func:`load_corpus` opens one by name or path.
 from bezmotion.data.bvh import BvhMotion, format_bvh, parse_bvh, read_bvh, write_bvh
 from bezmotion.data.bvh_folder import BvhFolderCorpus, load_bvh_folder
 from bezmotion.data.corpus import SPLITS, Corpus, MotionClips, motion_clips
+from bezmotion.data.corpus_windows import MotionWindows, motion_windows
 from bezmotion.data.curves import CurveDataset, build_curve_dataset, curve_dataset
 from bezmotion.data.sources import CORPORA, data_dir, default_source, load_corpus
 
@@ -19,6 +21,7 @@ __all__ = [
     "Corpus",
     "CurveDataset",
     "MotionClips",
+    "MotionWindows",
     "build_curve_dataset",
     "curve_dataset",
     "data_dir",
@@ -27,6 +30,7 @@ __all__ = [
     "load_bvh_folder",
     "load_corpus",
     "motion_clips",
+    "motion_windows",
     "parse_bvh",
     "read_bvh",
     "write_bvh",

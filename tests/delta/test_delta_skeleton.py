@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 
 import jax
 import jax.numpy as jnp
@@ -19,8 +20,9 @@ from helpers import leaves
 
 from bezmotion.assets import DEMO_CLIP
 from bezmotion.data.bvh import read_bvh
+from bezmotion.data.bvh_folder import load_bvh_folder
+from bezmotion.data.corpus_windows import motion_windows
 from bezmotion.data.lafan1 import PARENTS as LAFAN1_PARENTS
-from bezmotion.data.windows import sliding_window_starts
 from bezmotion.delta.model import DeltaConfig, KeyFrames, apply_delta, delta_inbetweener, init_delta
 from bezmotion.delta.train import (
     DeltaArrays,
@@ -55,17 +57,15 @@ def test_config_keeps_the_skeleton_and_reads_back_from_json(clip):
         DeltaConfig(parents=(-1, 0), representation="positions", num_points=2, **SIZES)
 
 
-def test_trains_and_inbetweens_on_the_bandai_namco_clip(clip):
-    # The skeleton as the file has it. Its joint_Root stays at the origin (the clip's
-    # translation is on Hips' position channels, which rest-offset FK ignores), so this
-    # trains on the clip's rotations: enough to show any skeleton trains and in-betweens.
-    skeleton = clip.skeleton
-    starts = sliding_window_starts(clip.num_frames, WINDOW, 10)
-    data = DeltaArrays(
-        jnp.asarray(np.stack([clip.quat_local[s : s + WINDOW] for s in starts]), jnp.float32),
-        jnp.asarray(np.stack([clip.root_pos[s : s + WINDOW] for s in starts]), jnp.float32),
-        jnp.asarray(np.broadcast_to(skeleton.offsets, (len(starts), skeleton.num_joints, 3)), jnp.float32),
-    )
+def test_trains_and_inbetweens_on_the_bandai_namco_clip(clip, tmp_path):
+    # The clip as a user's BVH folder, windowed like LaFAN1 through the corpus interface:
+    # the hips' motion (on Hips' position channels below a static joint_Root) is on joint 0.
+    shutil.copy(DEMO_CLIP, tmp_path / "walk.bvh")
+    corpus = load_bvh_folder(tmp_path, characteristic="bandai_namco", validation_every=None, use_cache=False, progress=False)
+    windows = motion_windows(corpus, "train", window=WINDOW, offset=10, facing_frame=N_PAST - 1, forward_axis=(0.0, 0.0, 1.0))
+    skeleton, starts = windows.skeleton(0), windows.start_frame
+    assert skeleton.parents == clip.skeleton.parents
+    data = DeltaArrays.from_windows(windows)
     config = DeltaConfig(parents=skeleton.parents, **SIZES)
     train = DeltaTrainConfig(batch_size=4, learning_rate=1e-3, warmup_steps=0, decay_every=100, min_gap=2, max_gap=8)
     graphdef, state0 = init_delta_train_states(config, train, [0])
