@@ -23,7 +23,7 @@ from pathlib import Path
 import jax.numpy as jnp
 import numpy as np
 
-from _common import machine_info, report, time_jitted
+from _timing import machine_info, report, time_jitted
 from bezmotion.bezier import BezierLayout, fit_curves
 from bezmotion.data.corpus import SPLITS, motion_clips
 from bezmotion.data.curves import DEFAULT_OFFSET, DEFAULT_WINDOW, CurveDataset, build_curve_dataset, characteristic_windows

@@ -23,7 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from _common import machine_info, report, time_jitted
+from _timing import machine_info, report, time_jitted
 from bezmotion.xla_options import inference_compiler_options
 from bezmotion.bmm.denoiser import BMMConfig, init_denoiser
 from bezmotion.training import count_parameters

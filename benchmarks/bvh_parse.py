@@ -28,7 +28,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from _common import machine_info, write_json
+from _timing import machine_info, write_json
 from bezmotion.data.anidance import load_anidance
 from bezmotion.data.bandai_namco import load_bandai_namco
 from bezmotion.data.bvh import read_bvh

@@ -21,7 +21,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from _common import machine_info, report, time_jitted
+from _timing import machine_info, report, time_jitted
 from bezmotion.xla_options import inference_compiler_options
 from bezmotion.data.lafan1 import JOINT_NAMES, N_PAST, PARENTS
 from bezmotion.delta.model import DeltaConfig, delta_inbetweener, init_delta

@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from _common import machine_info, report, time_jitted
+from _timing import machine_info, report, time_jitted
 from bezmotion.geometry.skeleton import Skeleton
 from bezmotion.options import option, options, parse_options
 

@@ -604,15 +604,15 @@ def test_bezier_stride_experiment(synthetic_zip, tmp_path, monkeypatch):
 
 
 def test_bezier_fit_benchmark_without_data(tmp_path, monkeypatch):
-    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))  # the script imports _common from its folder
-    had_common = "_common" in sys.modules
+    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))  # the script imports _timing from its folder
+    had_timing = "_timing" in sys.modules
     try:
         benchmark = load_script(ROOT / "benchmarks" / "bezier_fit.py")
         out = tmp_path / "bezier_fit.json"
         result = benchmark.main(["--windows", "64", "--repeats", "1", "--out", str(out)])
     finally:
-        if not had_common:
-            sys.modules.pop("_common", None)  # a generic name: do not leak it to other tests
+        if not had_timing:
+            sys.modules.pop("_timing", None)  # a module beside the scripts: do not leak it to other tests
     assert json.loads(out.read_text()) == json.loads(json.dumps(result))
     assert result["throughput_data"] == "random walks" and result["batch_windows"] == 64
     assert "dataset_build" not in result
