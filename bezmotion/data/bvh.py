@@ -78,6 +78,14 @@ class BvhMotion:
     def fps(self) -> float:
         return 1.0 / self.frame_time
 
+    @property
+    def nominal_fps(self) -> float:
+        """The whole frame rate a frame time written to 6 or more decimals stands for
+        (``0.0333333`` → ``30.0``, not ``30.00003``); :attr:`fps` when there is none (29.97)."""
+        whole = round(self.fps)
+        # 6 decimals put the written frame time within 1e-6 s of 1/whole, rounded or cut off.
+        return float(whole) if whole >= 1 and abs(self.frame_time - 1.0 / whole) < 1e-6 else self.fps
+
     @classmethod
     def from_skeleton(
         cls,

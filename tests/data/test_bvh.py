@@ -114,6 +114,26 @@ def test_round_trip_of_unrounded_motion(precision: int, rng: np.random.Generator
     assert_round_trips(motion, tmp_path, precision)
 
 
+@pytest.mark.parametrize("fps", [24.0, 30.0, 60.0, 120.0])
+def test_frame_time_is_written_exactly(fps: float, tmp_path: Path):
+    """1/fps reads back as fps to float precision (Blender shows 0.0333333 as 30.00003 fps)."""
+    skeleton = Skeleton((-1, 0), ("root", "a"), np.asarray([[0.0, 0.0, 0.0], [0.0, 10.0, 0.0]]))
+    motion = BvhMotion.from_skeleton(skeleton, np.tile([1.0, 0, 0, 0], (3, 2, 1)), np.zeros((3, 3)), frame_time=1 / fps)
+    write_bvh(tmp_path / "a.bvh", motion, precision=3)
+    line = next(x for x in (tmp_path / "a.bvh").read_text().splitlines() if x.startswith("Frame Time:"))
+    assert len(line.split(":")[1].strip().lstrip("0.")) >= 10  # significant digits, whatever the precision
+    back = read_bvh(tmp_path / "a.bvh")
+    assert abs(back.fps - fps) < 1e-9 and back.nominal_fps == fps
+
+
+def test_nominal_fps_of_a_rounded_frame_time(fixture_motion: BvhMotion):
+    """A frame time written to 6 or 7 decimals stands for a whole rate; 29.97 fps stays."""
+    assert fixture_motion.frame_time == 0.0333333 and fixture_motion.fps != 30.0
+    assert fixture_motion.nominal_fps == 30.0
+    for frame_time, fps in ((0.033333, 30.0), (0.008333, 120.0), (0.004167, 240.0), (0.04, 25.0), (1 / 29.97, 1 / (1 / 29.97))):
+        assert dataclasses.replace(fixture_motion, frame_time=frame_time).nominal_fps == fps, frame_time
+
+
 def test_crlf_reads_like_lf(fixture_motion: BvhMotion, tmp_path: Path):
     crlf = tmp_path / "crlf.bvh"
     crlf.write_bytes(FIXTURE.read_bytes().replace(b"\n", b"\r\n"))
