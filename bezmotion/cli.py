@@ -1,6 +1,6 @@
 """The ``bezmotion`` command line.
 
-    bezmotion demo [--out DIR] [--joint J --frame F --offset X Y Z] [--ik learned|rig]
+    bezmotion demo [--out DIR] [--joint J --frame F --offset X Y Z] [--ik learned|rig] [--channels clip]
 
 Paper tables and figures are reproduced by the scripts in ``experiments/``.
 """
@@ -13,7 +13,7 @@ from pathlib import Path
 
 from bezmotion.assets import BUNDLED_BMM, BUNDLED_IK
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
-from bezmotion.demo import IK_CHOICES, demo
+from bezmotion.demo import CHANNEL_CHOICES, IK_CHOICES, demo
 from bezmotion.options import add_options, option, options, options_from
 
 
@@ -36,6 +36,10 @@ class DemoOptions:
     bmm: Path = option(BUNDLED_BMM, help="a saved BMM (default: the bundled one)")
     bmm_corpus: str = option("bandai_namco", help="the corpus --bmm was trained on: bandai_namco (default) or lafan1 (transferred)")
     ik_model: Path = option(BUNDLED_IK, help="a saved learned IK (default: the bundled one)")
+    channels: str = option(
+        "default", choices=CHANNEL_CHOICES,
+        help="BVH channels: default (positions on the root and hips, rotations elsewhere) or clip (the clip's own layout)",
+    )  # fmt: skip
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -53,6 +57,7 @@ def main(argv: list[str] | None = None) -> int:
             demo(
                 args.out, joint=args.joint, frame=args.frame, offset=tuple(args.offset), ik=args.ik, steps=args.steps,
                 seed=args.seed, bmm_dir=args.bmm, bmm_corpus=args.bmm_corpus, ik_dir=args.ik_model,
+                channels=args.channels,
             )  # fmt: skip
     except (ValueError, FileNotFoundError) as e:
         print(f"bezmotion: error: {e}", file=sys.stderr)

@@ -33,6 +33,7 @@ from bezmotion.pipeline import CharacterProfile, InbetweenResult, Transfer, full
 from bezmotion.bmm.sampling import Handles, load_model
 
 IK_CHOICES = ("refined", "learned", "rig")
+CHANNEL_CHOICES = ("default", "clip")
 
 
 def _window(motion: BvhMotion, character: Character, frames: int) -> Pose:
@@ -110,6 +111,7 @@ def demo(
     bmm_corpus: str = "bandai_namco",
     ik_dir: Path = BUNDLED_IK,
     clip: Path = DEMO_CLIP,
+    channels: str = "default",
 ) -> dict:
     """Run the demo; returns (and writes) its summary. See the module docstring.
 
@@ -123,11 +125,16 @@ def demo(
       bmm_dir, bmm_corpus: the BMM and the corpus it was trained on (one with a profile in
         :data:`~bezmotion.assets.PROFILES_DIR`; another skeleton's curves are transferred).
       ik_dir: the learned IK (for ``ik="learned"``).
+      channels: the BVH files' channels: ``"default"`` (positions on the root and the hips,
+        rotations elsewhere) or ``"clip"`` (the clip's own layout). Either way the files
+        carry the clip's OFFSETs and End Sites and its whole frame rate.
     """
     if ik not in IK_CHOICES:
         raise ValueError(f"--ik must be one of {IK_CHOICES}, got {ik!r}")
     if joint not in CHARACTERISTIC_JOINTS:
         raise ValueError(f"--joint must be one of {list(CHARACTERISTIC_JOINTS)}, got {joint!r}")
+    if channels not in CHANNEL_CHOICES:
+        raise ValueError(f"--channels must be one of {CHANNEL_CHOICES}, got {channels!r}")
     if not (steps >= 1):
         raise ValueError(f"--steps must be at least 1, got {steps}")
     if not (PROFILES_DIR / f"{bmm_corpus}.json").exists():
@@ -170,8 +177,11 @@ def demo(
 
     out.mkdir(parents=True, exist_ok=True)
     paths = {"inbetween": out / "inbetween.bvh", "ground_truth": out / "ground_truth.bvh", "png": out / "demo.png"}
-    write_bvh(paths["inbetween"], pose_to_bvh(character, result.pose, fps=motion.fps, channels=motion.channels))
-    write_bvh(paths["ground_truth"], pose_to_bvh(character, truth, fps=motion.fps, channels=motion.channels))
+    # The files rig like the user's clip (its offsets, End Sites, 30 fps rather than the
+    # 30.00003 of its 0.0333333 s), not like the take the IK model stored as its character.
+    export = dict(fps=motion.nominal_fps, channels=None if channels == "default" else motion.channels, template=motion)
+    write_bvh(paths["inbetween"], pose_to_bvh(character, result.pose, **export))
+    write_bvh(paths["ground_truth"], pose_to_bvh(character, truth, **export))
     _plot(paths["png"], character, result, truth, handle_pos, j, frame)
     _, pos = pose_fk(character, result.pose)
     summary = {
@@ -181,6 +191,7 @@ def demo(
         "handle": {"joint": joint, "frame": frame, "offset_cm": list(offset), "position_cm": handle_pos.tolist()},
         "ik": ik,
         "steps": steps,
+        "channels": channels,
         "curve_handle_error_cm": float(np.linalg.norm(np.asarray(result.curves.ctrl_pos[frame // bmm.config.stride, j]) - handle_pos)),
         "full_body_handle_error_cm": float(full_body_handles_error(character, result.pose, handles, bmm.config.stride)),
         "joint_moved_cm": float(np.linalg.norm(np.asarray(pos[frame, character.characteristic[j]] - true_pos[frame, character.characteristic[j]]))),

@@ -3,12 +3,17 @@
 from __future__ import annotations
 
 import json
+import os
+import stat
 
 import numpy as np
 import pytest
 
+from bezmotion.assets import DEMO_CLIP
 from bezmotion.cli import main
 from bezmotion.data.bvh import read_bvh
+from bezmotion.demo import demo
+from bezmotion.io import _umask
 
 
 @pytest.fixture(scope="module")
@@ -41,6 +46,43 @@ def test_demo_bvh_reads_back_and_matches_the_pipeline(demo_run):
     assert (out / "demo.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def _hierarchy(text: str) -> tuple[list[str], list[str], list[tuple[str, int]], str]:
+    """OFFSET lines of joints, those of End Sites, (joint, channel count) and the Frame Time, read independently of the reader."""
+    lines = [line.strip() for line in text.splitlines()]
+    joints = [i for i, line in enumerate(lines) if line.startswith(("ROOT ", "JOINT "))]
+    sites = [i for i, line in enumerate(lines) if line == "End Site"]
+    joint_offsets = [lines[i + 2] for i in joints]
+    site_offsets = [lines[i + 2] for i in sites]
+    channels = [(lines[i].split()[1], int(lines[i + 3].split()[1]) if lines[i + 3].startswith("CHANNELS") else 0) for i in joints]
+    frame_time = next(line for line in lines if line.startswith("Frame Time:"))
+    return joint_offsets, site_offsets, channels, frame_time
+
+
+def test_demo_bvh_rigs_like_the_clip(demo_run):
+    """The files carry the clip's own OFFSETs (the Hips' −2 cm along Z, not the IK model's
+    −427 cm) and End Sites, positions on the root and the hips only, exactly 30 fps, and
+    the permissions an ordinary file gets."""
+    _, out, summary = demo_run
+    assert summary["channels"] == "default"
+    clip = read_bvh(DEMO_CLIP)
+    clip_offsets, clip_sites, _, _ = _hierarchy(DEMO_CLIP.read_text())
+    for name in ("inbetween.bvh", "ground_truth.bvh"):
+        offsets, sites, channels, frame_time = _hierarchy((out / name).read_text())
+        hips = [float(v) for v in offsets[1].split()[1:]]
+        np.testing.assert_allclose(hips, [float(v) for v in clip_offsets[1].split()[1:]], atol=1e-6)
+        assert hips[2] == pytest.approx(-2.00062, abs=1e-6)
+        np.testing.assert_allclose(
+            [[float(v) for v in line.split()[1:]] for line in offsets], [[float(v) for v in line.split()[1:]] for line in clip_offsets], atol=1e-6
+        )
+        assert len(sites) == len(clip_sites) == 5
+        assert [[float(v) for v in line.split()[1:]] for line in sites] == [[float(v) for v in line.split()[1:]] for line in clip_sites]
+        assert channels == [("joint_Root", 6), ("Hips", 6)] + [(n, 3) for n in clip.skeleton.names[2:]]
+        back = read_bvh(out / name)
+        assert back.end_sites == clip.end_sites
+        assert abs(back.fps - 30.0) < 1e-9, frame_time
+        assert stat.S_IMODE(os.stat(out / name).st_mode) == 0o666 & ~_umask()
+
+
 def test_demo_prints_the_data_attribution(demo_run, capsys):
     _, out, summary = demo_run
     assert "Bandai Namco Research" in summary["attribution"]
@@ -58,3 +100,9 @@ def test_demo_prints_the_data_attribution(demo_run, capsys):
 def test_demo_rejects_bad_arguments_with_a_clear_message(tmp_path, capsys, args, message):
     assert main(["demo", "--out", str(tmp_path), *args]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_demo_rejects_an_unknown_channel_layout(tmp_path):
+    with pytest.raises(ValueError, match=r"--channels must be one of \('default', 'clip'\), got 'all'"):
+        demo(tmp_path / "out", channels="all")
+    assert not (tmp_path / "out").exists()
