@@ -6,7 +6,7 @@
     character = bm.Character.from_bvh(clip, "bandai_namco")
     bmm, ik = bm.load_model(bm.BUNDLED_BMM), bm.load_ik_model(bm.BUNDLED_IK)
     result = bm.inbetween(bmm, bm.protores_ik_fn, ik, ik.character, start, end, handles, key=key)
-    bm.write_bvh("out.bvh", bm.pose_to_bvh(ik.character, result.pose))
+    bm.write_bvh("out.bvh", bm.pose_to_bvh(ik.character, result.pose, template=clip))  # → file, rigged like the clip
 
 Everything else lives in its subpackage (:mod:`bezmotion.geometry`, :mod:`bezmotion.bezier`,
 :mod:`bezmotion.data`, :mod:`bezmotion.diffusion`, :mod:`bezmotion.training`,
