@@ -11,11 +11,14 @@ to a fraction of a centimetre — which the contact labels BMM predicts can enfo
 from __future__ import annotations
 
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from bezmotion.data.characteristic import FEET
 
-HORIZONTAL = jnp.asarray([True, False, True])  # X and Z; +Y is up
+# X and Z; +Y is up. NumPy, not jnp: importing bezmotion must not start a JAX backend
+# (jax.distributed.initialize has to come first when several processes train).
+HORIZONTAL = np.asarray([True, False, True])
 
 
 def lock_feet(
