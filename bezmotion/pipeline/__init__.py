@@ -5,7 +5,8 @@
 
 :mod:`~bezmotion.pipeline.inbetweening` (the jit-compiled :func:`inbetween`),
 :mod:`~bezmotion.pipeline.transfer` (driving one skeleton with another's BMM),
-:mod:`~bezmotion.pipeline.export` (BVH), :mod:`~bezmotion.pipeline.evaluation` (metrics
+:mod:`~bezmotion.pipeline.export` (BVH), :mod:`~bezmotion.pipeline.gltf` (glTF: skeleton
+and curves), :mod:`~bezmotion.pipeline.evaluation` (metrics
 after IK on a corpus's validation windows).
 """
 
@@ -20,11 +21,13 @@ from bezmotion.pipeline.evaluation import (
     window_poses,
 )
 from bezmotion.pipeline.export import default_channels, pose_to_bvh
+from bezmotion.pipeline.gltf import GlbContents, read_glb, validate_glb, write_glb
 from bezmotion.pipeline.inbetweening import InbetweenResult, inbetween, inbetween_traced
 from bezmotion.pipeline.transfer import CharacterProfile, Transfer, curves_to_target, facing_yaw, floor_anchor, mean_rotation, to_source_space
 
 __all__ = [
     "CharacterProfile",
+    "GlbContents",
     "InbetweenResult",
     "PipelineMetricsConfig",
     "Transfer",
@@ -41,7 +44,10 @@ __all__ = [
     "mpjpe",
     "pose_metrics",
     "pose_to_bvh",
+    "read_glb",
     "run_pipeline",
     "to_source_space",
+    "validate_glb",
     "window_poses",
+    "write_glb",
 ]
