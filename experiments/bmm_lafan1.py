@@ -17,6 +17,10 @@ evaluates the EMA parameters on subject-5 windows:
 - Table 6 analogue: 5, 10, 25, 50 and 100 DDIM steps;
 - ours: the same with foot locking on the predicted contacts (``sample_curves(foot_lock=True)``).
 
+Several processes train one model data-parallel (each its share of every batch; one
+machine or several): start the same command once per process with ``--coordinator
+HOST:PORT --num-processes N --process-id I``; process 0 evaluates and writes the results.
+
 ``--config cpu`` (default) trains in a session on a 2-core CPU; ``--config paper`` is the
 paper's 17.4 M-parameter model and runs unchanged on a GPU. Writes the JSON, a Markdown
 report beside it, and the trained model under ``<run-dir>/model``.
@@ -52,6 +56,7 @@ from bezmotion.bmm.sampling import BezierMotionModel, sample_curves, save_model
 from bezmotion.bmm.train import CurveArrays, BMMTrainConfig, init_bmm_train_states, make_bmm_train_step
 from bezmotion.options import option, options, parse_options, presets
 from bezmotion.training import compile_train_step, count_parameters, data_mesh, run_training
+from bezmotion.training.distributed import DistributedOptions, is_coordinator, leave_group
 from _common import runs_dir
 
 DEFAULT_DATA = {name: default_source(name) for name in ("lafan1", "bandai_namco")}
@@ -60,7 +65,7 @@ CONFIGS = presets(BMMConfig)
 
 
 @options
-class Options:
+class Options(DistributedOptions):
     out: str = option(help="output JSON (a .md report is written beside it)")
     corpus: str = option("lafan1", choices=DEFAULT_DATA, help="training and evaluation corpus (default lafan1)")
     data: str | None = option(
@@ -85,6 +90,7 @@ class Options:
     no_progress: bool = False
 
     def __post_init__(self):
+        super().__post_init__()
         if self.run_dir is None:
             suffix = "" if self.prediction == "x0" else f"_{self.prediction}"
             object.__setattr__(self, "run_dir", str(runs_dir(f"bmm_{self.corpus}_{self.config}{suffix}")))
@@ -177,6 +183,7 @@ def format_report(results: dict) -> str:
 def main(argv: list[str] | None = None) -> dict:
     args = parse_options(Options, argv, description=__doc__)
     args = dataclasses.replace(args, data=args.data or str(DEFAULT_DATA[args.corpus]))
+    args.initialize()  # several processes: join the group before any JAX computation
 
     started = time.perf_counter()
     corpus = load_corpus(args.corpus, source=args.data, progress=not args.no_progress)
@@ -192,6 +199,10 @@ def main(argv: list[str] | None = None) -> dict:
     )
 
     graphdef, state, history, train_s = train(args, model_config, train_config, train_set, stats)
+    coordinator = is_coordinator()
+    leave_group()  # several processes: training is done; process 0 alone evaluates and writes
+    if not coordinator:
+        return {}
 
     layout = BezierLayout.from_controls(model_config.num_controls, model_config.stride)
     metrics_config = CurveMetricsConfig(layout, val_set.fps, floor_height_from(train_set))

@@ -260,3 +260,19 @@ def assert_trees_close(a, b, tol: float = 1e-6) -> None:
 
 def trees_differ(a, b) -> bool:
     return any(not np.array_equal(x, y) for x, y in zip(leaves(a), leaves(b), strict=True))
+
+
+def without_key_bias(tree):
+    """``tree`` with the key part of every attention input bias zeroed. That bias adds the
+    same ``q·b_k`` to all of a query's logits, which softmax ignores: its true gradient is
+    0, so Adam turns pure rounding noise into ±lr updates whose signs depend on how the
+    computation was batched."""
+
+    def strip(path, x):
+        names = [str(getattr(p, "key", getattr(p, "name", ""))) for p in path]
+        if "in_proj" in names and "bias" in names and x.shape[-1] % 3 == 0:
+            w = x.shape[-1] // 3
+            return x.at[..., w : 2 * w].set(0)
+        return x
+
+    return jax.tree_util.tree_map_with_path(strip, tree)

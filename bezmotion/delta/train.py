@@ -47,6 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 from flax import nnx
+from jax.sharding import Mesh
 from jaxtyping import Array, Bool, Float, Int
 
 from bezmotion.geometry.skeleton import forward_kinematics
@@ -60,7 +61,15 @@ from bezmotion.delta.model import (
     apply_delta_positions,
     init_delta,
 )
-from bezmotion.training import TrainState, apply_gradients, fresh_train_state, run_training, stack_seeds, warmup_then_decay
+from bezmotion.training import (
+    TrainState,
+    apply_gradients,
+    fresh_train_state,
+    run_training,
+    shard_batch,
+    stack_seeds,
+    warmup_then_decay,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -419,7 +428,12 @@ def init_delta_train_states(
 
 
 def make_delta_train_step(
-    graphdef: nnx.GraphDef, model_config: DeltaConfig, train_config: DeltaTrainConfig, *, window_frames: int
+    graphdef: nnx.GraphDef,
+    model_config: DeltaConfig,
+    train_config: DeltaTrainConfig,
+    *,
+    window_frames: int,
+    mesh: Mesh | None = None,
 ) -> Callable[[TrainState, DeltaArrays | DeltaPositionArrays], tuple[TrainState, dict[str, Array]]]:
     """The (un-jitted) single-seed training step; compile it with
     :func:`bezmotion.training.compile_train_step`.
@@ -432,6 +446,8 @@ def make_delta_train_step(
       window_frames: frames per training window (LaFAN1 protocol: 50; Anidance: 128); the
         longest example, ``n_past + max_gap + 1`` frames, must fit in it, and its frame
         indices (relative to its first frame) must have embedding rows (``≤ max_frames``).
+      mesh: split each batch over these devices (:func:`bezmotion.training.data_mesh`;
+        several processes' when training data-parallel); ``None``: one device.
     """
     n_past, max_gap = model_config.n_past, train_config.max_gap
     span = n_past + max_gap + 1
@@ -482,7 +498,7 @@ def make_delta_train_step(
             raise ValueError(f"offsets of shape {data.offsets.shape} do not fit the model's {joints}-joint skeleton: expected (windows, {joints}, 3)")
         key, index_key, example_key = jax.random.split(state.key, 3)
         index = jax.random.randint(index_key, (train_config.batch_size,), 0, data[0].shape[0])
-        batch = tuple(a[index] for a in data)
+        batch = tuple(shard_batch(a[index], mesh) for a in data)
         rngs = jax.random.split(example_key, train_config.batch_size)
         learning_rate = schedule(state.step)
         state, metrics = apply_gradients(state, optimizer, loss_fn, batch, rngs, next_key=key)

@@ -46,6 +46,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 from flax import nnx
+from jax.sharding import Mesh
 from jaxtyping import Array, Bool, Float, Int
 
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
@@ -60,7 +61,7 @@ from bezmotion.ik.protores import (
     pose_from_output,
     solve_effectors,
 )
-from bezmotion.training import TrainState, apply_gradients, fresh_train_state, stack_seeds, warmup_then_decay
+from bezmotion.training import TrainState, apply_gradients, fresh_train_state, shard_batch, stack_seeds, warmup_then_decay
 
 #: Joints beyond the characteristic six that Table 2 uses, by role, for the bundled skeletons.
 EXTRA_ROLES: Mapping[str, Mapping[str, str]] = {
@@ -279,6 +280,8 @@ def make_ik_train_step(
     train_config: IKTrainConfig,
     character: Character,
     configurations: Mapping[str, tuple[int, ...]] | None = None,
+    *,
+    mesh: Mesh | None = None,
 ) -> Callable[[TrainState, Pose], tuple[TrainState, dict[str, Array]]]:
     """The (un-jitted) single-seed training step; compile it with
     :func:`bezmotion.training.compile_train_step`.
@@ -289,6 +292,8 @@ def make_ik_train_step(
       character: the skeleton the poses are of.
       configurations: fixed effector sets to train on (default
         :func:`effector_configurations`); must include :data:`CHARACTERISTIC`.
+      mesh: split each batch over these devices (:func:`bezmotion.training.data_mesh`;
+        several processes' when training data-parallel); ``None``: one device.
     Returns:
       ``step(state, poses) -> (state, metrics)``; ``poses`` are the training frames,
       a :class:`~bezmotion.ik.protocol.Pose` with a leading frames axis.
@@ -362,8 +367,8 @@ def make_ik_train_step(
         index = jax.random.randint(index_key, (tc.batch_size,), 0, poses.root_pos.shape[0])
         batch = jax.tree.map(lambda a: a[index], poses)
         keys = jax.random.split(example_key, tc.batch_size)
-        sparse = jax.tree.map(lambda a: a[:n_sparse], batch)
-        dense = jax.tree.map(lambda a: a[n_sparse:], batch)
+        sparse = jax.tree.map(lambda a: shard_batch(a[:n_sparse], mesh), batch)
+        dense = jax.tree.map(lambda a: shard_batch(a[n_sparse:], mesh), batch)
         args = (sparse, dense, keys[:n_sparse], keys[n_sparse:])
         new_state, metrics = apply_gradients(state, optimizer, loss_fn, *args, next_key=key)
         return new_state, {**metrics, "learning_rate": schedule(state.step)}

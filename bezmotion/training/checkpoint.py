@@ -17,9 +17,11 @@ from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import orbax.checkpoint as ocp
 
 from bezmotion.io import atomic_write_text
+from bezmotion.training.distributed import checkpoint_processes
 
 CONFIG_FILE = "config.json"
 
@@ -56,34 +58,48 @@ class CheckpointStore:
 
     def __init__(self, directory: str | os.PathLike, *, max_to_keep: int = 3):
         self.directory = Path(directory).expanduser().absolute()
+        primary, active = checkpoint_processes()  # several processes: who writes (see distributed)
+        self._writes_config = jax.process_index() == primary
+        self._alone = active is not None  # a process that has left its training group
+        if self._alone:  # orbax creates folders only with every process taking part
+            self.directory.mkdir(parents=True, exist_ok=True)
         self._manager = ocp.CheckpointManager(
             self.directory,
-            options=ocp.CheckpointManagerOptions(max_to_keep=max_to_keep, create=True, enable_async_checkpointing=False),
-        )
+            options=ocp.CheckpointManagerOptions(
+                max_to_keep=max_to_keep, create=active is None, enable_async_checkpointing=False,
+                multiprocessing_options=ocp.options.MultiprocessingOptions(primary_host=primary, active_processes=active),
+            ),
+        )  # fmt: skip
 
     def latest_step(self) -> int | None:
         return self._manager.latest_step()
 
     def save(self, step: int, state: Any, config: dict[str, Any] | None = None) -> None:
         """Write ``state`` as checkpoint ``step`` (synchronously) and ``config`` as JSON."""
-        if config is not None:
+        if config is not None and self._writes_config:  # one writer when several processes train
             atomic_write_text(self.directory / CONFIG_FILE, json.dumps(config, indent=2, sort_keys=True, default=str) + "\n")
         if self._manager.latest_step() == step:
             return  # already saved at this step (e.g. periodic save, then the final one)
         # A flat list of leaves, not the tree itself: orbax rebuilds trees with placeholder
         # leaves, which type-checked dataclass constructors (rightly) refuse.
         leaves = [jax.random.key_data(x) if _is_key(x) else x for x in jax.tree.leaves(state)]
+        if self._alone:  # orbax takes no device arrays of one process in a multi-process job
+            leaves = [np.asarray(x) for x in leaves]
         self._manager.save(step, args=ocp.args.StandardSave({"leaves": leaves}), force=True)
         self._manager.wait_until_finished()
 
     def restore(self, like: Any, step: int | None = None) -> Any:
-        """Restore checkpoint ``step`` (default: the latest) into the structure of ``like``."""
+        """Restore checkpoint ``step`` (default: the latest) into the structure of ``like``,
+        each leaf placed as ``like``'s (replicated over every process's devices when
+        several processes train)."""
         step = self._manager.latest_step() if step is None else step
         if step is None:
             raise FileNotFoundError(f"no checkpoint in {self.directory}")
         flat, treedef = jax.tree.flatten(like)
         abstract = [
-            jax.ShapeDtypeStruct(jax.random.key_data(x).shape, jnp.uint32) if _is_key(x) else ocp.utils.to_shape_dtype_struct(x)
+            jax.ShapeDtypeStruct(jax.random.key_data(x).shape, jnp.uint32, sharding=getattr(x, "sharding", None))
+            if _is_key(x)
+            else ocp.utils.to_shape_dtype_struct(x)
             for x in flat
         ]
         restored = self._manager.restore(step, args=ocp.args.StandardRestore({"leaves": abstract}))["leaves"]

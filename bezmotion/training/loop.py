@@ -2,8 +2,10 @@
 
 ``run_training`` knows no model: it calls a compiled ``step(state, data)``, logs its
 metrics, checkpoints every N steps and on Ctrl-C or SIGTERM, and resumes from the
-latest checkpoint of its store. With more than one local device, :func:`data_mesh` and
-:func:`shard_batch` split the batch over them and XLA all-reduces the gradients.
+latest checkpoint of its store. With more than one device, :func:`data_mesh` and
+:func:`shard_batch` split the batch over them and XLA all-reduces the gradients; after
+:func:`bezmotion.training.distributed.initialize` the devices are every process's, and
+``run_training`` replicates the state and data over them.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from jaxtyping import Array
 from tqdm.auto import tqdm
 
 from bezmotion.training.checkpoint import CheckpointStore
+from bezmotion.training.distributed import is_coordinator, is_distributed, localize, replicate
 from bezmotion.training.state import TrainState
 
 
@@ -42,9 +45,20 @@ def compile_train_step(step_fn: Callable, *, num_seeds: int | None) -> Callable:
 
 
 def data_mesh() -> Mesh | None:
-    """A 1-D mesh over all local devices named ``"data"``, or ``None`` with one device."""
-    devices = jax.local_devices()
+    """A 1-D mesh named ``"data"`` over all devices — every process's, when training on
+    several (:mod:`bezmotion.training.distributed`) — or ``None`` with one device."""
+    devices = jax.devices()
     return Mesh(np.asarray(devices), ("data",)) if len(devices) > 1 else None
+
+
+def _host_value(x: Array) -> np.ndarray:
+    """A metric's value on this host; a global array (several processes) is gathered
+    unless every process already holds all of it."""
+    if isinstance(x, jax.Array) and not x.is_fully_addressable and not x.is_fully_replicated:
+        from jax.experimental import multihost_utils
+
+        return np.asarray(multihost_utils.process_allgather(x, tiled=True))
+    return np.asarray(x)
 
 
 @contextlib.contextmanager
@@ -92,7 +106,7 @@ def run_training(
       checkpoint_every: checkpoint period (steps); also at the end and on Ctrl-C or
         SIGTERM (then raises ``KeyboardInterrupt``).
       config: saved as the store's ``config.json`` with every checkpoint.
-      progress: show a tqdm progress bar.
+      progress: show a tqdm progress bar (on process 0 only, when training on several).
       log_every: logging period (steps); the last step is always logged.
       progress_fn: called as ``progress_fn(step, record)`` at every logged step, after
         that step's periodic checkpoint if it has one (the final checkpoint is written
@@ -102,10 +116,21 @@ def run_training(
 
     Returns:
       The final state and the logged records (every ``log_every`` steps and the last).
+
+    On several processes (:mod:`bezmotion.training.distributed`) every process calls this
+    with the same ``state`` and ``data``; both are replicated over :func:`data_mesh`, the
+    step splits each batch over all processes' devices, ``progress_fn`` runs in every
+    process (guard file writes with ``is_coordinator()``), checkpoints are orbax's
+    multi-process ones, and the returned state is each process's own local copy, so the
+    code after training runs as in one process.
     """
+    if is_distributed():
+        mesh = data_mesh()
+        state, data = replicate(state, mesh), replicate(data, mesh)
+        progress = progress and is_coordinator()
     if store is not None and store.latest_step() is not None:
         state = store.restore(state)
-    done = int(np.max(np.asarray(state.step)))
+    done = int(np.max(_host_value(state.step)))
     history: list[dict[str, float]] = []
     bar = tqdm(total=num_steps, initial=done, desc="training", unit="step", disable=not progress)
     started, started_step = time.perf_counter(), done
@@ -118,7 +143,7 @@ def run_training(
                 done += 1
                 record = None
                 if done % log_every == 0 or done == num_steps:
-                    logged = {k: float(np.mean(np.asarray(v))) for k, v in metrics.items()}
+                    logged = {k: float(np.mean(_host_value(v))) for k, v in metrics.items()}
                     rate = (done - started_step) / max(time.perf_counter() - started, 1e-9)
                     record = {"step": done, "steps_per_s": rate, **logged}
                     history.append(record)
@@ -130,7 +155,7 @@ def run_training(
                     progress_fn(done, record)
         except KeyboardInterrupt:
             if store is not None:
-                done = int(np.max(np.asarray(state.step)))  # the state actually held, whatever was interrupted
+                done = int(np.max(_host_value(state.step)))  # the state actually held, whatever was interrupted
                 store.save(done, state, config)
                 bar.write(f"interrupted: saved step {done} to {store.directory}")
             raise
@@ -138,6 +163,8 @@ def run_training(
             bar.close()
     if store is not None:
         store.save(done, state, config)
+    if is_distributed():
+        state = localize(state)
     return state, history
 
 

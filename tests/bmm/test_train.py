@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from helpers import assert_trees_close, assert_trees_identical, trees_differ
+from helpers import assert_trees_close, assert_trees_identical, trees_differ, without_key_bias
 from bmm.common import TINY
 
 from bezmotion.bmm.train import (
@@ -28,22 +28,6 @@ from bezmotion.bmm.train import (
 )
 from bezmotion.training import compile_train_step, data_mesh, run_training
 from bezmotion.training.checkpoint import CheckpointStore
-
-
-def without_key_bias(tree):
-    """``tree`` with the key part of every attention input bias zeroed. That bias adds the
-    same ``q·b_k`` to all of a query's logits, which softmax ignores: its true gradient is
-    0, so Adam turns pure rounding noise into ±lr updates whose signs depend on how the
-    computation was batched."""
-
-    def strip(path, x):
-        names = [str(getattr(p, "key", getattr(p, "name", ""))) for p in path]
-        if "in_proj" in names and "bias" in names and x.shape[-1] % 3 == 0:
-            w = x.shape[-1] // 3
-            return x.at[..., w : 2 * w].set(0)
-        return x
-
-    return jax.tree_util.tree_map_with_path(strip, tree)
 
 
 TRAIN = BMMTrainConfig(batch_size=8, learning_rate=1e-3, ema_decay=0.9)
