@@ -6,7 +6,7 @@
 :mod:`~bezmotion.pipeline.inbetweening` (the jit-compiled :func:`inbetween`),
 :mod:`~bezmotion.pipeline.transfer` (driving one skeleton with another's BMM),
 :mod:`~bezmotion.pipeline.export` (BVH), :mod:`~bezmotion.pipeline.gltf` (glTF: skeleton
-and curves), :mod:`~bezmotion.pipeline.evaluation` (metrics
+and curves), :mod:`~bezmotion.pipeline.preview` (animated GIF), :mod:`~bezmotion.pipeline.evaluation` (metrics
 after IK on a corpus's validation windows).
 """
 
@@ -22,6 +22,7 @@ from bezmotion.pipeline.evaluation import (
 )
 from bezmotion.pipeline.export import default_channels, pose_to_bvh
 from bezmotion.pipeline.gltf import GlbContents, read_glb, validate_glb, write_glb
+from bezmotion.pipeline.preview import write_preview
 from bezmotion.pipeline.inbetweening import InbetweenResult, inbetween, inbetween_traced
 from bezmotion.pipeline.transfer import CharacterProfile, Transfer, curves_to_target, facing_yaw, floor_anchor, mean_rotation, to_source_space
 
@@ -50,4 +51,5 @@ __all__ = [
     "validate_glb",
     "window_poses",
     "write_glb",
+    "write_preview",
 ]
