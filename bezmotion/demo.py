@@ -8,7 +8,9 @@ The first 31 frames of the clip are a BMM window: its first and last frames are 
 start and end poses, and one handle moves a joint at an intermediate control frame.
 The pipeline generates curves through the handle, IK turns them into full-body poses,
 and the demo writes them as BVH (read back and checked by forward kinematics), a PNG
-of the curves and poses, and a JSON summary.
+of the curves and poses, a glTF file (the skeleton and the six curves as CUBICSPLINE
+controllers, :mod:`bezmotion.pipeline.gltf`), an animated GIF preview beside the mocap
+(:mod:`bezmotion.pipeline.preview`), and a JSON summary.
 """
 
 from __future__ import annotations
@@ -30,6 +32,8 @@ from bezmotion.ik.protocol import Character, Pose, pose_fk, pose_from_motion
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik
 from bezmotion.pipeline import CharacterProfile, InbetweenResult, Transfer, full_body_handles_error, inbetween, pose_to_bvh
+from bezmotion.pipeline.gltf import write_glb
+from bezmotion.pipeline.preview import write_preview
 from bezmotion.bmm.sampling import Handles, load_model
 
 IK_CHOICES = ("refined", "learned", "rig")
@@ -176,13 +180,28 @@ def demo(
     second_call_s = time.perf_counter() - t0
 
     out.mkdir(parents=True, exist_ok=True)
-    paths = {"inbetween": out / "inbetween.bvh", "ground_truth": out / "ground_truth.bvh", "png": out / "demo.png"}
+    paths = {
+        "inbetween": out / "inbetween.bvh",
+        "ground_truth": out / "ground_truth.bvh",
+        "png": out / "demo.png",
+        "glb": out / "inbetween.glb",
+        "gif": out / "preview.gif",
+    }
     # The files rig like the user's clip (its offsets, End Sites, 30 fps rather than the
     # 30.00003 of its 0.0333333 s), not like the take the IK model stored as its character.
     export = dict(fps=motion.nominal_fps, channels=None if channels == "default" else motion.channels, template=motion)
-    write_bvh(paths["inbetween"], pose_to_bvh(character, result.pose, **export))
-    write_bvh(paths["ground_truth"], pose_to_bvh(character, truth, **export))
+    inbetween_motion, truth_motion = pose_to_bvh(character, result.pose, **export), pose_to_bvh(character, truth, **export)
+    write_bvh(paths["inbetween"], inbetween_motion)
+    write_bvh(paths["ground_truth"], truth_motion)
     _plot(paths["png"], character, result, truth, handle_pos, j, frame)
+    # The curves as glTF CUBICSPLINE controllers beside the skeleton, and an animated preview.
+    curves = dict(ctrl_pos=np.asarray(result.curves.ctrl_pos), ctrl_tangent=np.asarray(result.curves.ctrl_tangent), stride=bmm.config.stride)
+    handle_records = [{"joint": joint, "frame": frame, "position": handle_pos.tolist()}]
+    write_glb(paths["glb"], inbetween_motion, **curves, handles=handle_records)
+    write_preview(
+        paths["gif"], character, inbetween_motion, **curves, reference=truth_motion, handles=handle_records,
+        title=f"{clip.name}: {joint} at frame {frame} moved by {list(offset)} cm",
+    )  # fmt: skip
     _, pos = pose_fk(character, result.pose)
     summary = {
         "clip": clip.name,
@@ -208,5 +227,6 @@ def demo(
     print(f"  curve passes the handle within {summary['curve_handle_error_cm']:.2e} cm; full body after IK {summary['full_body_handle_error_cm']:.2f} cm")
     print(f"  compiled and ran in {first_call_s:.1f} s, then {1e3 * second_call_s:.0f} ms per window")
     print(f"  wrote {paths['inbetween']} (BVH re-read matches to {summary['bvh_fk_error_cm']:.1e} cm), {paths['ground_truth']}, {paths['png']}")
+    print(f"  wrote {paths['glb']} (skeleton and the six curves, glTF) and {paths['gif']} (animated preview)")
     print(f"  data: {DEMO_CLIP_ATTRIBUTION}")
     return summary

@@ -46,6 +46,29 @@ def test_demo_bvh_reads_back_and_matches_the_pipeline(demo_run):
     assert (out / "demo.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_demo_writes_the_glb_and_the_preview(demo_run):
+    """The glTF file reads back with the BVH's skeleton and frames and the curves through
+    the handle; the preview has one GIF frame per motion frame."""
+    from PIL import Image
+
+    from bezmotion.pipeline.gltf import read_glb
+
+    _, out, summary = demo_run
+    glb, bvh = read_glb(out / "inbetween.glb"), read_bvh(out / "inbetween.bvh")
+    assert glb.motion.skeleton.names == bvh.skeleton.names and glb.motion.channels == bvh.channels
+    assert glb.layout.num_frames == 31 and glb.layout.stride == 6
+    np.testing.assert_allclose(glb.motion.pos_local, bvh.pos_local, atol=1e-3)  # BVH: 6 decimals
+    sign = np.sign(np.sum(glb.motion.quat_local * bvh.quat_local, axis=-1, keepdims=True))
+    np.testing.assert_allclose(glb.motion.quat_local * sign, bvh.quat_local, atol=1e-5)
+    handle = summary["handle"]
+    assert glb.handles == [{"joint": handle["joint"], "frame": handle["frame"], "position": handle["position_cm"]}]
+    at_handle = glb.ctrl_pos[handle["frame"] // 6, glb.joints.index(handle["joint"])]
+    np.testing.assert_allclose(at_handle, handle["position_cm"], rtol=2e-7)  # float32 metres
+    with Image.open(out / "preview.gif") as gif:
+        assert gif.format == "GIF" and gif.n_frames == 31
+    assert set(summary["files"]) >= {"inbetween", "ground_truth", "png", "glb", "gif"}
+
+
 def _hierarchy(text: str) -> tuple[list[str], list[str], list[tuple[str, int]], str]:
     """OFFSET lines of joints, those of End Sites, (joint, channel count) and the Frame Time, read independently of the reader."""
     lines = [line.strip() for line in text.splitlines()]

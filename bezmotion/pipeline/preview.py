@@ -213,7 +213,7 @@ def write_preview(
         at_handle = [f"{j}" for j, hf, _ in marks if hf == f]
         label.set_text(f"{title + ' · ' if title else ''}frame {f}/{frames - 1}" + (f"  handle: {', '.join(at_handle)}" if at_handle else ""))
         fig.canvas.draw()
-        images.append(Image.fromarray(np.asarray(fig.canvas.buffer_rgba())[..., :3]).convert("P", palette=Image.Palette.ADAPTIVE))
+        images.append(Image.fromarray(np.asarray(fig.canvas.buffer_rgba())[..., :3]).convert("P", palette=Image.Palette.ADAPTIVE, colors=64))  # lines on white: 64 colours suffice
     plt.close(fig)
     duration = max(10, round(1000.0 * motion.frame_time))  # ms; GIF stores hundredths of a second
     with atomic_path(path, suffix=".gif") as tmp:
