@@ -265,7 +265,10 @@ def save_model(directory: str | os.PathLike, model: BezierMotionModel, *, storag
 
 def load_model(directory: str | os.PathLike) -> BezierMotionModel:
     """Read a BMM written by :func:`save_model` (its config says how to rebuild it)."""
-    store = CheckpointStore(directory, max_to_keep=1)
+    try:  # read-only: loading from a wrong path must not leave a folder there
+        store = CheckpointStore(directory, max_to_keep=1, read_only=True)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{directory}: not a saved BMM (no such folder)") from None
     saved = store.config()
     if saved is None or "model" not in saved or store.latest_step() is None:
         raise FileNotFoundError(f"{directory}: not a saved BMM (config.json and a checkpoint expected)")

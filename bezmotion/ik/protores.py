@@ -528,7 +528,10 @@ def load_ik_model(directory: str | os.PathLike) -> ProtoResModel:
       FileNotFoundError: ``directory`` holds no saved model.
       ValueError: the saved description is not a learned IK's.
     """
-    store = CheckpointStore(directory, max_to_keep=1)
+    try:  # read-only: loading from a wrong path must not leave a folder there
+        store = CheckpointStore(directory, max_to_keep=1, read_only=True)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{directory}: not a saved learned IK (no such folder)") from None
     try:
         saved = store.config()
         if saved is None or store.latest_step() is None:

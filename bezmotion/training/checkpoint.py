@@ -52,21 +52,30 @@ class CheckpointStore:
     """Numbered checkpoints of one training run in ``directory``.
 
     Args:
-      directory: the run's folder (created if missing).
+      directory: the run's folder (created if missing, unless ``read_only``).
       max_to_keep: how many of the most recent checkpoints to keep.
+      read_only: open an existing folder to read (loading a saved model): nothing is
+        created or written, and a missing folder raises.
+
+    Raises:
+      FileNotFoundError: ``read_only`` and ``directory`` is not a folder.
     """
 
-    def __init__(self, directory: str | os.PathLike, *, max_to_keep: int = 3):
+    def __init__(self, directory: str | os.PathLike, *, max_to_keep: int = 3, read_only: bool = False):
         self.directory = Path(directory).expanduser().absolute()
+        if read_only and not self.directory.is_dir():
+            raise FileNotFoundError(f"{directory}: no such folder")
         primary, active = checkpoint_processes()  # several processes: who writes (see distributed)
-        self._writes_config = jax.process_index() == primary
+        self._writes_config = jax.process_index() == primary and not read_only
         self._alone = active is not None  # a process that has left its training group
-        if self._alone:  # orbax creates folders only with every process taking part
+        if self._alone and not read_only:  # orbax creates folders only with every process taking part
             self.directory.mkdir(parents=True, exist_ok=True)
+        self._read_only = read_only
         self._manager = ocp.CheckpointManager(
             self.directory,
             options=ocp.CheckpointManagerOptions(
-                max_to_keep=max_to_keep, create=active is None, enable_async_checkpointing=False,
+                max_to_keep=max_to_keep, create=active is None and not read_only, read_only=read_only,
+                enable_async_checkpointing=False,
                 multiprocessing_options=ocp.options.MultiprocessingOptions(primary_host=primary, active_processes=active),
             ),
         )  # fmt: skip
@@ -76,6 +85,8 @@ class CheckpointStore:
 
     def save(self, step: int, state: Any, config: dict[str, Any] | None = None) -> None:
         """Write ``state`` as checkpoint ``step`` (synchronously) and ``config`` as JSON."""
+        if self._read_only:
+            raise ValueError(f"{self.directory} was opened read-only; open it without read_only=True to save")
         if config is not None and self._writes_config:  # one writer when several processes train
             atomic_write_text(self.directory / CONFIG_FILE, json.dumps(config, indent=2, sort_keys=True, default=str) + "\n")
         if self._manager.latest_step() == step:
