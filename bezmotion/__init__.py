@@ -38,9 +38,11 @@ from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, pose_fk, pos
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn, save_ik_model
 from bezmotion.ik.rig import make_rig, rig_ik
 
-# In-betweening end to end, character transfer, export.
+# In-betweening end to end, character transfer, export (BVH, glTF, animated preview).
 from bezmotion.pipeline.export import pose_to_bvh
+from bezmotion.pipeline.gltf import read_glb, write_glb
 from bezmotion.pipeline.inbetweening import InbetweenResult, inbetween
+from bezmotion.pipeline.preview import write_preview
 from bezmotion.pipeline.transfer import CharacterProfile, Transfer
 
 __version__ = "0.1.0"
@@ -81,10 +83,13 @@ __all__ = [
     "protores_ik_fn",
     "protores_refined_ik_fn",
     "read_bvh",
+    "read_glb",
     "rig_ik",
     "sample_curves",
     "save_ik_model",
     "save_model",
     "targets_from_pose",
     "write_bvh",
+    "write_glb",
+    "write_preview",
 ]
