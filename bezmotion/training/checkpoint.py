@@ -74,8 +74,8 @@ class CheckpointStore:
         self._manager = ocp.CheckpointManager(
             self.directory,
             options=ocp.CheckpointManagerOptions(
-                max_to_keep=max_to_keep, create=active is None and not read_only, read_only=read_only,
-                enable_async_checkpointing=False,
+                # Not orbax's own read_only, which logs a warning on every load; ``save`` refuses instead.
+                max_to_keep=max_to_keep, create=active is None and not read_only, enable_async_checkpointing=False,
                 multiprocessing_options=ocp.options.MultiprocessingOptions(primary_host=primary, active_processes=active),
             ),
         )  # fmt: skip
