@@ -36,9 +36,10 @@ placed at a third of the interval in time, so keyframe ``k`` gets
 (the first key's left and the last key's right handles mirror their other side).
 Handles drawn from the ``.glb``'s markers become empties ``handle_<joint>@<frame>``.
 
-**export** reads the controllers back — every key (a control point, or one the animator
-added) whose position moved from the imported curve by more than ``--tolerance`` cm, or
-every interior key with ``--all`` — into the handles file that ``bezmotion inbetween
+**export** reads the controllers back — the keys of the handles the in-between was made
+with (where they are now), every key (a control point, or one the animator added) whose
+position moved from the imported curve by more than ``--tolerance`` cm, or every interior
+key with ``--all`` — into the handles file that ``bezmotion inbetween
 --handles FILE`` takes: ``[{"joint": "right_hand", "frame": 12, "position": [x, y, z]}]``,
 cm, in the character's world frame. The first and last frames are the start and end
 poses, not handles: moving them is reported, not exported. Edits of a handle's tangent
@@ -227,7 +228,7 @@ def bezier_value(segment_keys, frame):
     return u * u * u * p0 + 3 * u * u * t * p1 + 3 * u * t * t * p2 + t * t * t * p3
 
 
-def edited_handles(joint, original, keys, *, num_frames, tolerance_cm=DEFAULT_TOLERANCE_CM, everything=False):
+def edited_handles(joint, original, keys, *, num_frames, tolerance_cm=DEFAULT_TOLERANCE_CM, everything=False, keep=()):
     """Handles (cm) for the keys of one controller that moved, and notes on what cannot be said.
 
     Args:
@@ -237,6 +238,8 @@ def edited_handles(joint, original, keys, *, num_frames, tolerance_cm=DEFAULT_TO
       num_frames: the window's length (its first and last frames are the poses).
       tolerance_cm: a key counts as moved beyond this distance.
       everything: every interior key, moved or not.
+      keep: frames whose keys are handles whether they moved or not (the handles the
+        in-between was made with, so that the file describes the whole edit).
     Returns:
       ``(handles, notes)``: ``[{"joint", "frame", "position"}]`` and a list of messages.
     """
@@ -256,7 +259,7 @@ def edited_handles(joint, original, keys, *, num_frames, tolerance_cm=DEFAULT_TO
         if not 0 < whole < num_frames - 1:
             notes.append(f"{joint}: key at frame {whole} is outside the window 0…{num_frames - 1}; skipped")
             continue
-        if moved or everything:
+        if moved or everything or whole in keep:
             handles.append({"joint": joint, "frame": whole, "position": [float(c) for c in position]})
         elif math.dist(tangent, old[1]) > tolerance_cm:
             notes.append(f"{joint}: the tangent at frame {whole} changed; the handles format carries positions only")
@@ -341,7 +344,9 @@ def import_glb(path, *, armature=True):
         marker.empty_display_size = 0.05
         marker.location = to_blender(h["position"])
         collection.objects.link(marker)
-    scene[PROP] = json.dumps({"source": os.fspath(path), "frame_time": data["frame_time"], "num_frames": data["num_frames"]})
+    scene[PROP] = json.dumps(
+        {"source": os.fspath(path), "frame_time": data["frame_time"], "num_frames": data["num_frames"], "handles": data["handles"]}
+    )
     scene.frame_set(0)
     return made
 
@@ -376,10 +381,14 @@ def export_handles(path, *, tolerance_cm=DEFAULT_TOLERANCE_CM, everything=False)
     controllers = [obj for obj in bpy.context.scene.objects if JOINT_PROP in obj and PROP in obj]
     if not controllers:
         raise ValueError("no bezmotion controllers in this scene (import a .glb first)")
+    given = json.loads(bpy.context.scene.get(PROP, "{}")).get("handles", [])
     handles, notes = [], []
     for obj in controllers:
         joint, original, keys = controller_keys(obj)
-        h, n = edited_handles(joint, original, keys, num_frames=original["num_frames"], tolerance_cm=tolerance_cm, everything=everything)
+        keep = {h["frame"] for h in given if h["joint"] == joint}
+        h, n = edited_handles(
+            joint, original, keys, num_frames=original["num_frames"], tolerance_cm=tolerance_cm, everything=everything, keep=keep
+        )
         handles += h
         notes += n
     handles.sort(key=lambda h: (h["frame"], h["joint"]))

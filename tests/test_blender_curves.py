@@ -142,6 +142,8 @@ def test_edited_handles_are_the_moved_interior_keys():
     assert any("frame 0 moved" in n for n in notes)
     everything, _ = bc.edited_handles("right_hand", original, keys, num_frames=19, everything=True)
     assert [h["frame"] for h in everything] == [6, 9, 12]
+    kept, _ = bc.edited_handles("right_hand", original, keys, num_frames=19, keep={6})
+    assert [h["frame"] for h in kept] == [6, 9, 12]  # the in-between's own handle stays in the file
     keys[1] = (6.0, [1, 1, 1], [9, 0, 0])
     _, notes = bc.edited_handles("right_hand", original, keys, num_frames=31)
     assert any("tangent at frame 6 changed" in n for n in notes)
@@ -179,7 +181,8 @@ def test_round_trip_through_blender(tmp_path):
         pytest.skip("no Blender: neither `blender`, $BEZMOTION_BLENDER, nor a bpy venv in ~/.cache/bezmotion/bpy-venv")
     motion, layout, ctrl_pos, ctrl_tangent = clip_curves(31)
     glb = tmp_path / "out.glb"
-    write_glb(glb, motion, ctrl_pos, ctrl_tangent, handles=[{"joint": "right_hand", "frame": 12, "position": [0, 100, 0]}])
+    given = [{"joint": "left_foot", "frame": 18, "position": ctrl_pos[3, 4].tolist()}]  # the in-between's own handle
+    write_glb(glb, motion, ctrl_pos, ctrl_tangent, handles=given)
     back = read_glb(glb)  # what the file holds (float32)
     query = [0.0, 1.5, 4.25, 12.0, 17.0, 29.5, 30.0]
     # Import, read what Blender evaluates, move the right hand's key at frame 12 up 25 cm
@@ -213,7 +216,7 @@ def test_round_trip_through_blender(tmp_path):
     result = json.loads(stdout.split("RESULT", 1)[1].splitlines()[0])
     assert result["fps"] == pytest.approx(30.0, rel=1e-9) and result["range"] == [0, 30]
     assert result["armatures"] == [motion.skeleton.num_joints + len(motion.end_sites)]
-    assert "handle_right_hand@12" in result["names"]
+    assert "handle_left_foot@18" in result["names"]
     assert result["types"] == [["BEZIER", "FREE", "FREE"]]
     expected = our_curve(layout, back.ctrl_pos, back.ctrl_tangent, np.asarray(query))
     for j, joint in enumerate(CHARACTERISTIC_JOINTS):
@@ -230,6 +233,8 @@ def test_round_trip_through_blender(tmp_path):
     done = subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     handles = json.loads(handles_file.read_text())
-    assert [(h["joint"], h["frame"]) for h in handles] == [("right_hand", 12)]
+    # The moved key, and the handle the in-between was made with (unmoved), in cm, Y-up.
+    assert [(h["joint"], h["frame"]) for h in handles] == [("right_hand", 12), ("left_foot", 18)]
     moved = back.ctrl_pos[2, CHARACTERISTIC_JOINTS.index("right_hand")] + [0.0, 25.0, 0.0]
-    np.testing.assert_allclose(handles[0]["position"], moved, atol=2e-3)
+    np.testing.assert_allclose(handles[0]["position"], moved, atol=1e-4)
+    np.testing.assert_allclose(handles[1]["position"], given[0]["position"], atol=1e-4)
