@@ -49,7 +49,7 @@ The conversion functions (``parse_glb``, ``blender_keyframes``, ``curve_from_key
 ``edited_handles``) are plain Python and tested without Blender.
 """
 
-from __future__ import annotations
+# No `from __future__ import annotations`: Blender reads operator properties from real class annotations.
 
 import argparse
 import json

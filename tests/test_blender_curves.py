@@ -238,3 +238,20 @@ def test_round_trip_through_blender(tmp_path):
     moved = back.ctrl_pos[2, CHARACTERISTIC_JOINTS.index("right_hand")] + [0.0, 25.0, 0.0]
     np.testing.assert_allclose(handles[0]["position"], moved, atol=1e-4)
     np.testing.assert_allclose(handles[1]["position"], given[0]["position"], atol=1e-4)
+
+
+def test_run_from_blenders_ui_adds_the_menu_operators(tmp_path):
+    blender = find_blender()
+    if blender is None:
+        pytest.skip("no Blender: neither `blender`, $BEZMOTION_BLENDER, nor a bpy venv in ~/.cache/bezmotion/bpy-venv")
+    code = textwrap.dedent(
+        f"""
+        import runpy, bpy
+        runpy.run_path({str(SCRIPT)!r}, run_name="__main__")  # as the Text Editor's Run Script does
+        props = bpy.ops.bezmotion.export_handles.get_rna_type().properties.keys()
+        assert "everything" in props and "filepath" in props, list(props)
+        assert "filepath" in bpy.ops.bezmotion.import_curves.get_rna_type().properties.keys()
+        print("UI-OK")
+        """
+    )
+    assert "UI-OK" in run_in_blender(blender, code, tmp_path)
