@@ -21,7 +21,9 @@ the choices), ``tuple[T, ...]`` (one or more values), ``tuple[T, T, T]`` (exactl
 ``X | None`` (for a default of ``None``), ``bool`` (``--x`` / ``--no-x``; a field named
 ``no_…`` is the plain switch ``--no-…`` and defaults to ``False``); the default from the
 field (no default: the flag is required); the help text, explicit choices and metavar
-from :func:`option`. The class's ``__post_init__`` may check values and fill derived
+from :func:`option`. ``option(positional=True)`` makes a field a positional argument
+(optional when it has a default), and ``option(repeat=True)`` lets a ``tuple[T, ...]``
+flag be given several times, collecting every value (``--handle A --handle B C``). The class's ``__post_init__`` may check values and fill derived
 defaults (``object.__setattr__``, as frozen dataclasses do); a ``ValueError`` it raises
 is reported by argparse like a malformed value: usage, the message, exit status 2.
 
@@ -72,6 +74,8 @@ def option(
     help: str | None = None,
     choices: Iterable[Any] | None = None,
     metavar: str | tuple[str, ...] | None = None,
+    positional: bool = False,
+    repeat: bool = False,
 ) -> Any:
     """A field of an options class with its help text (no ``default``: the flag is required).
 
@@ -81,10 +85,17 @@ def option(
       choices: the allowed values, where the annotation is a plain type (a ``Literal``
         annotation lists its own); a mapping's keys (e.g. :func:`presets`) work too.
       metavar: the value's name in ``--help`` (a tuple names each of a fixed count).
+      positional: a positional argument rather than a flag (a single value; optional when
+        the field has a default).
+      repeat: for a ``tuple[T, ...]`` field: the flag may be given several times, each
+        with one or more values, and the values of every occurrence are collected in order.
     """
     if isinstance(default, list | dict | set):
         raise ValueError(f"an option's default must be immutable (a tuple for several values), got {default!r}")
-    metadata = {"help": help, "choices": None if choices is None else tuple(choices), "metavar": metavar}
+    metadata = {
+        "help": help, "choices": None if choices is None else tuple(choices), "metavar": metavar,
+        "positional": positional, "repeat": repeat,
+    }  # fmt: skip
     return dataclasses.field(default=default, metadata=metadata)
 
 
@@ -153,6 +164,8 @@ def options_from(parser: argparse.ArgumentParser, cls: type[T], namespace: argpa
     for field in dataclasses.fields(cls):
         if field.init:
             value = getattr(namespace, field.name)
+            if value is None and field.metadata.get("repeat"):  # never given: argparse left it unset
+                value = field.default
             values[field.name] = tuple(value) if isinstance(value, list) else value
     try:
         return cls(**values)
@@ -213,6 +226,18 @@ def _argument(cls: type, field: dataclasses.Field) -> tuple[str, dict[str, Any]]
         kwargs["choices"] = meta["choices"]
     if meta.get("metavar") is not None:
         kwargs["metavar"] = meta["metavar"]
+    if meta.get("repeat"):
+        if kwargs.get("nargs") != "+":
+            raise TypeError(f"{where}: repeat=True needs a tuple[T, ...] field, got {field.type!r}")
+        # argparse extends a copy of the default, which a tuple does not allow: options_from fills it in.
+        kwargs.update(action="extend", default=None)
+    if meta.get("positional"):
+        if "action" in kwargs or "nargs" in kwargs:
+            raise TypeError(f"{where}: a positional option holds one value, got {field.type!r}")
+        del kwargs["dest"]  # a positional argument's name is its dest
+        if not kwargs.pop("required", False):
+            kwargs["nargs"] = "?"
+        return field.name, kwargs
     return "--" + field.name.replace("_", "-"), kwargs
 
 

@@ -260,3 +260,29 @@ def test_script_defaults_and_derived_settings(load_script, tmp_path, monkeypatch
     ik = load_script("experiments", "train_ik")
     args = ik.parse_args(["--corpus", "lafan1", "--no-effector-skip"])
     assert (args.steps, args.config, args.effector_skip, args.output_rotations) == (9000, "cpu", False, None)
+
+
+@options
+class Repeating:
+    clip: Path | None = option(None, positional=True, help="a file")
+    handle: tuple[str, ...] = option((), repeat=True, help="any number, flag repeated or not")
+    label: str = option(positional=True)
+
+
+def test_positional_and_repeated_options():
+    args = parse_options(Repeating, ["a.bvh", "L", "--handle", "h1", "--handle", "h2", "h3"])
+    assert args == Repeating(clip=Path("a.bvh"), handle=("h1", "h2", "h3"), label="L")
+    assert parse_options(Repeating, ["L2"]) == Repeating(clip=None, handle=(), label="L2")
+    with pytest.raises(SystemExit):
+        parse_options(Repeating, [])  # the required positional is missing
+    with pytest.raises(TypeError, match="repeat=True needs a tuple"):
+
+        @options
+        class Bad:
+            n: int = option(1, repeat=True)
+
+    with pytest.raises(TypeError, match="a positional option holds one value"):
+
+        @options
+        class Bad2:
+            n: tuple[int, ...] = option((1,), positional=True)
