@@ -1,6 +1,11 @@
 """The ``bezmotion`` command line.
 
     bezmotion demo [--out DIR] [--joint J --frame F --offset X Y Z] [--ik learned|rig] [--channels clip]
+    bezmotion inbetween CLIP.bvh --frames 0 30 [--handle JOINT@FRAME=X,Y,Z …] [--out out.bvh|out.glb|DIR]
+    bezmotion inbetween --start A.bvh@F --end B.bvh@G [--handles FILE] [--samples N] [--ik rig] [--mapping MAP.json]
+
+Errors are one line, ``bezmotion: error: …`` naming the argument and its value, with exit
+status 2; nothing is written then.
 
 Paper tables and figures are reproduced by the scripts in ``experiments/``.
 """
@@ -13,8 +18,10 @@ from pathlib import Path
 
 from bezmotion.assets import BUNDLED_BMM, BUNDLED_IK
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
-from bezmotion.demo import CHANNEL_CHOICES, IK_CHOICES, demo
+from bezmotion.demo import demo
+from bezmotion.inbetween_command import InbetweenOptions, run_inbetween
 from bezmotion.options import add_options, option, options, options_from
+from bezmotion.pipeline.authoring import CHANNEL_CHOICES, IK_CHOICES
 
 
 @options
@@ -42,13 +49,25 @@ class DemoOptions:
     )  # fmt: skip
 
 
+class _Parser(argparse.ArgumentParser):
+    """Reports a bad command line in one line, as every other error (exit status 2)."""
+
+    def error(self, message: str):
+        self.exit(2, f"bezmotion: error: {' '.join(message.split())} (see {self.prog} --help)\n")
+
+
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="bezmotion", description="Precise, character-agnostic motion in-betweening.")
+    parser = _Parser(prog="bezmotion", description="Precise, character-agnostic motion in-betweening.")
     sub = parser.add_subparsers(dest="command", required=True)
     p_demo = sub.add_parser(
         "demo", help="in-between the bundled real clip with the bundled models; write BVH, PNG and a summary (no downloads)"
     )
     add_options(p_demo, DemoOptions)
+    p_inbetween = sub.add_parser(
+        "inbetween", help="in-between two poses of your own BVH files through handles; write BVH, glTF and a preview",
+        description=InbetweenOptions.__doc__,
+    )  # fmt: skip
+    add_options(p_inbetween, InbetweenOptions)
     parsed = parser.parse_args(argv)
 
     try:
@@ -59,8 +78,10 @@ def main(argv: list[str] | None = None) -> int:
                 seed=args.seed, bmm_dir=args.bmm, bmm_corpus=args.bmm_corpus, ik_dir=args.ik_model,
                 channels=args.channels,
             )  # fmt: skip
+        elif parsed.command == "inbetween":
+            run_inbetween(options_from(p_inbetween, InbetweenOptions, parsed))
     except (ValueError, FileNotFoundError) as e:
-        print(f"bezmotion: error: {e}", file=sys.stderr)
+        print(f"bezmotion: error: {' '.join(str(e).split())}", file=sys.stderr)
         return 2
     return 0
 

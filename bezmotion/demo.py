@@ -20,39 +20,30 @@ import time
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from bezmotion.io import atomic_write_text, save_figure
-from bezmotion.assets import BUNDLED_BMM, BUNDLED_IK, DEMO_CLIP, DEMO_CLIP_ATTRIBUTION, PROFILES_DIR
-from bezmotion.data.bvh import BvhMotion, read_bvh, write_bvh
+from bezmotion.assets import BUNDLED_BMM, BUNDLED_IK, DEMO_CLIP, DEMO_CLIP_ATTRIBUTION
+from bezmotion.data.bvh import read_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
-from bezmotion.geometry.skeleton import forward_kinematics
-from bezmotion.ik.protocol import Character, Pose, pose_fk, pose_from_motion
-from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
-from bezmotion.ik.rig import make_rig, rig_ik
-from bezmotion.pipeline import CharacterProfile, InbetweenResult, Transfer, full_body_handles_error, inbetween, pose_to_bvh
-from bezmotion.pipeline.gltf import write_glb
-from bezmotion.pipeline.preview import write_preview
+from bezmotion.ik.protocol import Character, Pose, pose_fk
+from bezmotion.ik.protores import load_ik_model
+from bezmotion.pipeline import InbetweenResult, full_body_handles_error, inbetween, pose_to_bvh
+from bezmotion.pipeline.authoring import (
+    CHANNEL_CHOICES,
+    IK_CHOICES,
+    ResultFiles,
+    bvh_fk_error_cm,
+    load_profile,
+    make_ik,
+    make_transfer,
+    motion_poses,
+    profile_names,
+    recognise_character,
+    target_profile,
+    write_result,
+)
 from bezmotion.bmm.sampling import Handles, load_model
-
-IK_CHOICES = ("refined", "learned", "rig")
-CHANNEL_CHOICES = ("default", "clip")
-
-
-def _window(motion: BvhMotion, character: Character, frames: int) -> Pose:
-    return pose_from_motion(
-        character, jnp.asarray(motion.quat_local[:frames], jnp.float32), jnp.asarray(motion.pos_local[:frames], jnp.float32)
-    )
-
-
-def _bvh_fk_error_cm(path: Path, character: Character, pose: Pose) -> float:
-    """Largest joint-position difference (cm) between a written BVH, read back, and ``pose``."""
-    reread = read_bvh(path)
-    with jax.enable_x64(True):
-        _, from_file = forward_kinematics(reread.skeleton.parents, jnp.asarray(reread.quat_local), jnp.asarray(reread.pos_local))
-        from_file = np.asarray(from_file)
-    return float(np.abs(from_file - np.asarray(pose_fk(character, pose)[1], np.float64)).max())
 
 
 def _plot(
@@ -141,35 +132,28 @@ def demo(
         raise ValueError(f"--channels must be one of {CHANNEL_CHOICES}, got {channels!r}")
     if not (steps >= 1):
         raise ValueError(f"--steps must be at least 1, got {steps}")
-    if not (PROFILES_DIR / f"{bmm_corpus}.json").exists():
-        known = sorted(p.stem for p in PROFILES_DIR.glob("*.json"))
-        raise ValueError(f"--bmm-corpus must be one of {known}, got {bmm_corpus!r}")
+    if bmm_corpus not in profile_names():
+        raise ValueError(f"--bmm-corpus must be one of {profile_names()}, got {bmm_corpus!r}")
     started = time.perf_counter()
     motion = read_bvh(clip)
     bmm = load_model(bmm_dir)
-    clip_character = Character.from_bvh(motion, "bandai_namco")
-    if ik == "rig":
-        character, ik_fn = clip_character, rig_ik
-    else:
-        ik_model = load_ik_model(ik_dir)
-        character, ik_params = ik_model.character, ik_model
-        ik_fn = protores_ik_fn if ik == "learned" else protores_refined_ik_fn
+    # The clip's own skeleton (its offsets) throughout: the files' FK is the pipeline's.
+    recognised = recognise_character(motion)
+    character = recognised.character
     frames = bmm.config.num_frames
     if motion.num_frames < frames:
         raise ValueError(f"{clip}: the demo needs {frames} frames, the clip has {motion.num_frames}")
-    truth = _window(motion, clip_character, frames)
-    if ik != "learned":  # joints the rig does not solve (clavicles, toes) keep the start pose's rotations
-        rig = make_rig(character, "bandai_namco", rest_quat_local=np.asarray(truth.quat_local[0]))
-        ik_params = rig if ik == "rig" else (ik_model, rig)
+    truth = motion_poses(motion, character, slice(0, frames))
+    # Joints the rig does not solve (clavicles, toes) keep the start pose's rotations.
+    ik_fn, ik_params = make_ik(
+        ik, recognised, rest_quat_local=np.asarray(truth.quat_local[0]), ik_model=None if ik == "rig" else load_ik_model(ik_dir)
+    )  # fmt: skip
     _, true_pos = pose_fk(character, truth)
     j = CHARACTERISTIC_JOINTS.index(joint)
     handle_pos = np.asarray(true_pos[frame, character.characteristic[j]]) + np.asarray(offset, np.float32)
     handles = Handles.from_frames([joint], [frame], handle_pos[None], config=bmm.config)
-    transfer = None
-    if bmm_corpus != "bandai_namco":  # curves of another skeleton: move them over (BMM §5.2)
-        transfer = Transfer.between(
-            CharacterProfile.load(PROFILES_DIR / f"{bmm_corpus}.json"), CharacterProfile.load(PROFILES_DIR / "bandai_namco.json")
-        )
+    # Curves of another skeleton are moved over (BMM §5.2).
+    transfer = None if bmm_corpus == recognised.preset else make_transfer(load_profile(bmm_corpus), target_profile(recognised, [motion]))
     start, end = jax.tree.map(lambda x: x[0], truth), jax.tree.map(lambda x: x[-1], truth)
     t0 = time.perf_counter()
     result = inbetween(bmm, ik_fn, ik_params, character, start, end, handles, key=jax.random.key(seed), transfer=transfer, steps=steps)
@@ -190,18 +174,17 @@ def demo(
     # The files rig like the user's clip (its offsets, End Sites, 30 fps rather than the
     # 30.00003 of its 0.0333333 s), not like the take the IK model stored as its character.
     export = dict(fps=motion.nominal_fps, channels=None if channels == "default" else motion.channels, template=motion)
-    inbetween_motion, truth_motion = pose_to_bvh(character, result.pose, **export), pose_to_bvh(character, truth, **export)
-    write_bvh(paths["inbetween"], inbetween_motion)
-    write_bvh(paths["ground_truth"], truth_motion)
-    _plot(paths["png"], character, result, truth, handle_pos, j, frame)
-    # The curves as glTF CUBICSPLINE controllers beside the skeleton, and an animated preview.
-    curves = dict(ctrl_pos=np.asarray(result.curves.ctrl_pos), ctrl_tangent=np.asarray(result.curves.ctrl_tangent), stride=bmm.config.stride)
-    handle_records = [{"joint": joint, "frame": frame, "position": handle_pos.tolist()}]
-    write_glb(paths["glb"], inbetween_motion, **curves, handles=handle_records)
-    write_preview(
-        paths["gif"], character, inbetween_motion, **curves, reference=truth_motion, handles=handle_records,
-        title=f"{clip.name}: {joint} at frame {frame} moved by {list(offset)} cm",
+    truth_motion = pose_to_bvh(character, truth, **export)
+    handle_records = ({"joint": joint, "frame": frame, "position": handle_pos.tolist()},)
+    # BVH; the curves as glTF CUBICSPLINE controllers beside the skeleton; an animated preview.
+    files = ResultFiles(
+        character, pose_to_bvh(character, result.pose, **export), result.curves, bmm.config.stride, handle_records, truth_motion,
+        f"{clip.name}: {joint} at frame {frame} moved by {list(offset)} cm",
     )  # fmt: skip
+    for name in ("inbetween", "glb", "gif"):
+        write_result(paths[name], files)
+    write_result(paths["ground_truth"], ResultFiles(character, truth_motion, None, bmm.config.stride))
+    _plot(paths["png"], character, result, truth, handle_pos, j, frame)
     _, pos = pose_fk(character, result.pose)
     summary = {
         "clip": clip.name,
@@ -214,7 +197,7 @@ def demo(
         "curve_handle_error_cm": float(np.linalg.norm(np.asarray(result.curves.ctrl_pos[frame // bmm.config.stride, j]) - handle_pos)),
         "full_body_handle_error_cm": float(full_body_handles_error(character, result.pose, handles, bmm.config.stride)),
         "joint_moved_cm": float(np.linalg.norm(np.asarray(pos[frame, character.characteristic[j]] - true_pos[frame, character.characteristic[j]]))),
-        "bvh_fk_error_cm": _bvh_fk_error_cm(paths["inbetween"], character, result.pose),
+        "bvh_fk_error_cm": bvh_fk_error_cm(paths["inbetween"], character, result.pose),
         "first_call_s": first_call_s,
         "second_call_s": second_call_s,
         "total_s": time.perf_counter() - started,

@@ -1,0 +1,513 @@
+"""``bezmotion inbetween``: in-between two poses of your own BVH files through handles.
+
+    bezmotion inbetween CLIP.bvh --frames 0 30 --handle right_hand@12=+0,25,0 --out take/
+    bezmotion inbetween --start A.bvh@0 --end B.bvh@12 --handles handles.json --samples 3 --out take.bvh
+
+**Keys.** One file and two frames (``CLIP.bvh --frames F G``), or a file and a frame each
+(``--start A.bvh@F --end B.bvh@G``; without ``@`` the start is frame 0 and the end the
+last frame). The BMM in-betweens a fixed window of ``bmm.config.num_frames`` frames (31:
+the keys are 30 frames apart). With ``--frames`` the keys must be that far apart in the
+clip — the command refuses another distance rather than silently retiming the clip;
+``--start``/``--end`` take any two poses (also of one file) and put them 30 frames apart.
+Both files must have the same joints; the output rigs like the start file (its OFFSETs,
+End Sites and frame rate).
+
+**Handles** (any number; frames count from the start key, 0, to the end key, 30):
+
+- ``--handle JOINT@FRAME=X,Y,Z``: the joint at that frame is at ``(X, Y, Z)`` in the
+  clip's world frame (cm for LaFAN1 and Bandai-Namco, +Y up);
+- ``--handle JOINT@FRAME=+X,Y,Z`` (a leading ``+``): an offset from the straight line
+  between the joint's positions in the start and end poses, at that frame — the one
+  reference that exists for any two poses (``right_hand@12=+0,25,0``: 25 cm above it);
+- ``--handles FILE``: a JSON list (the format ``bezmotion/blender_curves.py`` exports)
+  ``[{"joint": "right_hand", "frame": 12, "position": [x, y, z]}, …]``, or ``{"handles":
+  […]}``, or a TOML file of ``[[handles]]`` tables; ``"offset"`` instead of
+  ``"position"`` is relative as above.
+
+``JOINT`` is one of the six characteristic joints (``hips``, ``head``, ``left_hand``,
+``right_hand``, ``left_foot``, ``right_foot``) or the skeleton's own name for it.
+
+**Character.** Recognised from the joint names (LaFAN1, Bandai-Namco), or named by
+``--mapping MAP.json`` (:func:`bezmotion.pipeline.authoring.read_mapping`). A BMM
+trained on another skeleton drives it through a transfer (BMM §5.2) with the character's
+bundled profile, or for other skeletons a profile measured on the input files' frames.
+``--ik auto`` (default) takes the learned IK refined by exact limbs when the learned IK
+was trained on this skeleton, else the analytic rig, which needs no training.
+
+**Output.** ``--out x.bvh`` / ``x.glb`` / ``x.gif``: that file (``x_0.bvh``, ``x_1.bvh``, …
+with ``--samples N``); ``--out FOLDER``: ``inbetween.bvh``, ``inbetween.glb``,
+``preview.gif`` (unless ``--no-preview``) and ``summary.json``. Every argument is checked
+and the models are loaded before anything is written: a bad argument writes nothing.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import re
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+from bezmotion.bmm.sampling import BezierMotionModel, Handles, load_model
+from bezmotion.data.bvh import BvhMotion, read_bvh
+from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
+from bezmotion.ik.protocol import Pose, pose_fk
+from bezmotion.ik.protores import load_ik_model
+from bezmotion.io import atomic_write_text
+from bezmotion.options import option, options
+from bezmotion.pipeline import inbetween, pose_to_bvh
+from bezmotion.pipeline.authoring import (
+    CHANNEL_CHOICES,
+    IK_CHOICES,
+    RecognisedCharacter,
+    ResultFiles,
+    bvh_fk_error_cm,
+    check_ik_model,
+    check_output,
+    load_profile,
+    make_ik,
+    make_transfer,
+    motion_poses,
+    motion_window,
+    read_structured_file,
+    recognise_character,
+    resolve_bmm,
+    resolve_ik_model,
+    same_skeleton,
+    target_profile,
+    write_result,
+)
+from bezmotion.pipeline.transfer import Transfer
+
+
+@options
+class InbetweenOptions:
+    """In-between two poses of your own BVH files through handles; write BVH, glTF and a preview."""
+
+    clip: Path | None = option(None, positional=True, help="one BVH file holding both key poses (with --frames)")
+    frames: tuple[int, int] | None = option(
+        None, metavar=("START", "END"), help="the key frames in CLIP, 30 frames apart (the BMM's window)"
+    )
+    start: str | None = option(None, help="the start pose: FILE.bvh@FRAME (default frame 0)")
+    end: str | None = option(None, help="the end pose: FILE.bvh@FRAME (default its last frame); put 30 frames after the start")
+    handle: tuple[str, ...] = option(
+        (), repeat=True, metavar="JOINT@FRAME=X,Y,Z",
+        help="a handle, repeatable: the joint's position (cm) at a frame 0…30 of the in-between; "
+        "a leading + (JOINT@FRAME=+X,Y,Z) offsets it from the straight line between the keys",
+    )  # fmt: skip
+    handles: Path | None = option(None, help='a JSON or TOML handles file: [{"joint", "frame", "position" or "offset"}]')
+    samples: int = option(1, help="how many in-betweens, each with its own seed (default 1)")
+    seed: int = option(0, help="PRNG seed of the first sample (sample k uses fold_in(key(seed), k))")
+    steps: int = option(10, help="DDIM steps (default 10)")
+    ik: str = option(
+        "auto", choices=("auto", *IK_CHOICES),
+        help="auto (default): refined when the learned IK fits the skeleton, else rig; refined: learned IK then "
+        "exact two-bone limbs; learned: the learned IK alone; rig: analytic, any skeleton, no training",
+    )  # fmt: skip
+    model: str = option("bandai_namco", help="the BMM: a bundled model's name (bandai_namco, default) or a saved BMM's folder")
+    ik_model: str = option("bandai_namco", help="the learned IK: a bundled model's name (default bandai_namco) or a saved one's folder")
+    trained_on: str | None = option(
+        None, help="the skeleton --model was trained on: a profile name (bandai_namco, lafan1) or a profile JSON; "
+        "default: a bundled model's own; for a folder, the clips' skeleton (no transfer)",
+    )  # fmt: skip
+    mapping: Path | None = option(None, help="JSON or TOML naming the six characteristic joints (and optionally the rig's chains) of another skeleton")
+    out: Path = option(Path("results/inbetween"), help="a .bvh, .glb or .gif file, or a folder (default results/inbetween)")
+    channels: str = option(
+        "default", choices=CHANNEL_CHOICES, help="BVH channels: default (positions on the root and hips) or clip (the start file's layout)"
+    )  # fmt: skip
+    no_preview: bool = False
+    no_progress: bool = False
+
+
+# ----------------------------------------------------------------------------- handles
+
+
+@dataclasses.dataclass(frozen=True)
+class HandleRequest:
+    """A handle as the user wrote it.
+
+    Attributes:
+      joint: a characteristic joint's role or the skeleton's name for it.
+      frame: frame of the in-between (0 = the start key).
+      value: ``(x, y, z)`` cm: a position, or an offset when ``relative``.
+      relative: ``value`` is an offset from the straight line between the keys.
+      source: where it was written (``--handle …`` or ``--handles FILE: handle k``), for errors.
+    """
+
+    joint: str
+    frame: int
+    value: tuple[float, float, float]
+    relative: bool
+    source: str
+
+
+_HANDLE = re.compile(r"^\s*(?P<joint>[^@=\s]+)\s*@\s*(?P<frame>[+-]?\d+)\s*=\s*(?P<plus>\+)?(?P<xyz>.*)$")
+_HANDLE_FORM = "JOINT@FRAME=X,Y,Z (a position, cm) or JOINT@FRAME=+X,Y,Z (an offset from the straight line between the keys)"
+
+
+def parse_handle(text: str) -> HandleRequest:
+    """A ``--handle`` value, e.g. ``right_hand@12=40,150,80`` or ``right_hand@12=+0,25,0``.
+
+    Raises:
+      ValueError: not of that form (the message quotes it).
+    """
+    source = f"--handle {text}"
+    match = _HANDLE.match(text)
+    parts = match["xyz"].split(",") if match else []
+    try:
+        value = tuple(float(p) for p in parts)
+    except ValueError:
+        value = ()
+    if not match or len(value) != 3 or not np.isfinite(value).all():
+        raise ValueError(f"{source}: expected {_HANDLE_FORM}")
+    return HandleRequest(match["joint"], int(match["frame"]), value, match["plus"] is not None, source)  # type: ignore[arg-type]
+
+
+def read_handles_file(path: Path) -> list[HandleRequest]:
+    """Handles from a JSON or TOML file (see the module docstring).
+
+    Raises:
+      FileNotFoundError: no such file.
+      ValueError: unreadable, or an entry without a joint, an integer frame and exactly one
+        of ``position`` / ``offset`` as three numbers (the message names the entry).
+    """
+    if not path.is_file():
+        raise FileNotFoundError(f"--handles {path}: no such file")
+    try:
+        data = read_structured_file(path)
+    except ValueError as error:
+        raise ValueError(f"--handles {path}: {error}") from None
+    entries = data.get("handles") if isinstance(data, dict) else data
+    if not isinstance(entries, list):
+        raise ValueError(f'--handles {path}: expected a list of handles, or a table with a "handles" list')
+    requests = []
+    for i, entry in enumerate(entries):
+        source = f"--handles {path}: handle {i}"
+        kinds = [k for k in ("position", "offset") if isinstance(entry, dict) and k in entry]
+        ok = isinstance(entry, dict) and isinstance(entry.get("joint"), str) and len(kinds) == 1
+        frame = entry.get("frame") if ok else None
+        value = entry[kinds[0]] if ok else None
+        ok = ok and isinstance(frame, int) and not isinstance(frame, bool)
+        ok = ok and isinstance(value, list) and len(value) == 3 and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
+        if not ok or not np.isfinite(value).all():
+            raise ValueError(f'{source}: expected {{"joint": name, "frame": integer, "position" or "offset": [x, y, z]}}, got {entry!r}')
+        requests.append(HandleRequest(entry["joint"], frame, tuple(float(v) for v in value), kinds[0] == "offset", f"{source} ({entry['joint']}@{frame})"))
+    return requests
+
+
+def _role(request: HandleRequest, recognised: RecognisedCharacter) -> str:
+    """The characteristic role of a handle's joint (a role name or the skeleton's name for one)."""
+    if request.joint in CHARACTERISTIC_JOINTS:
+        return request.joint
+    names = recognised.character.skeleton.names
+    own = {names[j]: role for role, j in zip(CHARACTERISTIC_JOINTS, recognised.character.characteristic)}
+    if request.joint in own:
+        return own[request.joint]
+    raise ValueError(
+        f"{request.source}: unknown joint {request.joint!r}; handles go on {', '.join(CHARACTERISTIC_JOINTS)} "
+        f"(this skeleton's {', '.join(own)})"
+    )
+
+
+def resolve_handles(
+    requests: Sequence[HandleRequest], recognised: RecognisedCharacter, start: Pose, end: Pose, bmm: BezierMotionModel
+) -> tuple[Handles, list[dict[str, Any]]]:
+    """``(Handles, [{"joint", "frame", "position"}])`` of the requests: offsets made positions, every handle checked.
+
+    Raises:
+      ValueError: an unknown joint, a frame outside the in-between, or one the sampler
+        refuses (:meth:`Handles.from_frames`), each naming the handle as it was written.
+    """
+    character = recognised.character
+    last = bmm.config.num_frames - 1
+    idx = np.asarray(character.characteristic)
+    keys = np.stack([np.asarray(pose_fk(character, p)[1])[idx] for p in (start, end)])  # (2, 6, 3)
+    roles, frames, positions, records = [], [], [], []
+    for r in requests:
+        role = _role(r, recognised)
+        if not 0 <= r.frame <= last:
+            raise ValueError(f"{r.source}: frame {r.frame} is outside the in-between, frames 0…{last} (0 and {last} are the keys)")
+        position = np.asarray(r.value, np.float64)
+        if r.relative:
+            j, t = CHARACTERISTIC_JOINTS.index(role), r.frame / last
+            position = position + (1.0 - t) * keys[0, j] + t * keys[1, j]
+        try:  # the sampler's own rules for handle frames, reported with the handle as written
+            Handles.from_frames([role], [r.frame], position[None], config=bmm.config)
+        except ValueError as error:
+            raise ValueError(f"{r.source}: {error}") from None
+        roles.append(role)
+        frames.append(r.frame)
+        positions.append(position)
+        records.append({"joint": role, "frame": r.frame, "position": position.tolist()})
+    if not requests:
+        return Handles.empty(), []
+    return Handles.from_frames(roles, frames, np.stack(positions), config=bmm.config), records
+
+
+# ------------------------------------------------------------------------------- plan
+
+
+def _error(argument: str, value: Any, error: BaseException) -> ValueError:
+    """``ValueError("ARGUMENT VALUE: message")``, without the value repeated at the message's start."""
+    message = str(error.args[0]) if error.args else str(error)
+    for prefix in (f"{value}: ", f"{Path(str(value)).absolute()}: "):
+        if message.startswith(prefix):
+            message = message[len(prefix) :]
+    return ValueError(f"{argument} {value}: {message}")
+
+
+def _read_clip(argument: str, path: Path) -> BvhMotion:
+    if not path.is_file():
+        raise _error(argument, path, FileNotFoundError("no such file" if not path.exists() else "not a file"))
+    try:
+        return read_bvh(path)
+    except (ValueError, UnicodeDecodeError, OSError) as error:
+        raise _error(argument, path, error) from None
+
+
+def _key(argument: str, text: str, *, end: bool) -> tuple[Path, int | None]:
+    """``FILE.bvh@FRAME`` → ``(path, frame)``; frame None without ``@``."""
+    path, at, frame = text.rpartition("@")
+    if not at:
+        return Path(text), None
+    if not re.fullmatch(r"[+-]?\d+", frame.strip()) or not path:
+        raise ValueError(f"{argument} {text}: expected FILE.bvh@FRAME (a whole frame number), or FILE.bvh for its {'last' if end else 'first'} frame")
+    return Path(path), int(frame)
+
+
+def _check_frame(argument: str, text: str, motion: BvhMotion, frame: int) -> None:
+    if not 0 <= frame < motion.num_frames:
+        raise ValueError(f"{argument} {text}: frame {frame} is out of range; the file has frames 0…{motion.num_frames - 1}")
+
+
+@dataclasses.dataclass(frozen=True)
+class Plan:
+    """Everything an in-between needs, checked: nothing has been written yet."""
+
+    recognised: RecognisedCharacter
+    start_motion: BvhMotion
+    start: Pose
+    end: Pose
+    reference: BvhMotion | None
+    bmm: BezierMotionModel
+    ik: str
+    ik_fn: Any
+    ik_params: Any
+    transfer: Transfer | None
+    handles: Handles
+    handle_records: list[dict[str, Any]]
+    outputs: list[dict[str, Path]]
+    folder: Path | None
+    label: str
+
+
+def _outputs(args: InbetweenOptions) -> tuple[list[dict[str, Path]], Path | None]:
+    """Per sample, ``{suffix: path}``; and the folder (None when ``--out`` is a file)."""
+    out = args.out
+    n = args.samples
+    tag = (lambda k: "") if n == 1 else (lambda k: f"_{k}")
+    if out.suffix:
+        try:
+            suffix = check_output(out)
+        except ValueError as error:
+            raise _error("--out", out, error) from None
+        return [{suffix: out.with_name(f"{out.stem}{tag(k)}{out.suffix}")} for k in range(n)], None
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out}: exists and is not a folder")
+    names = {".bvh": "inbetween", ".glb": "inbetween"} | ({} if args.no_preview else {".gif": "preview"})
+    return [{s: out / f"{stem}{tag(k)}{s}" for s, stem in names.items()} for k in range(n)], out
+
+
+def plan(args: InbetweenOptions) -> Plan:
+    """Check every argument, read the inputs and load the models; writes nothing.
+
+    Raises:
+      ValueError: a bad argument; the message starts with the argument and its value.
+    """
+    if args.samples < 1:
+        raise ValueError(f"--samples {args.samples}: must be at least 1")
+    if args.steps < 1:
+        raise ValueError(f"--steps {args.steps}: must be at least 1")
+    outputs, folder = _outputs(args)
+    # The key poses.
+    if args.clip is not None:
+        if args.start is not None or args.end is not None:
+            raise ValueError(f"CLIP {args.clip}: give the keys either as CLIP --frames START END or as --start/--end, not both")
+        if args.frames is None:
+            raise ValueError(f"CLIP {args.clip}: needs --frames START END (the key frames in it)")
+        motion = _read_clip("CLIP", args.clip)
+        for f in args.frames:
+            _check_frame("--frames", " ".join(map(str, args.frames)), motion, f)
+        keys = [("CLIP", str(args.clip), args.clip, motion, f) for f in args.frames]
+        label = f"{args.clip.name} frames {args.frames[0]}–{args.frames[1]}"
+    else:
+        if args.frames is not None:
+            raise ValueError(f"--frames {' '.join(map(str, args.frames))}: goes with one CLIP.bvh (bezmotion inbetween CLIP.bvh --frames START END)")
+        if args.start is None and args.end is None:
+            raise ValueError("give the key poses: CLIP.bvh --frames START END, or --start A.bvh@FRAME --end B.bvh@FRAME")
+        if args.start is None or args.end is None:
+            given, missing = ("--start", "--end") if args.end is None else ("--end", "--start")
+            raise ValueError(f"{given} {args.start or args.end}: needs {missing} FILE.bvh@FRAME too")
+        keys = []
+        read: dict[Path, BvhMotion] = {}
+        for argument, text in (("--start", args.start), ("--end", args.end)):
+            path, frame = _key(argument, text, end=argument == "--end")
+            if path not in read:
+                read[path] = _read_clip(argument, path)
+            m = read[path]
+            frame = (m.num_frames - 1 if argument == "--end" else 0) if frame is None else frame
+            _check_frame(argument, text, m, frame)
+            keys.append((argument, text, path, m, frame))
+        label = f"{keys[0][1]} → {keys[1][1]}"
+    (arg0, text0, path0, start_motion, f0), (arg1, text1, _, end_motion, f1) = keys
+    if args.mapping is not None and not Path(args.mapping).is_file():
+        raise ValueError(f"--mapping {args.mapping}: no such file")
+    try:
+        recognised = recognise_character(start_motion, args.mapping)
+    except (ValueError, FileNotFoundError) as error:
+        if args.mapping is not None:
+            raise _error("--mapping", args.mapping, error) from None
+        raise _error(arg0, path0, error) from None
+    if not same_skeleton(start_motion, end_motion):
+        raise ValueError(
+            f"{arg1} {text1}: its skeleton ({len(end_motion.skeleton.names)} joints) differs from the start's "
+            f"({len(start_motion.skeleton.names)} joints, {text0}); both keys need the same joints"
+        )
+    character = recognised.character
+    start = motion_poses(start_motion, character, f0)
+    end = motion_poses(end_motion, character, f1)
+
+    # The models.
+    bmm_dir, bundled_trained_on = resolve_bmm(args.model)
+    try:
+        bmm = load_model(bmm_dir)
+    except (FileNotFoundError, ValueError, TypeError) as error:
+        raise _error("--model", args.model, error) from None
+    window = bmm.config.num_frames
+    reference = None
+    if args.clip is not None:
+        if f1 - f0 != window - 1:
+            raise ValueError(
+                f"--frames {f0} {f1}: the keys are {f1 - f0} frames apart; the BMM in-betweens {window - 1} "
+                f"(a {window}-frame window): use --frames {f0} {f0 + window - 1}, or --start {args.clip}@{f0} "
+                f"--end {args.clip}@{f1} to put these two poses {window - 1} frames apart"
+            )
+        reference = motion_window(start_motion, f0, window)
+    trained_on = args.trained_on if args.trained_on is not None else bundled_trained_on
+    transfer = None
+    if trained_on is not None and trained_on != recognised.preset:
+        try:
+            source = load_profile(trained_on)
+        except ValueError as error:
+            raise _error("--trained-on", trained_on, error) from None
+        transfer = make_transfer(source, target_profile(recognised, [start_motion, end_motion]))
+
+    ik = args.ik
+    ik_model = None
+    if ik != "rig":
+        try:
+            ik_model = load_ik_model(resolve_ik_model(args.ik_model))
+        except (FileNotFoundError, ValueError, TypeError) as error:
+            raise _error("--ik-model", args.ik_model, error) from None
+        if ik == "auto":
+            try:
+                check_ik_model(ik_model, character)
+                ik = "refined"
+            except ValueError:
+                ik, ik_model = "rig", None
+    try:
+        ik_fn, ik_params = make_ik(ik, recognised, rest_quat_local=np.asarray(start.quat_local), ik_model=ik_model)
+    except ValueError as error:
+        raise ValueError(f"--ik {ik}: the learned IK {args.ik_model} does not fit this skeleton: {error}") from None
+
+    requests = [parse_handle(h) for h in args.handle]
+    if args.handles is not None:
+        requests += read_handles_file(args.handles)
+    handles, records = resolve_handles(requests, recognised, start, end, bmm)
+    return Plan(recognised, start_motion, start, end, reference, bmm, ik, ik_fn, ik_params, transfer, handles, records, outputs, folder, label)
+
+
+# -------------------------------------------------------------------------------- run
+
+
+def _stderr(message: str) -> None:
+    print(f"bezmotion inbetween: {message}", file=sys.stderr, flush=True)
+
+
+def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None = None) -> dict[str, Any]:
+    """Run ``bezmotion inbetween`` (see the module docstring); returns its summary.
+
+    Args:
+      args: the parsed options.
+      say: where progress goes (default: stderr, unless ``--no-progress``).
+    Raises:
+      ValueError: a bad argument, before anything is written.
+    """
+    say = say or ((lambda _: None) if args.no_progress else _stderr)
+    started = time.perf_counter()
+    p = plan(args)  # no progress line before it: a bad argument's error is the only output
+    character = p.recognised.character
+    n = len(p.outputs)
+    say(
+        f"{p.label}: {character.name} ({character.num_joints} joints), IK {p.ik}, {len(p.handle_records)} handle(s), "
+        f"{n} sample(s) of {p.bmm.config.num_frames} frames, {args.steps} DDIM steps"
+        + (", transferred from the BMM's skeleton" if p.transfer is not None else "")
+    )
+    export = dict(fps=p.start_motion.nominal_fps, channels=None if args.channels == "default" else p.start_motion.channels, template=p.start_motion)
+    samples = []
+    for k in range(n):
+        t0 = time.perf_counter()
+        say(f"sample {k + 1}/{n}" + (" (compiling first, about a minute on a CPU) …" if k == 0 else " …"))
+        result = inbetween(
+            p.bmm, p.ik_fn, p.ik_params, character, p.start, p.end, p.handles,
+            key=jax.random.fold_in(jax.random.key(args.seed), k), transfer=p.transfer, steps=args.steps,
+        )  # fmt: skip
+        jax.block_until_ready(result)
+        seconds = time.perf_counter() - t0
+        motion = pose_to_bvh(character, result.pose, **export)
+        files = ResultFiles(
+            character, motion, result.curves, p.bmm.config.stride, tuple(p.handle_records), p.reference,
+            f"{p.label}, sample {k}" if n > 1 else p.label,
+        )  # fmt: skip
+        if k == 0 and p.folder is not None:
+            p.folder.mkdir(parents=True, exist_ok=True)
+        _, pos = pose_fk(character, result.pose)
+        pos = np.asarray(pos)
+        errors = [
+            float(np.linalg.norm(pos[h["frame"], character.characteristic[CHARACTERISTIC_JOINTS.index(h["joint"])]] - np.asarray(h["position"])))
+            for h in p.handle_records
+        ]
+        entry: dict[str, Any] = {"sample": k, "seconds": seconds, "handle_errors_cm": errors, "files": {}}
+        for suffix, path in p.outputs[k].items():
+            say(f"writing {path}")
+            write_result(path, files)
+            entry["files"][suffix[1:]] = str(path)
+            if suffix == ".bvh":
+                entry["bvh_fk_error_cm"] = bvh_fk_error_cm(path, character, result.pose)
+        samples.append(entry)
+        worst = f", handles hit within {max(errors):.2g} cm" if errors else ""
+        print(f"sample {k}: {', '.join(entry['files'].values())}{worst} ({seconds:.1f} s)")
+    summary = {
+        "keys": p.label,
+        "character": character.name,
+        "joints": character.num_joints,
+        "frames": p.bmm.config.num_frames,
+        "fps": p.start_motion.nominal_fps,
+        "ik": p.ik,
+        "steps": args.steps,
+        "seed": args.seed,
+        "transfer": p.transfer is not None,
+        "handles": p.handle_records,
+        "samples": samples,
+        "total_s": time.perf_counter() - started,
+    }
+    if p.folder is not None:
+        atomic_write_text(p.folder / "summary.json", json.dumps(summary, indent=2) + "\n")
+    say(f"done in {summary['total_s']:.1f} s")
+    return summary

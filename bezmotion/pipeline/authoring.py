@@ -1,0 +1,426 @@
+"""From files to an in-between and back: models by name or folder, the character from a
+BVH file's joint names (or a mapping file), poses at given frames, the IK, the transfer
+from the BMM's training skeleton, and results written by file suffix.
+
+``bezmotion demo`` and ``bezmotion inbetween`` are built from these pieces:
+
+- :data:`BUNDLED_MODELS`, :func:`resolve_bmm`, :func:`resolve_ik_model`: ``--model NAME|PATH``;
+- :func:`recognise_character`: a BVH skeleton is LaFAN1 or Bandai-Namco when it has that
+  preset's six characteristic joint names; any other skeleton needs a mapping file
+  (:func:`read_mapping`: the six joints, and optionally the rig's chains — without them the
+  chains are read off the hierarchy, :func:`derive_rig_spec`);
+- :func:`motion_poses`: frames of a BVH motion as :class:`~bezmotion.ik.protocol.Pose`;
+- :func:`target_profile`, :func:`make_transfer`: driving the clip's skeleton with a BMM
+  trained on another (BMM §5.2);
+- :func:`make_ik`: ``--ik learned|refined|rig`` as ``(ik_fn, ik_params)``;
+- :func:`check_output`, :func:`write_result`: one writer per suffix (``.bvh``, ``.glb``,
+  ``.gif``), so that a command checks every output path before it writes any.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import tomllib
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from bezmotion.assets import BUNDLED_BMM, BUNDLED_IK, DEMO_CLIP_ATTRIBUTION, PROFILES_DIR
+from bezmotion.bmm.sampling import SampledCurves
+from bezmotion.data.bvh import BvhMotion, read_bvh, write_bvh
+from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, SKELETON_MAPS
+from bezmotion.geometry.skeleton import forward_kinematics
+from bezmotion.ik.protocol import Character, IKFn, Pose, pose_fk, pose_from_motion
+from bezmotion.ik.protores import ProtoResModel, protores_ik_fn, protores_refined_ik_fn
+from bezmotion.ik.rig import RigSpec, make_rig, rig_ik
+from bezmotion.pipeline.transfer import CharacterProfile, Transfer
+
+IK_CHOICES = ("refined", "learned", "rig")
+"""``refined``: the learned IK, then exact two-bone arms and legs; ``learned``: the learned
+IK alone; ``rig``: the analytic rig (no data, any skeleton)."""
+
+CHANNEL_CHOICES = ("default", "clip")
+"""BVH channels: positions on the root and the hips only, or the clip's own layout."""
+
+
+# ------------------------------------------------------------------------------ models
+
+
+@dataclasses.dataclass(frozen=True)
+class BundledModel:
+    """A pretrained BMM and learned IK shipped in :mod:`bezmotion.assets`.
+
+    Attributes:
+      bmm, ik: the saved models' folders.
+      trained_on: the skeleton both were trained on (a profile in ``PROFILES_DIR``).
+      attribution: the training data's credit line.
+    """
+
+    bmm: Path
+    ik: Path
+    trained_on: str
+    attribution: str
+
+
+BUNDLED_MODELS: Mapping[str, BundledModel] = {
+    "bandai_namco": BundledModel(BUNDLED_BMM, BUNDLED_IK, "bandai_namco", DEMO_CLIP_ATTRIBUTION),
+}
+"""Bundled models by the name ``--model`` and ``--ik-model`` take."""
+
+
+def resolve_bmm(name_or_path: str | os.PathLike) -> tuple[Path, str | None]:
+    """``(folder, skeleton it was trained on or None)`` of a bundled model's name or a saved BMM's folder."""
+    bundled = BUNDLED_MODELS.get(str(name_or_path))
+    return (bundled.bmm, bundled.trained_on) if bundled else (Path(name_or_path), None)
+
+
+def resolve_ik_model(name_or_path: str | os.PathLike) -> Path:
+    """The folder of a bundled learned IK's name or of a saved one."""
+    bundled = BUNDLED_MODELS.get(str(name_or_path))
+    return bundled.ik if bundled else Path(name_or_path)
+
+
+def profile_names() -> list[str]:
+    """The bundled character profiles' names (skeletons a BMM can be transferred between)."""
+    return sorted(p.stem for p in PROFILES_DIR.glob("*.json"))
+
+
+def load_profile(name_or_path: str | os.PathLike) -> CharacterProfile:
+    """A bundled character profile by name (:func:`profile_names`) or a profile JSON file.
+
+    Raises:
+      ValueError: neither a bundled name nor a readable profile file.
+    """
+    if str(name_or_path) in profile_names():
+        return CharacterProfile.load(PROFILES_DIR / f"{name_or_path}.json")
+    path = Path(name_or_path)
+    if not path.is_file():
+        raise ValueError(f"not a bundled profile ({', '.join(profile_names())}) nor a profile file")
+    return CharacterProfile.load(path)
+
+
+# --------------------------------------------------------------------------- character
+
+
+@dataclasses.dataclass(frozen=True)
+class RecognisedCharacter:
+    """A clip's character and how it was recognised.
+
+    Attributes:
+      character: the clip's skeleton (its own offsets and End Sites) and six joints.
+      preset: ``"lafan1"`` or ``"bandai_namco"`` when the joint names are a preset's, else None.
+      rig_spec: the chains of the analytic rig.
+    """
+
+    character: Character
+    preset: str | None
+    rig_spec: RigSpec
+
+
+def read_structured_file(path: str | os.PathLike) -> Any:
+    """A JSON or TOML file's contents (TOML by the ``.toml`` suffix, JSON otherwise).
+
+    Raises:
+      ValueError: not valid JSON / TOML (the parser's message).
+    """
+    path = Path(path)
+    text = path.read_text(encoding="utf-8")
+    try:
+        return tomllib.loads(text) if path.suffix.lower() == ".toml" else json.loads(text)
+    except (json.JSONDecodeError, tomllib.TOMLDecodeError) as error:
+        kind = "TOML" if path.suffix.lower() == ".toml" else "JSON"
+        raise ValueError(f"not valid {kind} ({error})") from None
+
+
+def read_mapping(path: str | os.PathLike) -> tuple[dict[str, str], RigSpec | None]:
+    """A skeleton's characteristic joints (and optionally rig chains) from a JSON or TOML file.
+
+    Either the six roles alone, ``{"hips": "pelvis", "head": "head", "left_hand": "l_wrist",
+    …}``, or ``{"characteristic": {…the six roles…}, "rig": {"spine": [hips, …, head],
+    "left_arm": [upper, fore, hand], "right_arm": […], "left_leg": [upper, lower, ankle],
+    "right_leg": […]}}``.
+
+    Raises:
+      FileNotFoundError: no such file.
+      ValueError: unreadable, or not of either shape.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError("no such file")
+    data = read_structured_file(path)
+    if not isinstance(data, dict):
+        raise ValueError(f"expected a table of joint names, got {type(data).__name__}")
+    if "characteristic" in data:
+        unknown = sorted(set(data) - {"characteristic", "rig"})
+        if unknown:
+            raise ValueError(f"unknown keys {unknown}; a mapping has 'characteristic' and optionally 'rig'")
+        roles, rig = data["characteristic"], data.get("rig")
+    else:
+        roles, rig = data, None
+    if not isinstance(roles, dict) or not all(isinstance(v, str) for v in roles.values()):
+        raise ValueError(f"the characteristic joints must map each of {list(CHARACTERISTIC_JOINTS)} to a joint name, got {roles!r}")
+    if rig is not None and not isinstance(rig, dict):
+        raise ValueError(f"'rig' must be a table of chains, got {rig!r}")
+    return dict(roles), (RigSpec.from_dict(rig) if rig is not None else None)
+
+
+def derive_rig_spec(character: Character) -> RigSpec:
+    """The rig's chains read off the hierarchy: the spine is the path from the hips to the
+    head, each limb the hand's (ankle's) grandparent, parent and itself.
+
+    Raises:
+      ValueError: the head does not descend from the hips.
+    """
+    names, parents = character.skeleton.names, character.skeleton.parents
+    role = dict(zip(CHARACTERISTIC_JOINTS, character.characteristic))
+    spine, j = [role["head"]], parents[role["head"]]
+    while j >= 0 and j != role["hips"]:
+        spine.append(j)
+        j = parents[j]
+    if j != role["hips"]:
+        raise ValueError(
+            f"the head {names[role['head']]!r} does not descend from the hips {names[role['hips']]!r}; "
+            "name the rig's chains in the mapping file ('rig')"
+        )
+    spine.append(j)
+
+    def limb(end: int) -> tuple[str, ...]:
+        chain = [end, parents[end], parents[parents[end]] if parents[end] >= 0 else -1]
+        if min(chain) < 0:
+            raise ValueError(f"{names[end]!r} needs two ancestors for a two-bone limb; name the chains in the mapping file ('rig')")
+        return tuple(names[i] for i in reversed(chain))
+
+    return RigSpec(
+        spine=tuple(names[i] for i in reversed(spine)),
+        left_arm=limb(role["left_hand"]), right_arm=limb(role["right_hand"]),
+        left_leg=limb(role["left_foot"]), right_leg=limb(role["right_foot"]),
+    )  # fmt: skip
+
+
+def recognise_character(motion: BvhMotion, mapping: str | os.PathLike | None = None) -> RecognisedCharacter:
+    """The character of a BVH motion: a preset recognised by its joint names, or the mapping file's.
+
+    Args:
+      motion: the clip (its offsets and End Sites are kept).
+      mapping: a mapping file (:func:`read_mapping`), for skeletons that are no preset.
+    Raises:
+      ValueError: no preset matches and no mapping is given (the message lists the joints
+        and how to write a mapping), or the mapping or its rig does not fit the skeleton.
+      FileNotFoundError: the mapping file does not exist.
+    """
+    names = motion.skeleton.names
+    if mapping is not None:
+        roles, spec = read_mapping(mapping)
+        character = Character.from_bvh(motion, roles, name=Path(mapping).stem)
+        spec = spec if spec is not None else derive_rig_spec(character)
+        make_rig(character, spec)  # check the chains against the skeleton now, with their names
+        return RecognisedCharacter(character, None, spec)
+    for preset, roles in SKELETON_MAPS.items():
+        if all(name in names for name in roles.values()):
+            return RecognisedCharacter(Character.from_bvh(motion, preset), preset, RigSpec.preset(preset))
+    raise ValueError(
+        f"unknown skeleton: its joints {list(names)} are not those of a known skeleton "
+        f"({', '.join(SKELETON_MAPS)}); give --mapping MAP.json naming its "
+        f"{', '.join(CHARACTERISTIC_JOINTS)} joints"
+    )
+
+
+def same_skeleton(a: BvhMotion, b: BvhMotion) -> bool:
+    """Whether two motions have the same joints in the same hierarchy (offsets may differ)."""
+    return a.skeleton.names == b.skeleton.names and a.skeleton.parents == b.skeleton.parents
+
+
+def motion_poses(motion: BvhMotion, character: Character, frames: slice | Sequence[int] | int) -> Pose:
+    """Frames of ``motion`` as :class:`~bezmotion.ik.protocol.Pose` (float32), e.g. ``slice(0, 31)`` or ``12``."""
+    index = frames if isinstance(frames, slice | int) else np.asarray(frames)
+    return pose_from_motion(
+        character, jnp.asarray(motion.quat_local[index], jnp.float32), jnp.asarray(motion.pos_local[index], jnp.float32)
+    )
+
+
+def motion_window(motion: BvhMotion, first: int, count: int) -> BvhMotion:
+    """Frames ``first … first + count − 1`` of ``motion``, as a motion of their own."""
+    frames = slice(first, first + count)
+    return dataclasses.replace(motion, quat_local=motion.quat_local[frames], pos_local=motion.pos_local[frames])
+
+
+def target_profile(recognised: RecognisedCharacter, motions: Sequence[BvhMotion]) -> CharacterProfile:
+    """The clip character's profile: the bundled one of its preset, else measured on every
+    frame of ``motions`` (:meth:`CharacterProfile.from_poses`)."""
+    if recognised.preset in profile_names():
+        return load_profile(recognised.preset)
+    character = recognised.character
+    poses = [motion_poses(m, character, slice(None)) for m in motions]
+    return CharacterProfile.from_poses(character, jax.tree.map(lambda *x: jnp.concatenate(x), *poses))
+
+
+def make_transfer(trained_on: CharacterProfile | None, target: CharacterProfile) -> Transfer | None:
+    """The transfer from the BMM's training skeleton to the clip's; None for the same skeleton."""
+    return None if trained_on is None else Transfer.between(trained_on, target)
+
+
+# ---------------------------------------------------------------------------------- IK
+
+
+def check_ik_model(model: ProtoResModel, character: Character) -> None:
+    """Refuse a learned IK trained on another skeleton than ``character``'s.
+
+    Raises:
+      ValueError: the joints or the hierarchy differ (the message names the IK's skeleton).
+    """
+    theirs = model.character.skeleton
+    if theirs.names != character.skeleton.names or theirs.parents != character.skeleton.parents:
+        raise ValueError(
+            f"it was trained on the {model.character.name} skeleton ({theirs.num_joints} joints, "
+            f"{list(theirs.names)[:4]}…), not this one ({character.num_joints} joints, "
+            f"{list(character.skeleton.names)[:4]}…); use --ik rig (no training)"
+        )
+
+
+def make_ik(
+    kind: str,
+    recognised: RecognisedCharacter,
+    *,
+    rest_quat_local: np.ndarray | jax.Array,
+    ik_model: ProtoResModel | None = None,
+) -> tuple[IKFn, Any]:
+    """``(ik_fn, ik_params)`` of an IK choice (:data:`IK_CHOICES`) for the clip's character.
+
+    Args:
+      kind: ``"refined"``, ``"learned"`` or ``"rig"``.
+      recognised: the character and its rig chains.
+      rest_quat_local: ``(joints, 4)`` the rotations the rig keeps on joints it does not
+        solve (clavicles, toes): typically the start pose's.
+      ik_model: the learned IK (for ``"learned"`` and ``"refined"``), checked against the
+        character (:func:`check_ik_model`).
+    """
+    if kind not in IK_CHOICES:
+        raise ValueError(f"must be one of {IK_CHOICES}, got {kind!r}")
+    character = recognised.character
+    if kind != "rig":
+        if ik_model is None:
+            raise ValueError(f"--ik {kind} needs a learned IK model")
+        check_ik_model(ik_model, character)
+        if kind == "learned":
+            return protores_ik_fn, ik_model
+    rig = make_rig(character, recognised.rig_spec, rest_quat_local=np.asarray(rest_quat_local))
+    return (rig_ik, rig) if kind == "rig" else (protores_refined_ik_fn, (ik_model, rig))
+
+
+# ------------------------------------------------------------------------------ output
+
+
+def bvh_fk_error_cm(path: str | os.PathLike, character: Character, pose: Pose) -> float:
+    """Largest joint-position difference (cm) between a written BVH, read back, and ``pose``."""
+    reread = read_bvh(path)
+    with jax.enable_x64(True):
+        _, from_file = forward_kinematics(reread.skeleton.parents, jnp.asarray(reread.quat_local), jnp.asarray(reread.pos_local))
+        from_file = np.asarray(from_file)
+    return float(np.abs(from_file - np.asarray(pose_fk(character, pose)[1], np.float64)).max())
+
+
+@dataclasses.dataclass(frozen=True)
+class ResultFiles:
+    """What a writer takes: one in-between as a BVH motion, its curves and its handles.
+
+    Attributes:
+      character: the character the motion is of.
+      motion: the in-between (``pose_to_bvh(character, pose, …, template=clip)``).
+      curves: the BMM curves (``InbetweenResult.curves``), or None.
+      stride: frames between control points (``bmm.config.stride``).
+      handles: ``[{"joint", "frame", "position"}]`` (cm, world frame).
+      reference: the mocap between the keys, drawn beside the preview; or None.
+      title: the preview's title line.
+    """
+
+    character: Character
+    motion: BvhMotion
+    curves: SampledCurves | None
+    stride: int
+    handles: tuple[Mapping[str, Any], ...] = ()
+    reference: BvhMotion | None = None
+    title: str | None = None
+
+    def curve_arrays(self) -> dict[str, Any]:
+        if self.curves is None:
+            return {"stride": self.stride}
+        return {"ctrl_pos": np.asarray(self.curves.ctrl_pos), "ctrl_tangent": np.asarray(self.curves.ctrl_tangent), "stride": self.stride}
+
+
+def _write_bvh(path: Path, result: ResultFiles) -> None:
+    write_bvh(path, result.motion)
+
+
+def _write_glb(path: Path, result: ResultFiles) -> None:
+    from bezmotion.pipeline.gltf import write_glb
+
+    write_glb(path, result.motion, **result.curve_arrays(), handles=list(result.handles))
+
+
+def _write_gif(path: Path, result: ResultFiles) -> None:
+    from bezmotion.pipeline.preview import write_preview  # Matplotlib: imported only when drawn
+
+    write_preview(
+        path, result.character, result.motion, **result.curve_arrays(), reference=result.reference,
+        handles=list(result.handles), title=result.title,
+    )  # fmt: skip
+
+
+WRITERS: Mapping[str, Callable[[Path, ResultFiles], None]] = {".bvh": _write_bvh, ".glb": _write_glb, ".gif": _write_gif}
+"""One writer per output suffix: BVH, glTF 2.0 binary (skeleton and curves), animated GIF preview."""
+
+
+def check_output(path: str | os.PathLike) -> str:
+    """The writer's suffix for ``path``, checked before anything is written.
+
+    Raises:
+      ValueError: an unknown suffix, or a path that is an existing folder.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in WRITERS:
+        raise ValueError(f"unknown output format {path.suffix!r}; write one of {', '.join(WRITERS)}")
+    if path.is_dir():
+        raise ValueError("is a folder")
+    return suffix
+
+
+def write_result(path: str | os.PathLike, result: ResultFiles) -> None:
+    """Write ``result`` in the format of ``path``'s suffix (:data:`WRITERS`), atomically."""
+    path = Path(path)
+    WRITERS[check_output(path)](path, result)
+
+
+__all__ = [
+    "BUNDLED_MODELS",
+    "CHANNEL_CHOICES",
+    "IK_CHOICES",
+    "WRITERS",
+    "BundledModel",
+    "RecognisedCharacter",
+    "ResultFiles",
+    "bvh_fk_error_cm",
+    "check_ik_model",
+    "check_output",
+    "derive_rig_spec",
+    "load_profile",
+    "make_ik",
+    "make_transfer",
+    "motion_poses",
+    "motion_window",
+    "profile_names",
+    "read_mapping",
+    "read_structured_file",
+    "recognise_character",
+    "resolve_bmm",
+    "resolve_ik_model",
+    "same_skeleton",
+    "target_profile",
+    "write_result",
+]
