@@ -52,6 +52,7 @@ from pathlib import Path
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, load_model
@@ -147,6 +148,7 @@ class HandleRequest:
     source: str
 
 
+_HANDLE_SLOTS = 4
 _HANDLE = re.compile(r"^\s*(?P<joint>[^@=\s]+)\s*@\s*(?P<frame>[+-]?\d+)\s*=\s*(?P<plus>\+)?(?P<xyz>.*)$")
 _HANDLE_FORM = "JOINT@FRAME=X,Y,Z (a position, cm) or JOINT@FRAME=+X,Y,Z (an offset from the straight line between the keys)"
 
@@ -245,9 +247,11 @@ def resolve_handles(
         frames.append(r.frame)
         positions.append(position)
         records.append({"joint": role, "frame": r.frame, "position": position.tolist()})
-    if not requests:
-        return Handles.empty(), []
-    return Handles.from_frames(roles, frames, np.stack(positions), config=bmm.config), records
+    handles = Handles.from_frames(roles, frames, np.stack(positions), config=bmm.config) if requests else Handles.empty()
+    # Padded (valid=False) to a multiple of _HANDLE_SLOTS, so that another count of
+    # handles reuses the compiled in-between rather than compiling again.
+    pad = -len(handles.valid) % _HANDLE_SLOTS
+    return jax.tree.map(lambda x: jnp.concatenate([x, jnp.zeros((pad, *x.shape[1:]), x.dtype)]), handles), records
 
 
 # ------------------------------------------------------------------------------- plan
@@ -262,13 +266,17 @@ def _error(argument: str, value: Any, error: BaseException) -> ValueError:
     return ValueError(f"{argument} {value}: {message}")
 
 
-def _read_clip(argument: str, path: Path) -> BvhMotion:
+def _read_clip(argument: str, path: Path, shown: str | None = None) -> BvhMotion:
+    """The BVH file of an argument (``shown``: the argument's value as written, default ``path``)."""
+    shown = str(path) if shown is None else shown
     if not path.is_file():
-        raise _error(argument, path, FileNotFoundError("no such file" if not path.exists() else "not a file"))
+        raise _error(argument, shown, FileNotFoundError("no such file" if not path.exists() else "not a file"))
     try:
         return read_bvh(path)
     except (ValueError, UnicodeDecodeError, OSError) as error:
-        raise _error(argument, path, error) from None
+        message = str(error).removeprefix(f"{path}:").strip()
+        message = re.sub(r"^(\d+):\s*", r"line \1: ", message)  # the parser's "path:line: …"
+        raise _error(argument, shown, ValueError(message)) from None
 
 
 def _key(argument: str, text: str, *, end: bool) -> tuple[Path, int | None]:
@@ -330,6 +338,8 @@ def plan(args: InbetweenOptions) -> Plan:
     Raises:
       ValueError: a bad argument; the message starts with the argument and its value.
     """
+    for h in args.handle:  # the syntax first, before any file is read
+        parse_handle(h)
     if args.samples < 1:
         raise ValueError(f"--samples {args.samples}: must be at least 1")
     if args.steps < 1:
@@ -359,7 +369,7 @@ def plan(args: InbetweenOptions) -> Plan:
         for argument, text in (("--start", args.start), ("--end", args.end)):
             path, frame = _key(argument, text, end=argument == "--end")
             if path not in read:
-                read[path] = _read_clip(argument, path)
+                read[path] = _read_clip(argument, path, text)
             m = read[path]
             frame = (m.num_frames - 1 if argument == "--end" else 0) if frame is None else frame
             _check_frame(argument, text, m, frame)
@@ -382,6 +392,13 @@ def plan(args: InbetweenOptions) -> Plan:
     character = recognised.character
     start = motion_poses(start_motion, character, f0)
     end = motion_poses(end_motion, character, f1)
+
+    # The handles as written (their joints known now; their frames once the model is).
+    requests = [parse_handle(h) for h in args.handle]
+    if args.handles is not None:
+        requests += read_handles_file(args.handles)
+    for r in requests:
+        _role(r, recognised)
 
     # The models.
     bmm_dir, bundled_trained_on = resolve_bmm(args.model)
@@ -426,9 +443,6 @@ def plan(args: InbetweenOptions) -> Plan:
     except ValueError as error:
         raise ValueError(f"--ik {ik}: the learned IK {args.ik_model} does not fit this skeleton: {error}") from None
 
-    requests = [parse_handle(h) for h in args.handle]
-    if args.handles is not None:
-        requests += read_handles_file(args.handles)
     handles, records = resolve_handles(requests, recognised, start, end, bmm)
     return Plan(recognised, start_motion, start, end, reference, bmm, ik, ik_fn, ik_params, transfer, handles, records, outputs, folder, label)
 

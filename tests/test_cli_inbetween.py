@@ -1,0 +1,272 @@
+"""``bezmotion inbetween`` on the bundled clip with the bundled BMM: the written BVH's own
+forward kinematics hits the handles; samples differ; the glTF file and the preview carry
+the same motion; other skeletons work through a mapping file and the analytic rig; and
+every bad argument exits with status 2, one line naming the argument and its value, and
+writes nothing.
+
+The analytic rig (``--ik rig``) is used throughout: it reaches hands and feet exactly, so a
+handle missed by more than float32 rounding is a bug here, not the IK's approximation.
+Two DDIM steps; handles are padded to a fixed count, so most runs share one compilation.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import os
+import shutil
+
+import numpy as np
+import pytest
+
+from helpers import np_forward_kinematics
+
+from bezmotion.assets import DEMO_CLIP
+from bezmotion.cli import main
+from bezmotion.data.bvh import read_bvh
+from bezmotion.inbetween_command import HandleRequest, parse_handle, read_handles_file
+from bezmotion.pipeline.authoring import RigSpec, derive_rig_spec, read_mapping, recognise_character
+
+FAST = ["--ik", "rig", "--steps", "2", "--no-progress"]
+HAND, FOOT = "Hand_R", "Foot_L"  # the clip's right hand and left ankle
+
+
+def fk_positions(motion) -> np.ndarray:
+    """``(frames, joints, 3)`` global positions (cm) of a motion, by a plain NumPy loop."""
+    return np_forward_kinematics(motion.skeleton.parents, motion.quat_local, motion.pos_local)[1]
+
+
+def straight_line(joint: str, frame: int, first: int = 0, last: int = 30) -> np.ndarray:
+    """Where ``joint`` is at ``frame`` on the straight line between clip frames ``first`` and ``last``."""
+    clip = read_bvh(DEMO_CLIP)
+    pos = fk_positions(clip)[:, clip.skeleton.names.index(joint)]
+    t = frame / 30
+    return (1 - t) * pos[first] + t * pos[last]
+
+
+def run_cli(*argv: str) -> tuple[int, str, str]:
+    out, err = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+        try:
+            code = main(["inbetween", *map(str, argv)])
+        except SystemExit as exit_:  # argparse's own errors
+            code = exit_.code
+    return code, out.getvalue(), err.getvalue()
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    """Frames 0 and 30 of the clip, a right-hand handle 25 cm above the straight line at frame
+    12 and an absolute left-foot handle at frame 18, two samples, into a folder (progress shown)."""
+    out = tmp_path_factory.mktemp("inbetween") / "take"
+    foot = straight_line(FOOT, 18) + np.array([0.0, 8.0, 5.0])
+    code, stdout, stderr = run_cli(
+        DEMO_CLIP, "--frames", "0", "30", "--handle", "right_hand@12=+0,25,0", "--handle", f"{FOOT}@18={','.join(map(str, foot))}",
+        "--ik", "rig", "--steps", "2", "--samples", "2", "--no-preview", "--out", out,
+    )  # fmt: skip
+    assert code == 0, stderr
+    return out, json.loads((out / "summary.json").read_text()), foot, stdout, stderr
+
+
+def test_the_bvh_hits_the_handles_in_its_own_fk(run):
+    out, summary, foot, _, _ = run
+    for k in range(2):
+        motion = read_bvh(out / f"inbetween_{k}.bvh")
+        pos = fk_positions(motion)
+        names = motion.skeleton.names
+        # The relative handle: 25 cm above the straight line between the keys' hands.
+        np.testing.assert_allclose(pos[12, names.index(HAND)], straight_line(HAND, 12) + [0, 25, 0], atol=1e-3)
+        np.testing.assert_allclose(pos[18, names.index(FOOT)], foot, atol=1e-3)
+        assert max(summary["samples"][k]["handle_errors_cm"]) < 1e-3
+        assert summary["samples"][k]["bvh_fk_error_cm"] < 1e-3
+
+
+def test_the_bvh_starts_and_ends_on_the_keys_and_rigs_like_the_clip(run):
+    out, _, _, _, _ = run
+    clip = read_bvh(DEMO_CLIP)
+    motion = read_bvh(out / "inbetween_0.bvh")
+    assert motion.num_frames == 31 and abs(motion.fps - 30.0) < 1e-9
+    np.testing.assert_allclose(motion.skeleton.offsets, clip.skeleton.offsets, atol=1e-6)
+    assert motion.end_sites == clip.end_sites
+    np.testing.assert_allclose(fk_positions(motion)[[0, 30]], fk_positions(clip)[[0, 30]], atol=1e-3)
+
+
+def test_two_samples_are_two_different_motions(run):
+    out, summary, _, _, _ = run
+    a, b = (fk_positions(read_bvh(out / f"inbetween_{k}.bvh")) for k in range(2))
+    assert np.abs(a - b).max() > 1.0  # cm: another seed, another in-between
+    assert [s["sample"] for s in summary["samples"]] == [0, 1]
+    assert sorted(p.name for p in out.iterdir()) == [
+        "inbetween_0.bvh", "inbetween_0.glb", "inbetween_1.bvh", "inbetween_1.glb", "summary.json"
+    ]  # fmt: skip
+
+
+def test_the_glb_carries_the_same_motion_curves_and_handles(run):
+    from bezmotion.pipeline.gltf import read_glb
+
+    out, summary, _, _, _ = run
+    glb, bvh = read_glb(out / "inbetween_0.glb"), read_bvh(out / "inbetween_0.bvh")
+    np.testing.assert_allclose(fk_positions(glb.motion), fk_positions(bvh), atol=1e-2)
+    assert glb.handles == summary["handles"]
+    hand = summary["handles"][0]
+    np.testing.assert_allclose(glb.ctrl_pos[hand["frame"] // 6, glb.joints.index("right_hand")], hand["position"], atol=1e-4)
+
+
+def test_progress_goes_to_stderr_and_results_to_stdout(run):
+    _, _, _, stdout, stderr = run
+    assert "sample 1/2" in stderr and "sample 2/2" in stderr and "compiling" in stderr
+    assert stdout.count("handles hit within") == 2
+
+
+def test_two_files_and_a_gif(tmp_path):
+    """``--start``/``--end`` put any two poses 30 frames apart (here clip frames 0 and 12);
+    ``--out x.gif`` writes the preview alone, one GIF frame per motion frame."""
+    from PIL import Image
+
+    clip = tmp_path / "walk copy.bvh"
+    shutil.copy(DEMO_CLIP, clip)
+    code, _, err = run_cli("--start", f"{DEMO_CLIP}@0", "--end", f"{clip}@12", "--handle", "right_hand@12=+0,25,0", *FAST, "--out", tmp_path / "x.gif")
+    assert code == 0, err
+    with Image.open(tmp_path / "x.gif") as gif:
+        assert gif.n_frames == 31
+    code, _, err = run_cli("--start", f"{DEMO_CLIP}@0", "--end", f"{clip}@12", "--handle", "right_hand@12=+0,25,0", *FAST, "--out", tmp_path / "x.bvh")
+    assert code == 0, err
+    motion = read_bvh(tmp_path / "x.bvh")
+    hand = motion.skeleton.names.index(HAND)
+    np.testing.assert_allclose(fk_positions(motion)[12, hand], straight_line(HAND, 12, 0, 12) + [0, 25, 0], atol=1e-3)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["walk copy.bvh", "x.bvh", "x.gif"]
+
+
+# ------------------------------------------------------------------- other skeletons
+
+
+def renamed_clip(tmp_path):
+    """The bundled clip with every joint renamed ``my_*``: a skeleton no preset knows."""
+    text = DEMO_CLIP.read_text()
+    for name in read_bvh(DEMO_CLIP).skeleton.names:
+        text = text.replace(f"ROOT {name}", f"ROOT my_{name}").replace(f"JOINT {name}", f"JOINT my_{name}")
+    path = tmp_path / "custom.bvh"
+    path.write_text(text)
+    return path
+
+
+ROLES = {"hips": "Hips", "head": "Head", "left_hand": "Hand_L", "right_hand": "Hand_R", "left_foot": "Foot_L", "right_foot": "Foot_R"}
+
+
+def test_another_skeleton_through_a_mapping_file_and_the_rig(tmp_path):
+    clip = renamed_clip(tmp_path)
+    mapping = tmp_path / "map.json"
+    mapping.write_text(json.dumps({role: f"my_{name}" for role, name in ROLES.items()}))
+    code, _, err = run_cli(clip, "--frames", "0", "30", "--mapping", mapping, "--handle", "my_Hand_R@12=+0,25,0", *FAST, "--out", tmp_path / "o.bvh")
+    assert code == 0, err
+    motion = read_bvh(tmp_path / "o.bvh")
+    hand = motion.skeleton.names.index("my_Hand_R")
+    np.testing.assert_allclose(fk_positions(motion)[12, hand], straight_line(HAND, 12) + [0, 25, 0], atol=1e-3)
+
+
+def test_the_rig_chains_come_from_the_hierarchy_or_the_mapping_file(tmp_path):
+    motion = read_bvh(renamed_clip(tmp_path))
+    toml = tmp_path / "map.toml"
+    preset = RigSpec.preset("bandai_namco")
+    rig = {f: [f"my_{n}" for n in getattr(preset, f)] for f in ("spine", "left_arm", "right_arm", "left_leg", "right_leg")}
+    lines = ["[characteristic]", *(f'{r} = "my_{n}"' for r, n in ROLES.items()), "[rig]", *(f"{f} = {json.dumps(v)}" for f, v in rig.items())]
+    toml.write_text("\n".join(lines) + "\n")
+    roles, spec = read_mapping(toml)
+    assert roles == {r: f"my_{n}" for r, n in ROLES.items()} and spec == RigSpec.from_dict(rig)
+    recognised = recognise_character(motion, toml)
+    assert recognised.preset is None and recognised.rig_spec == spec
+    assert derive_rig_spec(recognised.character) == spec  # the hierarchy gives the same chains
+    assert recognise_character(read_bvh(DEMO_CLIP)).preset == "bandai_namco"
+
+
+# ----------------------------------------------------------------------------- handles
+
+
+def test_handle_syntax():
+    assert parse_handle("right_hand@12=40,150,80") == HandleRequest("right_hand", 12, (40.0, 150.0, 80.0), False, "--handle right_hand@12=40,150,80")
+    assert parse_handle("right_hand@12=+0,25,-1.5").value == (0.0, 25.0, -1.5)
+    assert parse_handle("right_hand@12=+0,25,-1.5").relative
+    assert not parse_handle("Hand_R@6=-3,4,5").relative
+    for bad in ("right_hand@12=1,2", "right_hand=1,2,3", "right_hand@x=1,2,3", "right_hand@12=a,b,c", "right_hand@12=1,2,nan"):
+        with pytest.raises(ValueError, match=rf"--handle {bad}: expected JOINT@FRAME=X,Y,Z"):
+            parse_handle(bad)
+
+
+def test_handles_files_json_as_blender_exports_them_and_toml(tmp_path):
+    blender = tmp_path / "handles.json"
+    blender.write_text(json.dumps([{"joint": "right_hand", "frame": 12, "position": [1, 2, 3]}]))
+    assert read_handles_file(blender) == [HandleRequest("right_hand", 12, (1.0, 2.0, 3.0), False, f"--handles {blender}: handle 0 (right_hand@12)")]
+    wrapped = tmp_path / "wrapped.json"
+    wrapped.write_text(json.dumps({"handles": [{"joint": "head", "frame": 6, "offset": [0, 5, 0]}]}))
+    assert read_handles_file(wrapped)[0].relative
+    toml = tmp_path / "handles.toml"
+    toml.write_text('[[handles]]\njoint = "left_foot"\nframe = 18\noffset = [0, 10, 0]\n\n[[handles]]\njoint = "hips"\nframe = 12\nposition = [0.5, 90, 3]\n')
+    got = read_handles_file(toml)
+    assert [(h.joint, h.frame, h.value, h.relative) for h in got] == [("left_foot", 18, (0.0, 10.0, 0.0), True), ("hips", 12, (0.5, 90.0, 3.0), False)]
+    bad = tmp_path / "bad.json"
+    for entry in ({"joint": "head", "frame": 6}, {"joint": "head", "frame": 6.5, "position": [0, 0, 0]},
+                  {"joint": "head", "frame": 6, "position": [0, 0]}, {"joint": "head", "frame": 6, "position": [0, 0, 0], "offset": [0, 0, 0]}):  # fmt: skip
+        bad.write_text(json.dumps([entry]))
+        with pytest.raises(ValueError, match=rf"--handles {bad}: handle 0: expected"):
+            read_handles_file(bad)
+    bad.write_text("[{")
+    with pytest.raises(ValueError, match=rf"--handles {bad}: not valid JSON"):
+        read_handles_file(bad)
+
+
+# ------------------------------------------------------------------------ bad arguments
+
+
+def _cases(tmp):
+    clip = str(DEMO_CLIP)
+    keys = [clip, "--frames", "0", "30"]
+    return {
+        "unknown joint": ([*keys, "--handle", "right_hnd@12=+0,25,0"], "--handle right_hnd@12=+0,25,0: unknown joint 'right_hnd'"),
+        "frame out of the clip": ([clip, "--frames", "0", "45"], "--frames 0 45: frame 45 is out of range; the file has frames 0…39"),
+        "end frame out of the clip": (["--start", f"{clip}@0", "--end", f"{clip}@40"], f"--end {clip}@40: frame 40 is out of range"),
+        "handle frame out of the in-between": ([*keys, "--handle", "head@31=+0,1,0"], "--handle head@31=+0,1,0: frame 31 is outside the in-between, frames 0…30"),
+        "keys not 30 frames apart": ([clip, "--frames", "0", "20"], "--frames 0 20: the keys are 20 frames apart; the BMM in-betweens 30"),
+        "not a BVH file": ([f"{tmp}/notes.bvh", "--frames", "0", "30"], f"CLIP {tmp}/notes.bvh: "),
+        "missing clip": ([f"{tmp}/missing.bvh", "--frames", "0", "30"], f"CLIP {tmp}/missing.bvh: no such file"),
+        "missing end file": (["--start", f"{clip}@0", "--end", f"{tmp}/nope.bvh@30"], f"--end {tmp}/nope.bvh@30: no such file"),
+        "unknown skeleton": ([f"{tmp}/custom.bvh", "--frames", "0", "30"], f"CLIP {tmp}/custom.bvh: unknown skeleton"),
+        "missing mapping": ([f"{tmp}/custom.bvh", "--frames", "0", "30", "--mapping", f"{tmp}/map.json"], f"--mapping {tmp}/map.json: no such file"),
+        "missing model": ([*keys, "--model", f"{tmp}/models/bmm"], f"--model {tmp}/models/bmm: not a saved BMM (no such folder)"),
+        "missing learned IK": ([*keys, "--ik", "refined", "--ik-model", f"{tmp}/models/ik"], f"--ik-model {tmp}/models/ik: not a saved learned IK"),
+        "missing handles file": ([*keys, "--handles", f"{tmp}/h.json"], f"--handles {tmp}/h.json: no such file"),
+        "bad handle": ([*keys, "--handle", "right_hand@12=1,2"], "--handle right_hand@12=1,2: expected JOINT@FRAME=X,Y,Z"),
+        "unknown output format": ([*keys, "--out", f"{tmp}/x.fbx"], f"--out {tmp}/x.fbx: unknown output format '.fbx'"),
+        "no samples": ([*keys, "--samples", "0"], "--samples 0: must be at least 1"),
+        "not a number": ([*keys, "--samples", "x"], "argument --samples: invalid int value: 'x'"),
+        "unknown profile": ([*keys, "--trained-on", "amass"], "--trained-on amass: not a bundled profile"),
+        "no keys": (["--handle", "head@12=+0,1,0"], "give the key poses"),
+    }  # fmt: skip
+
+
+CASES = list(_cases("TMP"))
+
+
+@pytest.mark.parametrize("case", CASES)
+def test_a_bad_argument_exits_2_with_one_line_and_writes_nothing(case, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # files a run might write by default land here
+    renamed_clip(tmp_path)
+    before = sorted(os.listdir(tmp_path))
+    argv, message = _cases(str(tmp_path))[case]
+    (tmp_path / "notes.bvh").write_text("not a BVH file\n")
+    before = sorted(os.listdir(tmp_path))
+    code, stdout, stderr = run_cli("--ik", "rig", "--steps", "2", "--out", tmp_path / "out", *argv)  # argv's own flags win
+    assert code == 2
+    assert stderr.startswith("bezmotion: error: ") and stderr.count("\n") == 1, stderr
+    assert message in stderr, stderr
+    assert stdout == ""
+    assert sorted(os.listdir(tmp_path)) == before  # no folder, no file, no model folder
+
+
+def test_the_learned_ik_refuses_another_skeleton(tmp_path):
+    clip = renamed_clip(tmp_path)
+    mapping = tmp_path / "map.json"
+    mapping.write_text(json.dumps({role: f"my_{name}" for role, name in ROLES.items()}))
+    code, _, err = run_cli(clip, "--frames", "0", "30", "--mapping", mapping, "--ik", "learned", "--out", tmp_path / "o.bvh")
+    assert code == 2 and "--ik learned: the learned IK bandai_namco does not fit this skeleton" in err and "use --ik rig" in err
+    assert not (tmp_path / "o.bvh").exists()
