@@ -49,6 +49,18 @@ class DemoOptions:
     )  # fmt: skip
 
 
+INBETWEEN_EXAMPLES = """examples:
+  bezmotion inbetween CLIP.bvh --frames 0 30 --handle right_hand@12=+0,25,0 --out take/
+  bezmotion inbetween --start A.bvh@0 --end B.bvh@40 --handle right_hand@12=40,150,80 --samples 3 --out take.bvh
+  bezmotion inbetween CLIP.bvh --frames 0 30 --handles edited.json --out take.glb
+  bezmotion inbetween OTHER.bvh --frames 0 30 --mapping map.json --ik rig --out take/
+
+handles: JOINT@FRAME=X,Y,Z is a position (cm, the clip's world frame, +Y up); a leading +
+is an offset from the straight line between the keys' positions of that joint. Frames
+count from the start key (0) to the end key (30). JOINT: hips, head, left_hand,
+right_hand, left_foot, right_foot, or the skeleton's own name for one of them."""
+
+
 class _Parser(argparse.ArgumentParser):
     """Reports a bad command line in one line, as every other error (exit status 2)."""
 
@@ -65,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
     add_options(p_demo, DemoOptions)
     p_inbetween = sub.add_parser(
         "inbetween", help="in-between two poses of your own BVH files through handles; write BVH, glTF and a preview",
-        description=InbetweenOptions.__doc__,
+        description=InbetweenOptions.__doc__, epilog=INBETWEEN_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter,
     )  # fmt: skip
     add_options(p_inbetween, InbetweenOptions)
     parsed = parser.parse_args(argv)

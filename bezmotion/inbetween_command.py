@@ -91,39 +91,39 @@ from bezmotion.pipeline.transfer import Transfer
 class InbetweenOptions:
     """In-between two poses of your own BVH files through handles; write BVH, glTF and a preview."""
 
-    clip: Path | None = option(None, positional=True, help="one BVH file holding both key poses (with --frames)")
+    clip: Path | None = option(None, positional=True, metavar="CLIP.bvh", help="one BVH file holding both key poses (with --frames)")
     frames: tuple[int, int] | None = option(
         None, metavar=("START", "END"), help="the key frames in CLIP, 30 frames apart (the BMM's window)"
     )
-    start: str | None = option(None, help="the start pose: FILE.bvh@FRAME (default frame 0)")
-    end: str | None = option(None, help="the end pose: FILE.bvh@FRAME (default its last frame); put 30 frames after the start")
+    start: str | None = option(None, metavar="FILE.bvh@FRAME", help="the start pose (default frame 0)")
+    end: str | None = option(None, metavar="FILE.bvh@FRAME", help="the end pose (default the last frame), put 30 frames after the start")
     handle: tuple[str, ...] = option(
         (), repeat=True, metavar="JOINT@FRAME=X,Y,Z",
         help="a handle, repeatable: the joint's position (cm) at a frame 0…30 of the in-between; "
         "a leading + (JOINT@FRAME=+X,Y,Z) offsets it from the straight line between the keys",
     )  # fmt: skip
-    handles: Path | None = option(None, help='a JSON or TOML handles file: [{"joint", "frame", "position" or "offset"}]')
-    samples: int = option(1, help="how many in-betweens, each with its own seed (default 1)")
-    seed: int = option(0, help="PRNG seed of the first sample (sample k uses fold_in(key(seed), k))")
-    steps: int = option(10, help="DDIM steps (default 10)")
+    handles: Path | None = option(None, metavar="FILE", help='a JSON or TOML handles file: [{"joint", "frame", "position" or "offset"}]')
+    samples: int = option(1, metavar="N", help="how many in-betweens, each with its own seed (default 1)")
+    seed: int = option(0, metavar="SEED", help="PRNG seed of the first sample (sample k uses fold_in(key(seed), k))")
+    steps: int = option(10, metavar="N", help="DDIM steps (default 10)")
     ik: str = option(
         "auto", choices=("auto", *IK_CHOICES),
         help="auto (default): refined when the learned IK fits the skeleton, else rig; refined: learned IK then "
         "exact two-bone limbs; learned: the learned IK alone; rig: analytic, any skeleton, no training",
     )  # fmt: skip
-    model: str = option("bandai_namco", help="the BMM: a bundled model's name (bandai_namco, default) or a saved BMM's folder")
-    ik_model: str = option("bandai_namco", help="the learned IK: a bundled model's name (default bandai_namco) or a saved one's folder")
+    model: str = option("bandai_namco", metavar="NAME|PATH", help="the BMM: a bundled model's name (bandai_namco, default) or a saved BMM's folder")
+    ik_model: str = option("bandai_namco", metavar="NAME|PATH", help="the learned IK: a bundled model's name (default bandai_namco) or a saved one's folder")
     trained_on: str | None = option(
-        None, help="the skeleton --model was trained on: a profile name (bandai_namco, lafan1) or a profile JSON; "
+        None, metavar="NAME|PROFILE.json", help="the skeleton --model was trained on: a profile name (bandai_namco, lafan1) or a profile JSON; "
         "default: a bundled model's own; for a folder, the clips' skeleton (no transfer)",
     )  # fmt: skip
-    mapping: Path | None = option(None, help="JSON or TOML naming the six characteristic joints (and optionally the rig's chains) of another skeleton")
-    out: Path = option(Path("results/inbetween"), help="a .bvh, .glb or .gif file, or a folder (default results/inbetween)")
+    mapping: Path | None = option(None, metavar="MAP.json", help="JSON or TOML naming the six characteristic joints (and optionally the rig's chains) of another skeleton")
+    out: Path = option(Path("results/inbetween"), metavar="PATH", help="a .bvh, .glb or .gif file, or a folder (default results/inbetween)")
     channels: str = option(
         "default", choices=CHANNEL_CHOICES, help="BVH channels: default (positions on the root and hips) or clip (the start file's layout)"
     )  # fmt: skip
-    no_preview: bool = False
-    no_progress: bool = False
+    no_preview: bool = option(False, help="with --out FOLDER: no preview.gif (drawing it takes a few seconds)")
+    no_progress: bool = option(False, help="no progress lines on stderr")
 
 
 # ----------------------------------------------------------------------------- handles
