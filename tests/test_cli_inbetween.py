@@ -103,7 +103,8 @@ def test_two_samples_are_two_different_motions(run):
 
 
 def test_the_glb_carries_the_same_motion_curves_and_handles(run):
-    from bezmotion.pipeline.gltf import read_glb
+    """Read back by our reader; valid for the Khronos validator when it is installed."""
+    from bezmotion.pipeline.gltf import find_gltf_validator, read_glb, validate_glb
 
     out, summary, _, _, _ = run
     glb, bvh = read_glb(out / "inbetween_0.glb"), read_bvh(out / "inbetween_0.bvh")
@@ -111,6 +112,8 @@ def test_the_glb_carries_the_same_motion_curves_and_handles(run):
     assert glb.handles == summary["handles"]
     hand = summary["handles"][0]
     np.testing.assert_allclose(glb.ctrl_pos[hand["frame"] // 6, glb.joints.index("right_hand")], hand["position"], atol=1e-4)
+    if find_gltf_validator() is not None:
+        assert validate_glb(out / "inbetween_0.glb")["issues"]["numErrors"] == 0
 
 
 def test_progress_goes_to_stderr_and_results_to_stdout(run):
@@ -178,6 +181,27 @@ def test_the_rig_chains_come_from_the_hierarchy_or_the_mapping_file(tmp_path):
     assert recognised.preset is None and recognised.rig_spec == spec
     assert derive_rig_spec(recognised.character) == spec  # the hierarchy gives the same chains
     assert recognise_character(read_bvh(DEMO_CLIP)).preset == "bandai_namco"
+
+
+def test_a_lafan1_skeleton_is_recognised_and_gets_the_bundled_transfer(rng):
+    from bezmotion.data import lafan1
+    from bezmotion.data.bvh import BvhMotion
+    from bezmotion.geometry import Skeleton
+    from bezmotion.ik.rig import RIG_PRESETS
+    from bezmotion.pipeline.authoring import load_profile, make_transfer, target_profile
+
+    skeleton = Skeleton(lafan1.PARENTS, lafan1.JOINT_NAMES, rng.normal(scale=10.0, size=(22, 3)))
+    quat = np.zeros((2, 22, 4))
+    quat[..., 0] = 1.0
+    motion = BvhMotion.from_skeleton(skeleton, quat, np.zeros((2, 3)), rotation_order="zyx")
+    recognised = recognise_character(motion)
+    assert recognised.preset == "lafan1" and recognised.rig_spec == RIG_PRESETS["lafan1"]
+    assert derive_rig_spec(recognised.character) == RIG_PRESETS["lafan1"]
+    profile = target_profile(recognised, [motion])
+    bundled = load_profile("lafan1")  # the bundled profile, not one measured on two frames
+    assert profile.height == bundled.height and np.array_equal(profile.mean_orientation, bundled.mean_orientation)
+    transfer = make_transfer(load_profile("bandai_namco"), profile)
+    assert float(transfer.scale) == pytest.approx(profile.height / load_profile("bandai_namco").height, rel=1e-6)
 
 
 # ----------------------------------------------------------------------------- handles
