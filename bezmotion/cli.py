@@ -30,7 +30,7 @@ class DemoOptions:
 
     out: Path = option(Path("results/demo"), help="output folder (default results/demo)")
     joint: str = option("right_hand", choices=CHARACTERISTIC_JOINTS, help="the joint the handle moves")
-    frame: int = option(12, help="the handle's frame, a multiple of 6 in 6…24 (default 12)")
+    frame: int = option(12, help="the handle's frame, any in 1…29 (default 12)")
     offset: tuple[float, float, float] = option(
         (0.0, 25.0, 0.0), metavar=("X", "Y", "Z"), help="how far the handle moves the joint from the mocap (cm; default 0 25 0)"
     )

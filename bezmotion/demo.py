@@ -113,7 +113,7 @@ def demo(
     Args:
       out: output folder (created).
       joint, frame, offset: the handle: ``joint`` (a characteristic joint) is moved by
-        ``offset`` (cm) from where the mocap has it at ``frame`` (a multiple of 6 in 6…24).
+        ``offset`` (cm) from where the mocap has it at ``frame`` (any frame in 1…29).
       ik: ``"refined"`` (default: the bundled learned IK, then exact two-bone arms and legs),
         ``"learned"`` (the learned IK alone) or ``"rig"`` (analytic, no data).
       steps, seed: DDIM steps and PRNG seed of the sampler.
@@ -194,7 +194,7 @@ def demo(
         "ik": ik,
         "steps": steps,
         "channels": channels,
-        "curve_handle_error_cm": float(np.linalg.norm(np.asarray(result.curves.ctrl_pos[frame // bmm.config.stride, j]) - handle_pos)),
+        "curve_handle_error_cm": float(np.linalg.norm(np.asarray(result.positions[frame, j]) - handle_pos)),
         "full_body_handle_error_cm": float(full_body_handles_error(character, result.pose, handles, bmm.config.stride)),
         "joint_moved_cm": float(np.linalg.norm(np.asarray(pos[frame, character.characteristic[j]] - true_pos[frame, character.characteristic[j]]))),
         "bvh_fk_error_cm": bvh_fk_error_cm(paths["inbetween"], character, result.pose),

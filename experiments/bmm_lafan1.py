@@ -218,7 +218,7 @@ def main(argv: list[str] | None = None) -> dict:
         "eval": {"n_windows": int(eval_set.start.shape[0]), "floor_height_cm": metrics_config.floor_height, "fps": val_set.fps},
         "ground_truth": ground_truth_metrics(metrics_config, eval_set),
         "reference": {
-            name: curve_metrics(metrics_config, reference_curves(eval_set, h, model_config.num_controls), eval_set, h)
+            name: curve_metrics(metrics_config, reference_curves(eval_set, h, layout), eval_set, h)
             for name, h in (("id", eval_set.handles), ("ood", eval_set.handles_ood))
         },
         "bmm": {},

@@ -7,13 +7,14 @@ Tokens, for one motion with ``K`` control points of ``J = 6`` joints:
   ``t`` → Linear → SiLU → Linear (MDM);
 - ``K`` **frame tokens** ``x_t^i = [P_j, T_j, O_j | j ∈ J_sub]`` (normalised, 12 numbers
   per joint) → one Linear encoder;
-- ``S`` **condition tokens**, one per constrained (joint, control point): the target
+- ``S`` **condition tokens**, one per constrained (joint, frame): the target
   position (normalised like ``P``) → its own Linear, plus a learned joint-ID embedding
   (the paper's linear layer on a one-hot joint vector).
 
 Frame and condition tokens get the sinusoidal encoding of the frame they represent
-(control point ``k`` represents frame ``k · stride``); the noise token, which represents
-no frame, gets none. Absent condition slots are masked out of attention as keys, so any
+(control point ``k`` represents frame ``k · stride``; a condition between control points,
+e.g. on frame 13, gets the encoding of frame 13 itself, a fractional control position);
+the noise token, which represents no frame, gets none. Absent condition slots are masked out of attention as keys, so any
 number of conditions, none to all ``K·J``, runs in one compiled shape. The encoder is
 MDM's: post-LayerNorm layers with GELU feed-forward and dropout. The frame tokens'
 outputs are decoded to x̂₀ (x₀-prediction) and two foot-contact logits per control point.
@@ -120,18 +121,19 @@ class Conditions(NamedTuple):
     Attributes:
       position: ``(slots, 3)`` target positions in the aligned frame (cm).
       joint: ``(slots,)`` characteristic-joint index (0…5).
-      control: ``(slots,)`` control-point index (0…K−1).
+      frame: ``(slots,)`` the frame the condition constrains (0…num_frames−1): a control
+        frame (a multiple of the stride) or, for handles between them, any other frame.
       valid: ``(slots,)`` which slots hold a condition; the others are padding.
     """
 
     position: Float[Array, "*batch slots 3"]
     joint: Int[Array, "*batch slots"]
-    control: Int[Array, "*batch slots"]
+    frame: Int[Array, "*batch slots"]
     valid: Bool[Array, "*batch slots"]
 
     @classmethod
     def from_grid(
-        cls, mask: Bool[Array, "*batch controls joints"], position: Float[Array, "*batch controls joints 3"]
+        cls, mask: Bool[Array, "*batch controls joints"], position: Float[Array, "*batch controls joints 3"], stride: int
     ) -> Conditions:
         """All ``controls × joints`` slots, valid where ``mask`` (the training layout)."""
         *batch, k, j = mask.shape
@@ -140,15 +142,19 @@ class Conditions(NamedTuple):
         return cls(
             position=position.reshape(*batch, k * j, 3),
             joint=jnp.broadcast_to(jnp.asarray(joint.reshape(-1), jnp.int32), shape),
-            control=jnp.broadcast_to(jnp.asarray(control.reshape(-1), jnp.int32), shape),
+            frame=jnp.broadcast_to(jnp.asarray(control.reshape(-1) * stride, jnp.int32), shape),
             valid=mask.reshape(shape),
         )
 
-    def to_grid(self, num_controls: int, num_joints: int) -> tuple[Bool[Array, "controls joints"], Float[Array, "controls joints 3"]]:
-        """``(mask, position)`` on the control × joint grid (one motion; later slots win)."""
-        mask = jnp.zeros((num_controls, num_joints), jnp.int32).at[self.control, self.joint].max(self.valid.astype(jnp.int32)) > 0
-        # Invalid slots scatter out of bounds and are dropped, so they never overwrite a valid one.
-        control = jnp.where(self.valid, self.control, num_controls)
+    def to_grid(
+        self, num_controls: int, num_joints: int, stride: int
+    ) -> tuple[Bool[Array, "controls joints"], Float[Array, "controls joints 3"]]:
+        """``(mask, position)`` of the conditions on control frames, on the control × joint
+        grid (one motion; later slots win). Conditions between control frames are left out."""
+        on_grid = self.valid & (self.frame % stride == 0) & (self.frame >= 0) & (self.frame < num_controls * stride)
+        # Other slots scatter out of bounds and are dropped, so they never overwrite a grid one.
+        control = jnp.where(on_grid, self.frame // stride, num_controls)
+        mask = jnp.zeros((num_controls, num_joints), bool).at[control, self.joint].set(True, mode="drop")
         position = jnp.zeros((num_controls, num_joints, 3), self.position.dtype)
         position = position.at[control, self.joint].set(self.position, mode="drop")
         return mask, position
@@ -257,7 +263,10 @@ class BMMDenoiser(nnx.Module):
         # masked attention weights are 0, but 0 × NaN would still poison the output.
         valid_cond = conditions.valid
         joint = jnp.where(valid_cond, conditions.joint, 0)
-        cond_frames = jnp.where(valid_cond, conditions.control, 0).astype(jnp.float32) * cfg.stride
+        # The exact frame, fractional in control units (frame / stride) between control
+        # points: the same sinusoid the frame tokens get, so a condition on a control frame
+        # is encoded exactly as before.
+        cond_frames = jnp.where(valid_cond, conditions.frame, 0).astype(jnp.float32)
         cond_tokens = (
             self.condition_encoder(jnp.where(valid_cond[:, None], conditions.position, 0.0))
             + self.joint_embedding(joint)

@@ -29,10 +29,12 @@ from bezmotion.data.characteristic import FEET
 from bezmotion.data.curves import CurveDataset
 from bezmotion.metrics import contact_accuracy, foot_skating_ratio, handles_error, mean_position_error
 from bezmotion.baselines import handle_interpolation
-from bezmotion.bmm.features import MAX_INTERMEDIATE_HANDLES, draw_intermediate_slots
+from bezmotion.bmm.features import MAX_INTERMEDIATE_HANDLES, draw_handle_frames, draw_intermediate_slots, handle_positions
+from bezmotion.diffusion.projection import on_control_frame, project_off_grid
 from bezmotion.bmm.sampling import Handles, SampledCurves
 
 OOD_NOISE_CM = 16.0  # BMM §5.1: uniform noise of ±16 cm per axis on the handles
+HANDLE_FRAMES = ("grid", "off_grid", "any")
 
 
 class EvalSet(NamedTuple):
@@ -66,6 +68,7 @@ def make_eval_set(
     num_windows: int | None = None,
     max_handles: int = MAX_INTERMEDIATE_HANDLES,
     ood_noise: float = OOD_NOISE_CM,
+    handle_frames: str = "grid",
 ) -> EvalSet:
     """Draw the evaluation conditions (deterministic given ``key``).
 
@@ -74,10 +77,17 @@ def make_eval_set(
       key: PRNG key for the window subset, the handles and the OOD noise.
       num_windows: evaluate a random subset of this many windows (``None``: all).
       max_handles: intermediate handles per window are 1…max_handles.
+      handle_frames: ``"grid"`` (the paper): handles on control frames; ``"off_grid"``:
+        each of those handles moved to a uniformly drawn frame between control frames;
+        ``"any"``: to a uniformly drawn intermediate frame (1 … 29). Windows, joints,
+        handle counts and noise are the same draws in all three; positions are the
+        fitted curves at the handles' frames.
     """
     n_total, k, j = dataset.ctrl_pos.shape[:3]
     if max_handles < 1 or max_handles > (k - 2) * j:
         raise ValueError(f"max_handles must be in 1…{(k - 2) * j}, got {max_handles}")
+    if handle_frames not in HANDLE_FRAMES:
+        raise ValueError(f"handle_frames must be one of {HANDLE_FRAMES}, got {handle_frames!r}")
     subset_key, slot_key, noise_key = jax.random.split(key, 3)
     if num_windows is not None and num_windows < n_total:
         rows = np.sort(np.asarray(jax.random.choice(subset_key, n_total, (num_windows,), replace=False)))
@@ -86,10 +96,20 @@ def make_eval_set(
     n = len(rows)
     ctrl_pos = jnp.asarray(dataset.ctrl_pos[rows])
     draw = functools.partial(draw_intermediate_slots, num_controls=k, num_joints=j, max_handles=max_handles, min_handles=1)
-    control, joint, valid = jax.vmap(lambda key: draw(key))(jax.random.split(slot_key, n))
-    position = ctrl_pos[jnp.arange(n)[:, None], control, joint]
+    slot_keys = jax.random.split(slot_key, n)
+    control, joint, valid = jax.vmap(lambda key: draw(key))(slot_keys)
+    ctrl_tangent = jnp.asarray(dataset.ctrl_tangent[rows])
+    if handle_frames == "grid":
+        frame = control * dataset.layout.stride
+        position = ctrl_pos[jnp.arange(n)[:, None], control, joint]
+    else:
+        frames = functools.partial(
+            draw_handle_frames, layout=dataset.layout, off_grid=1.0, exclude_grid=handle_frames == "off_grid"
+        )
+        frame = jax.vmap(lambda key, c: frames(jax.random.fold_in(key, 1), c))(slot_keys, control)
+        position = jax.vmap(functools.partial(handle_positions, dataset.layout))(ctrl_pos, ctrl_tangent, joint, frame)
     noise = jax.random.uniform(noise_key, position.shape, minval=-ood_noise, maxval=ood_noise)
-    handles = Handles(joint, control, position, valid)
+    handles = Handles(joint, frame, position, valid)
     return EvalSet(
         start=ctrl_pos[:, 0],
         end=ctrl_pos[:, -1],
@@ -98,7 +118,7 @@ def make_eval_set(
         ctrl_contacts=jnp.asarray(dataset.ctrl_contacts[rows]),
         dense_pos=jnp.asarray(dataset.dense_pos[rows]),
         ctrl_pos=ctrl_pos,
-        ctrl_tangent=jnp.asarray(dataset.ctrl_tangent[rows]),
+        ctrl_tangent=ctrl_tangent,
         rows=rows,
     )
 
@@ -135,33 +155,38 @@ def curve_metrics(
     dense = dense_positions(config.layout, curves.ctrl_pos, curves.ctrl_tangent)
     feet = dense[..., list(FEET), :]
     return {
-        "handles_error_cm": float(handles_error(curves.ctrl_pos, handles.control, handles.joint, handles.position, handles.valid)),
+        # The curves at each handle's frame (on a control frame: its control position, exactly).
+        "handles_error_cm": float(handles_error(dense, handles.frame, handles.joint, handles.position, handles.valid)),
         "dense_error_cm": float(mean_position_error(dense, eval_set.dense_pos)),
         "foot_skating_ratio": float(foot_skating_ratio(feet, config.fps, floor_height=config.floor_height)),
         "contact_accuracy": float(contact_accuracy(curves.contacts, eval_set.ctrl_contacts)),
     }
 
 
-def reference_curves(eval_set: EvalSet, handles: Handles, num_controls: int) -> SampledCurves:
-    """The non-learned reference (:func:`~bezmotion.baselines.handle_interpolation`)
-    for every window; no orientations, contacts all 0.5 (unknown)."""
-    pos, tangent = _reference_controls(eval_set.start, eval_set.end, handles, num_controls=num_controls)
-    n = pos.shape[0]
-    return SampledCurves(pos, tangent, jnp.zeros((*pos.shape[:-1], 6)), jnp.full((n, num_controls, 2), 0.5))
+def reference_curves(eval_set: EvalSet, handles: Handles, layout: BezierLayout) -> SampledCurves:
+    """The non-learned reference (:func:`~bezmotion.baselines.handle_interpolation`
+    through the start, end and handles on control frames, then the minimum-norm correction
+    onto handles between them) for every window; no orientations, contacts all 0.5 (unknown)."""
+    pos, tangent = _reference_controls(eval_set.start, eval_set.end, handles, layout=layout)
+    n, k = pos.shape[:2]
+    return SampledCurves(pos, tangent, jnp.zeros((*pos.shape[:-1], 6)), jnp.full((n, k, 2), 0.5))
 
 
-@functools.partial(jax.jit, static_argnames="num_controls")
-def _reference_controls(start, end, handles: Handles, *, num_controls: int):
+@functools.partial(jax.jit, static_argnames="layout")
+def _reference_controls(start, end, handles: Handles, *, layout: BezierLayout):
     """Known control points of every window (both ends, valid handles) → interpolated curves."""
     j = start.shape[-2]
+    num_controls = layout.num_controls
 
     def one(start, end, h):
         mask = jnp.zeros((num_controls, j), bool).at[0].set(True).at[-1].set(True)
         target = jnp.zeros((num_controls, j, 3), start.dtype).at[0].set(start).at[-1].set(end)
-        control = jnp.where(h.valid, h.control, num_controls)  # invalid slots drop out of range
+        on_grid, control = on_control_frame(layout, h.frame)
+        control = jnp.where(h.valid & on_grid, control, num_controls)  # other slots drop out of range
         mask = mask.at[control, h.joint].set(True, mode="drop")
         target = target.at[control, h.joint].set(h.position, mode="drop")
-        return handle_interpolation(mask, target)
+        pos, tangent = handle_interpolation(mask, target)
+        return project_off_grid(layout, pos, tangent, mask, h.joint, h.frame, h.position, h.valid)
 
     return jax.vmap(one)(start, end, handles)
 

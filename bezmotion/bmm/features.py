@@ -16,7 +16,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
+from bezmotion.bezier import BezierLayout, basis
 from bezmotion.data.curves import CurveDataset
+from bezmotion.diffusion.projection import on_control_frame, project_off_grid
 from bezmotion.baselines import handle_interpolation
 from bezmotion.bmm.denoiser import FEATURES_PER_JOINT, BMMDenoiser, Conditions
 
@@ -100,23 +102,61 @@ def draw_intermediate_slots(
     return control, joint, jnp.arange(max_handles) < n
 
 
+def draw_handle_frames(
+    key: Array, control: Int[Array, "*shape"], layout: BezierLayout, off_grid: float, *, exclude_grid: bool = False
+) -> Int[Array, "*shape"]:
+    """Frames for handles drawn on control points: each stays on its control frame, or with
+    probability ``off_grid`` moves to a uniformly drawn intermediate frame (1 … last − 1;
+    with ``exclude_grid``, only frames between control frames).
+
+    ``off_grid = 0`` returns ``control · stride`` without drawing anything (the paper's
+    handles, and the same random stream as before).
+    """
+    frame = jnp.asarray(layout.control_frames, jnp.int32)[control]
+    if off_grid == 0.0:
+        return frame
+    inner = np.arange(1, layout.num_frames - 1)
+    if exclude_grid:
+        inner = np.setdiff1d(inner, layout.control_frames)
+    move_key, frame_key = jax.random.split(key)
+    anywhere = jnp.asarray(inner, jnp.int32)[jax.random.randint(frame_key, frame.shape, 0, len(inner))]
+    return jnp.where(jax.random.bernoulli(move_key, off_grid, frame.shape), anywhere, frame)
+
+
+def handle_positions(
+    layout: BezierLayout,
+    ctrl_pos: Float[Array, "controls joints 3"],
+    ctrl_tangent: Float[Array, "controls joints 3"],
+    joint: Int[Array, "handles"],
+    frame: Int[Array, "handles"],
+) -> Float[Array, "handles 3"]:
+    """Where the curves of one motion are at each (joint, frame): the control position
+    itself on control frames (bit for bit), the evaluated curve between them."""
+    on_grid, control = on_control_frame(layout, frame)
+    w_pos, w_tan = basis(layout, frame.astype(ctrl_pos.dtype))
+    between = jnp.einsum("hk,khd->hd", w_pos.astype(ctrl_pos.dtype), ctrl_pos[:, joint]) + jnp.einsum(
+        "hk,khd->hd", w_tan.astype(ctrl_pos.dtype), ctrl_tangent[:, joint]
+    )
+    return jnp.where(on_grid[:, None], ctrl_pos[control, joint], between)
+
+
 def inbetween_conditions(
-    num_controls: int,
+    num_frames: int,
     start: Float[Array, "joints 3"],
     end: Float[Array, "joints 3"],
-    handle_control: Int[Array, "handles"],
+    handle_frame: Int[Array, "handles"],
     handle_joint: Int[Array, "handles"],
     handle_position: Float[Array, "handles 3"],
     handle_valid: Bool[Array, "handles"],
 ) -> Conditions:
     """The in-betweening condition slots of one motion: every joint at the first and at the
-    last control point (always valid), then the handles. Positions as given (cm)."""
+    last frame (always valid), then the handles. Positions as given (cm)."""
     j = start.shape[0]
     joints = jnp.arange(j, dtype=jnp.int32)
     return Conditions(
         position=jnp.concatenate([start, end, handle_position]),
         joint=jnp.concatenate([joints, joints, handle_joint]),
-        control=jnp.concatenate([jnp.zeros(j, jnp.int32), jnp.full(j, num_controls - 1, jnp.int32), handle_control]),
+        frame=jnp.concatenate([jnp.zeros(j, jnp.int32), jnp.full(j, num_frames - 1, jnp.int32), handle_frame]),
         valid=jnp.concatenate([jnp.ones(2 * j, bool), handle_valid]),
     )
 
@@ -129,23 +169,32 @@ def normalize_conditions(stats: FeatureStats, conditions: Conditions, translatio
     return conditions._replace(position=jnp.where(conditions.valid[..., None], position, 0.0))
 
 
-def interpolation_prior(stats: FeatureStats, conditions: Conditions, num_controls: int) -> Float[Array, "controls features"]:
+def interpolation_prior(stats: FeatureStats, conditions: Conditions, layout: BezierLayout) -> Float[Array, "controls features"]:
     """The reference curves through the conditions, as normalised frame tokens (one motion).
 
     Positions and tangents are :func:`~bezmotion.baselines.handle_interpolation`
-    of the conditioned positions; orientations are the training mean (0 once
-    normalised). A joint whose first or last control point is not conditioned (e.g. all
-    conditions dropped for classifier-free guidance) gets the mean everywhere.
+    of the conditioned control positions, then moved onto the conditions between control
+    frames by the minimum-norm correction
+    (:func:`~bezmotion.diffusion.projection.project_off_grid`; nothing moves when there
+    are none); orientations are the training mean (0 once normalised). A joint whose
+    first or last control point is not conditioned (e.g. all conditions dropped for
+    classifier-free guidance) gets the mean everywhere.
 
     Args:
       conditions: normalised condition slots (:func:`normalize_conditions`).
+      layout: the curves' layout (control points and stride).
     Returns:
       ``(controls, joints·12)`` normalised features.
     """
     num_joints = stats.mean.shape[0]
-    mask, position = conditions.to_grid(num_controls, num_joints)
+    num_controls = layout.num_controls
+    mask, position = conditions.to_grid(num_controls, num_joints, layout.stride)
     position_cm = position * stats.std[:, :3] + stats.mean[:, :3]
     ctrl_pos, ctrl_tangent = handle_interpolation(mask, position_cm)
+    target_cm = conditions.position * stats.std[conditions.joint, :3] + stats.mean[conditions.joint, :3]
+    ctrl_pos, ctrl_tangent = project_off_grid(
+        layout, ctrl_pos, ctrl_tangent, mask, conditions.joint, conditions.frame, target_cm, conditions.valid
+    )
     feats = stats.normalize(jnp.concatenate([ctrl_pos, ctrl_tangent, jnp.broadcast_to(stats.mean[:, 6:], (num_controls, num_joints, 6))], axis=-1))
     known = mask[0] & mask[-1]
     return to_tokens(jnp.where(known[None, :, None], feats, 0.0))
@@ -164,5 +213,6 @@ def predict_x0(
     sampling both call this, so they cannot disagree on what the network outputs."""
     x0, logits = denoiser(x_t, t, conditions, key=key)
     if denoiser.config.prediction == "residual":
-        x0 = x0 + interpolation_prior(stats, conditions, denoiser.config.num_controls)
+        cfg = denoiser.config
+        x0 = x0 + interpolation_prior(stats, conditions, BezierLayout.from_controls(cfg.num_controls, cfg.stride))
     return x0, logits

@@ -12,7 +12,7 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
 from bezmotion.bezier import BezierLayout, evaluate
 from bezmotion.data.characteristic import FEET
@@ -54,8 +54,15 @@ def bmm_loss_terms(
     target_contacts: Bool[Array, "controls 2"],
     dense_target: Float[Array, "frames joints 3"],
     condition_mask: Bool[Array, "controls joints"],
+    *,
+    off_grid_conditions: tuple[Int[Array, "handles"], Int[Array, "handles"], Float[Array, "handles 3"], Bool[Array, "handles"]]
+    | None = None,
 ) -> dict[str, Float[Array, ""]]:
     """Unweighted loss terms for one motion (positions and tangents in cm in, metres inside).
+
+    ``condition_mask`` marks the conditions on control points; ``off_grid_conditions``
+    ``(frame, joint, position, valid)`` the handles between them, whose error is the
+    evaluated curve's at their frame; both enter the condition term ``L_c``.
 
     Returns:
       ``{"position", "tangent", "orientation", "velocity", "dense_position", "condition",
@@ -70,13 +77,18 @@ def bmm_loss_terms(
     feet_vel = pred_vel[vel_frames][:, jnp.asarray(FEET)]  # (controls, 2, 3)
     cond = condition_mask[..., None].astype(pred_pos.dtype)
     pos_err = ((pred_pos - target_pos) * to_m) ** 2
+    off_err, off_count = 0.0, 0.0
+    if off_grid_conditions is not None:
+        frame, joint, position, valid = off_grid_conditions
+        err = jnp.sum(((pred_dense[frame, joint] - position) * to_m) ** 2, axis=-1)
+        off_err, off_count = jnp.sum(jnp.where(valid, err, 0.0)), jnp.sum(valid.astype(pred_pos.dtype))
     return {
         "position": jnp.mean(pos_err),
         "tangent": jnp.mean(((pred_tangent - target_tangent) * to_m) ** 2),
         "orientation": jnp.mean((pred_rot6d - target_rot6d) ** 2),
         "velocity": jnp.mean((pred_vel - dense_velocity(dense_target) * to_m) ** 2),
         "dense_position": jnp.mean(((pred_dense - dense_target) * to_m) ** 2),
-        "condition": jnp.sum(cond * pos_err) / jnp.maximum(3.0 * jnp.sum(cond), 1.0),
+        "condition": (jnp.sum(cond * pos_err) + off_err) / jnp.maximum(3.0 * (jnp.sum(cond) + off_count), 1.0),
         "contact": jnp.mean((contact - target_contacts.astype(contact.dtype)) ** 2),
         "skate": jnp.mean((contact[..., None] * feet_vel) ** 2),
     }

@@ -2,9 +2,9 @@
 curves that pass through every handle out (BMM §4.2, Appendix A.3).
 
 :func:`sample_curves` is pure and jit-compiled once per input shape. It aligns the
-inputs (hips start at the origin in XZ, as in training), runs DDIM with the constrained
-control points overwritten in x̂₀ at every step and after the last, and translates the
-curves back. Leading batch axes on the inputs sample several motions at once, each with
+inputs (hips start at the origin in XZ, as in training), runs DDIM with x̂₀ put through the conditions at every step and after the last
+(control points on control frames overwritten, handles between them met by the
+minimum-norm correction of x̂₀), and translates the curves back. Leading batch axes on the inputs sample several motions at once, each with
 its own key.
 """
 
@@ -13,18 +13,21 @@ from __future__ import annotations
 import dataclasses
 import functools
 import os
-from typing import NamedTuple
+from collections.abc import Sequence
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import nnx
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from bezmotion.xla_options import call_with_inference_options
 from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
+from bezmotion.bezier import BezierLayout
 from bezmotion.diffusion.ddim import ddim_sample
+from bezmotion.diffusion.projection import project_off_grid
 from bezmotion.bmm.foot_lock import lock_feet
 from bezmotion.diffusion.schedule import cosine_schedule
 from bezmotion.bmm.denoiser import BMMConfig, init_denoiser
@@ -53,19 +56,20 @@ class BezierMotionModel:
 
 
 class Handles(NamedTuple):
-    """Sparse position handles: joint ``joint`` is at ``position`` at control point ``control``.
+    """Sparse position handles: joint ``joint`` is at ``position`` at frame ``frame``.
 
     Attributes:
       joint: ``(*batch, handles)`` characteristic-joint indices (0…5, see
         :data:`~bezmotion.data.characteristic.CHARACTERISTIC_JOINTS`).
-      control: ``(*batch, handles)`` control-point indices (frame ÷ stride).
+      frame: ``(*batch, handles)`` integer frames strictly inside the window (1 … 29 for
+        31 frames): control frames (multiples of the stride) or any frame between them.
       position: ``(*batch, handles, 3)`` world positions (cm).
       valid: ``(*batch, handles)`` which entries are real (padding lets motions in a
         batch have different numbers of handles).
     """
 
     joint: Int[Array, "*batch handles"]
-    control: Int[Array, "*batch handles"]
+    frame: Int[Array, "*batch handles"]
     position: Float[Array, "*batch handles 3"]
     valid: Bool[Array, "*batch handles"]
 
@@ -73,16 +77,22 @@ class Handles(NamedTuple):
     def from_frames(
         cls,
         joints: list[str | int],
-        frames: list[int],
+        frames: Sequence[Any],
         positions: Float[Array | np.ndarray, "handles 3"],
         *,
         config: BMMConfig,
     ) -> Handles:
         """Handles from joint names (or indices), frame numbers and positions (one motion).
 
+        ``frames`` are checked here rather than by type (ints, NumPy integers or whole
+        floats; anything else raises naming it). Any integer frame strictly between the start and end frames is allowed; the same
+        joint may have handles on several frames. Two handles on one joint and frame must
+        agree (an identical repeat is harmless).
+
         Raises:
-          ValueError: unknown joint, a frame that is not a control frame (a multiple of
-          the stride inside the window), or a positions array of the wrong shape.
+          ValueError: unknown joint, a frame that is not an integer in 1 … num_frames − 2
+          (the start and end poses are given separately), two different positions for one
+          joint and frame, or a positions array of the wrong shape.
         """
         positions = np.asarray(positions, np.float32)
         if positions.shape != (len(joints), 3) or len(frames) != len(joints):
@@ -101,21 +111,37 @@ class Handles(NamedTuple):
             if not 0 <= int(j) < config.num_joints:
                 raise ValueError(f"joint index {j} out of range 0…{config.num_joints - 1}")
             joint_ids.append(int(j))
-        controls = []
         last = config.num_frames - 1
+        frame_ids = []
         for f in frames:
-            if f % config.stride or not 0 < f < last:
+            whole = _integer_frame(f)
+            if whole is None or not 0 < whole < last:
                 raise ValueError(
-                    f"handles sit on intermediate control frames: multiples of {config.stride} strictly between 0 "
-                    f"and {last} (the start and end poses are given separately), got {f}"
+                    f"handles sit on integer frames strictly between 0 and {last} (the start and end poses are given "
+                    f"separately), got {f!r}"
                 )
-            controls.append(f // config.stride)
+            frame_ids.append(whole)
+        seen: dict[tuple[int, int], int] = {}
+        for i, slot in enumerate(zip(joint_ids, frame_ids)):
+            if slot in seen and not np.array_equal(positions[seen[slot]], positions[i]):
+                raise ValueError(
+                    f"two handles on {CHARACTERISTIC_JOINTS[slot[0]]} at frame {slot[1]} with different positions: "
+                    f"{positions[seen[slot]].tolist()} and {positions[i].tolist()}"
+                )
+            seen.setdefault(slot, i)
         return cls(
             jnp.asarray(joint_ids, jnp.int32),
-            jnp.asarray(controls, jnp.int32),
+            jnp.asarray(frame_ids, jnp.int32),
             jnp.asarray(positions),
             jnp.ones(len(joint_ids), bool),
         )
+
+    @classmethod
+    def from_controls(
+        cls, joint: Int[ArrayLike, "*batch handles"], control: Int[ArrayLike, "*batch handles"], position, valid, *, stride: int
+    ) -> Handles:
+        """Handles on control points (the paper's): frame = ``control · stride``."""
+        return cls(jnp.asarray(joint, jnp.int32), jnp.asarray(control, jnp.int32) * stride, jnp.asarray(position), jnp.asarray(valid, bool))
 
     @classmethod
     def empty(cls, batch_shape: tuple[int, ...] = ()) -> Handles:
@@ -126,6 +152,18 @@ class Handles(NamedTuple):
             jnp.zeros((*batch_shape, 1, 3), jnp.float32),
             jnp.zeros((*batch_shape, 1), bool),
         )
+
+
+def _integer_frame(frame) -> int | None:
+    """``frame`` as an int when it is a whole number (int, NumPy integer or integral
+    float), else ``None`` (bools, fractions, strings, NaN)."""
+    if isinstance(frame, (bool, np.bool_)):
+        return None
+    if isinstance(frame, (int, np.integer)):
+        return int(frame)
+    if isinstance(frame, (float, np.floating)) and np.isfinite(frame) and float(frame).is_integer():
+        return int(frame)
+    return None
 
 
 class SampledCurves(NamedTuple):
@@ -145,11 +183,13 @@ class SampledCurves(NamedTuple):
 
 def _sample_one(model: BezierMotionModel, start, end, handles: Handles, key, steps, guidance, overwrite, foot_lock):
     cfg, stats = model.config, model.stats
+    layout = BezierLayout.from_controls(cfg.num_controls, cfg.stride)
     translation = start[HIPS] * jnp.asarray([1.0, 0.0, 1.0], start.dtype)
-    world = inbetween_conditions(cfg.num_controls, start, end, handles.control, handles.joint, handles.position, handles.valid)
+    world = inbetween_conditions(cfg.num_frames, start, end, handles.frame, handles.joint, handles.position, handles.valid)
     normalized = normalize_conditions(stats, world, translation)
-    mask, target = normalized.to_grid(cfg.num_controls, cfg.num_joints)
-    _, world_target = world.to_grid(cfg.num_controls, cfg.num_joints)
+    mask, target = normalized.to_grid(cfg.num_controls, cfg.num_joints, cfg.stride)
+    _, world_target = world.to_grid(cfg.num_controls, cfg.num_joints, cfg.stride)
+    aligned = world.position - translation  # condition positions in the frame x̂₀ lives in (cm)
     denoiser = functools.partial(predict_x0, nnx.merge(model.graphdef, model.params), stats)
 
     def denoise(x_t, t):
@@ -161,9 +201,23 @@ def _sample_one(model: BezierMotionModel, start, end, handles: Handles, key, ste
         return x0[1] + guidance * (x0[0] - x0[1]), logits[0]
 
     def fix(x0_tokens):
+        # Conditions on control frames replace their control positions (BMM's overwrite);
+        # those between control frames then move x̂₀ by the smallest correction, in the
+        # model's normalised space, that puts the curves through them.
         feats = from_tokens(x0_tokens)
         pos = jnp.where(mask[..., None], target, feats[..., :3])
-        return to_tokens(feats.at[..., :3].set(pos))
+        pos, tangent = project_off_grid(
+            layout, pos, feats[..., 3:6], mask, world.joint, world.frame, aligned, world.valid,
+            pos_mean=stats.mean[:, :3], pos_std=stats.std[:, :3], tangent_mean=stats.mean[:, 3:6], tangent_std=stats.std[:, 3:6],
+        )  # fmt: skip
+        return to_tokens(feats.at[..., :3].set(pos).at[..., 3:6].set(tangent))
+
+    def exact(pos, tangent):
+        # The handles themselves, to float rounding of the curve, not through a
+        # normalise/denormalise round trip: control frames bit for bit, the others by a
+        # (tiny) world-space correction.
+        pos = jnp.where(mask[..., None], world_target, pos)
+        return project_off_grid(layout, pos, tangent, mask, world.joint, world.frame, world.position, world.valid)
 
     x_T = jax.random.normal(key, (cfg.num_controls, cfg.frame_features))
     x0, logits = ddim_sample(
@@ -171,11 +225,13 @@ def _sample_one(model: BezierMotionModel, start, end, handles: Handles, key, ste
     )
     pos, tangent, rot6d = split_features(stats.denormalize(from_tokens(x0)))
     pos = pos + translation
-    if overwrite:  # the handles themselves, bit for bit, not a normalise/denormalise round trip
-        pos = jnp.where(mask[..., None], world_target, pos)
+    if overwrite:
+        pos, tangent = exact(pos, tangent)
     contacts = jax.nn.sigmoid(logits)
     if foot_lock:
         pos, tangent = lock_feet(pos, tangent, contacts, mask)
+        if overwrite:  # locking moves control points that off-grid handles depend on
+            pos, tangent = exact(pos, tangent)
     return SampledCurves(pos, tangent, rot6d, contacts)
 
 
@@ -204,8 +260,11 @@ def sample_curves(
       steps: DDIM steps (the paper uses 10).
       guidance: classifier-free guidance scale; ``1.0`` (default) runs the conditional
         model alone, in one pass per step.
-      overwrite: replace the constrained control positions in x̂₀ at every step and after
-        the last (BMM); ``False`` reproduces the paper's "w/o overwrite" ablation.
+      overwrite: put the curves through the conditions in x̂₀ at every step and after the
+        last: control positions on control frames are replaced (BMM), handles between
+        them get the minimum-norm correction of x̂₀ onto their linear constraints
+        (:func:`~bezmotion.diffusion.projection.project_off_grid`); ``False`` reproduces
+        the paper's "w/o overwrite" ablation.
       foot_lock: afterwards, hold each foot still in the ground plane while its
         predicted contact lasts (:func:`~bezmotion.bmm.foot_lock.lock_feet`; ours, not the
         paper's). Constrained points do not move.

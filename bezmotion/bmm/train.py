@@ -34,7 +34,9 @@ from bezmotion.bmm.features import (
     FeatureStats,
     control_features,
     from_tokens,
+    draw_handle_frames,
     draw_intermediate_slots,
+    handle_positions,
     inbetween_conditions,
     normalize_conditions,
     predict_x0,
@@ -49,7 +51,13 @@ from bezmotion.training.step import apply_gradients
 
 @dataclasses.dataclass(frozen=True)
 class BMMTrainConfig:
-    """Optimisation settings (defaults: the paper's)."""
+    """Optimisation settings (defaults: the paper's).
+
+    ``off_grid_handles`` (ours): the probability that an intermediate handle is drawn at a
+    uniformly random intermediate frame (1 … 29) rather than on its control frame, its
+    position the training curve there; ``0`` (default) keeps the paper's handles on
+    control frames only, with the same random stream as before.
+    """
 
     batch_size: int = 64
     learning_rate: float = 1e-4
@@ -58,6 +66,7 @@ class BMMTrainConfig:
     condition_dropout: float = 0.1
     min_snr_gamma: float | None = 5.0
     max_intermediate_handles: int = MAX_INTERMEDIATE_HANDLES
+    off_grid_handles: float = 0.0
     weights: LossWeights = LossWeights()
 
     def __post_init__(self):
@@ -65,6 +74,8 @@ class BMMTrainConfig:
             raise ValueError(f"invalid BMMTrainConfig: {self}")
         if not 0.0 <= self.condition_dropout < 1.0 or not 0.0 <= self.ema_decay < 1.0:
             raise ValueError(f"condition_dropout and ema_decay must be in [0, 1), got {self}")
+        if not 0.0 <= self.off_grid_handles <= 1.0:
+            raise ValueError(f"off_grid_handles must be a probability in [0, 1], got {self.off_grid_handles}")
 
 
 class CurveArrays(NamedTuple):
@@ -119,16 +130,25 @@ def make_bmm_train_step(
         x0 = to_tokens(stats.normalize(control_features(pos, tangent, rot6d)))
         x_t = schedule.add_noise(x0, t, jax.random.normal(noise_key, x0.shape, x0.dtype))
         control, joint, valid = draw_intermediate_slots(cond_key, k_ctrl, k_joints, train_config.max_intermediate_handles)
-        conditions = inbetween_conditions(k_ctrl, pos[0], pos[-1], control, joint, pos[control, joint], valid)
+        # Off-grid frames draw from a key folded off cond_key, so the paper's setting
+        # (off_grid_handles = 0, nothing drawn) keeps its random stream.
+        frame = draw_handle_frames(jax.random.fold_in(cond_key, 1), control, layout, train_config.off_grid_handles)
+        position = handle_positions(layout, pos, tangent, joint, frame) if train_config.off_grid_handles else pos[control, joint]
+        conditions = inbetween_conditions(layout.num_frames, pos[0], pos[-1], frame, joint, position, valid)
         # Classifier-free guidance: drop every condition of this example at once.
         conditions = conditions._replace(valid=conditions.valid & ~jax.random.bernoulli(drop_key, train_config.condition_dropout))
-        mask, _ = conditions.to_grid(k_ctrl, k_joints)
+        mask, _ = conditions.to_grid(k_ctrl, k_joints, model_config.stride)
+        off_grid = None
+        if train_config.off_grid_handles:
+            n = 2 * k_joints  # the handles follow the start and end slots
+            off_grid = (conditions.frame[n:], joint, position, conditions.valid[n:] & (frame % model_config.stride != 0))
         conditions = normalize_conditions(stats, conditions)
         pred_tokens, contact_logits = predict_x0(nnx.merge(graphdef, params), stats, x_t, t, conditions, key=dropout_key)
         pred_pos, pred_tangent, pred_rot6d = split_features(stats.denormalize(from_tokens(pred_tokens)))
         terms = bmm_loss_terms(
-            layout, pred_pos, pred_tangent, pred_rot6d, contact_logits, pos, tangent, rot6d, contacts, dense, mask
-        )
+            layout, pred_pos, pred_tangent, pred_rot6d, contact_logits, pos, tangent, rot6d, contacts, dense, mask,
+            off_grid_conditions=off_grid,
+        )  # fmt: skip
         weight = min_snr_weight(schedule.snr(t), train_config.min_snr_gamma)
         return weight * weights.total(terms), terms
 

@@ -33,10 +33,10 @@ def full_body_handles_error(
 ) -> Float[Array, ""]:
     """Mean distance (cm) between each valid handle and the IK'd skeleton's joint at its
     frame (BMM Table 1, measured after IK). ``pose`` is ``(*batch, frames, …)``, handles
-    ``(*batch, handles)``; handles sit on control frames, every ``stride`` frames."""
+    ``(*batch, handles)`` at any frame (``stride`` is no longer needed; kept for callers)."""
     _, pos = pose_fk(character, pose)
-    at_controls = pos[..., ::stride, :, :][..., np.asarray(character.characteristic), :]  # (*batch, controls, 6, 3)
-    return handles_error(at_controls, handles.control, handles.joint, handles.position, handles.valid)
+    characteristic = pos[..., np.asarray(character.characteristic), :]  # (*batch, frames, 6, 3)
+    return handles_error(characteristic, handles.frame, handles.joint, handles.position, handles.valid)
 
 
 def mpjpe(character: Character, pose: Pose, true: Pose) -> Float[Array, ""]:

@@ -26,6 +26,7 @@ from jaxtyping import Array, Float
 from bezmotion.xla_options import call_with_inference_options
 from bezmotion.bezier import BezierLayout, reconstruct_dense
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, SampledCurves, sample_curves
+from bezmotion.diffusion.projection import project_onto_handles
 from bezmotion.data.characteristic import HIPS
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, targets_from_pose
 from bezmotion.pipeline.transfer import Transfer, floor_anchor, curves_to_target, to_source_space
@@ -86,11 +87,14 @@ def inbetween_traced(
         ctrl_pos=curves.ctrl_pos.at[ends].set(jnp.stack([first.position, last.position])),
         ctrl_rot6d=curves.ctrl_rot6d.at[ends].set(jnp.stack([first.rot6d, last.rot6d])),
     )
-    # Padding slots are sent out of range and dropped, so that one sharing a handle's place
-    # cannot write over it.
-    control = jnp.where(handles.valid, handles.control, cfg.num_controls)
-    curves = curves._replace(ctrl_pos=curves.ctrl_pos.at[control, handles.joint].set(handles.position, mode="drop"))
+    # The handles exactly again after the transfer: control frames overwritten, handles
+    # between them by the minimum-norm correction; the keys' control points stay put.
     layout = BezierLayout.from_controls(cfg.num_controls, cfg.stride)
+    keys_fixed = jnp.zeros(curves.ctrl_pos.shape[:2], bool).at[ends].set(True)
+    ctrl_pos, ctrl_tangent = project_onto_handles(
+        layout, curves.ctrl_pos, curves.ctrl_tangent, handles.joint, handles.frame, handles.position, handles.valid, fixed=keys_fixed
+    )
+    curves = curves._replace(ctrl_pos=ctrl_pos, ctrl_tangent=ctrl_tangent)
     positions, rot6d = reconstruct_dense(layout, curves.ctrl_pos, curves.ctrl_tangent, curves.ctrl_rot6d)
     pose = jax.vmap(ik_fn, in_axes=(None, 0))(ik_params, IKTargets(positions, rot6d))
     if keep_keyframes:
@@ -148,7 +152,7 @@ def inbetween(
       character: the target skeleton and its characteristic joints.
       start, end: unbatched :class:`~bezmotion.ik.protocol.Pose` of the first and last frame.
       handles: intermediate handles in the target character's world frame
-        (:meth:`Handles.from_frames`: joint name, control frame, position in cm).
+        (:meth:`Handles.from_frames`: joint name, frame 1…29, position in cm).
       key: PRNG key of the diffusion sampler.
       transfer: when the BMM was trained on another skeleton (:meth:`Transfer.between`);
         default none.

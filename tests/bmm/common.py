@@ -24,10 +24,10 @@ RESIDUAL = dataclasses.replace(TINY, prediction="residual")
 def some_conditions(rng: np.random.Generator, handles: int = 4, valid_handles: int = 2) -> Conditions:
     """Start/end of all joints plus ``handles`` slots of which the first ``valid_handles`` are valid."""
     return inbetween_conditions(
-        K,
+        TINY.num_frames,
         jnp.asarray(rng.normal(size=(J, 3)), jnp.float32),
         jnp.asarray(rng.normal(size=(J, 3)), jnp.float32),
-        jnp.asarray(rng.integers(1, K - 1, handles), jnp.int32),
+        jnp.asarray(rng.integers(1, K - 1, handles) * TINY.stride, jnp.int32),
         jnp.asarray(rng.integers(0, J, handles), jnp.int32),
         jnp.asarray(rng.normal(size=(handles, 3)), jnp.float32),
         jnp.arange(handles) < valid_handles,
@@ -42,5 +42,5 @@ def grid_errors(curves: SampledCurves, m: SimpleNamespace) -> np.ndarray:
     for b in range(pos.shape[0]):
         for s in range(h.valid.shape[1]):
             if bool(h.valid[b, s]):
-                res.append(pos[b, int(h.control[b, s]), int(h.joint[b, s])] - np.asarray(h.position[b, s]))
+                res.append(pos[b, int(h.frame[b, s]) // TINY.stride, int(h.joint[b, s])] - np.asarray(h.position[b, s]))
     return np.concatenate([np.ravel(r) for r in res])

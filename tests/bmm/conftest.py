@@ -56,7 +56,7 @@ def motions(demo_dataset) -> SimpleNamespace:
     pos = demo_dataset.ctrl_pos[rows] + offset
     handles = Handles(
         joint=jnp.asarray([[2, 4, 0], [1, 5, 3]], jnp.int32),
-        control=jnp.asarray([[1, 2, 4], [3, 2, 1]], jnp.int32),
+        frame=jnp.asarray([[6, 12, 24], [18, 12, 6]], jnp.int32),
         position=jnp.asarray(np.stack([pos[0, [1, 2, 4], [2, 4, 0]] + 5.0, pos[1, [3, 2, 1], [1, 5, 3]] - 7.0]), jnp.float32),
         valid=jnp.asarray([[True, True, True], [True, True, False]]),
     )

@@ -27,6 +27,7 @@ from bezmotion.bmm.denoiser import (
     sinusoidal_encoding,
 )
 from bezmotion.bmm.features import interpolation_prior, normalize_conditions, predict_x0
+from bezmotion.bezier import BezierLayout
 
 
 @pytest.fixture(scope="module")
@@ -40,17 +41,17 @@ def tiny_model() -> SimpleNamespace:
 def test_conditions_grid_round_trip(rng):
     mask = jnp.asarray(rng.random((K, J)) < 0.4)
     position = jnp.asarray(rng.normal(size=(K, J, 3)), jnp.float32)
-    cond = Conditions.from_grid(mask, position)
+    cond = Conditions.from_grid(mask, position, 6)
     assert cond.position.shape == (K * J, 3) and cond.valid.shape == (K * J,)
-    # Slot k·J + j is (control k, joint j).
-    np.testing.assert_array_equal(cond.control, np.repeat(np.arange(K), J))
+    # Slot k·J + j is (control k, i.e. frame 6k, joint j).
+    np.testing.assert_array_equal(cond.frame, np.repeat(np.arange(K) * 6, J))
     np.testing.assert_array_equal(cond.joint, np.tile(np.arange(J), K))
-    back_mask, back_pos = cond.to_grid(K, J)
+    back_mask, back_pos = cond.to_grid(K, J, 6)
     np.testing.assert_array_equal(back_mask, mask)
     np.testing.assert_array_equal(np.asarray(back_pos)[np.asarray(mask)], np.asarray(position)[np.asarray(mask)])
     np.testing.assert_array_equal(np.asarray(back_pos)[~np.asarray(mask)], 0.0)
     # Batched from_grid keeps the batch axes.
-    batched = Conditions.from_grid(jnp.stack([mask, ~mask]), jnp.stack([position, -position]))
+    batched = Conditions.from_grid(jnp.stack([mask, ~mask]), jnp.stack([position, -position]), 6)
     assert batched.position.shape == (2, K * J, 3) and batched.joint.shape == (2, K * J)
     np.testing.assert_array_equal(batched.valid[1], ~mask.reshape(-1))
 
@@ -59,10 +60,10 @@ def test_conditions_to_grid_invalid_slots_never_overwrite_valid_ones():
     cond = Conditions(
         position=jnp.asarray([[1.0, 2.0, 3.0], [9.0, 9.0, 9.0], [4.0, 5.0, 6.0], [7.0, 7.0, 7.0]]),
         joint=jnp.asarray([2, 2, 3, 3], jnp.int32),
-        control=jnp.asarray([1, 1, 4, 4], jnp.int32),
+        frame=jnp.asarray([6, 6, 24, 24], jnp.int32),
         valid=jnp.asarray([True, False, True, True]),
     )
-    mask, pos = cond.to_grid(K, J)
+    mask, pos = cond.to_grid(K, J, 6)
     assert int(mask.sum()) == 2 and bool(mask[1, 2]) and bool(mask[4, 3])
     np.testing.assert_array_equal(pos[1, 2], [1.0, 2.0, 3.0])  # the later invalid slot is dropped
     np.testing.assert_array_equal(pos[4, 3], [7.0, 7.0, 7.0])  # of two valid slots, the later wins
@@ -116,7 +117,7 @@ def test_padding_condition_slots_change_nothing(tiny_model, rng):
     moved = cond._replace(
         position=jnp.where(pad[:, None], 1e3 * jnp.asarray(rng.normal(size=cond.position.shape), jnp.float32), cond.position),
         joint=jnp.where(pad, jnp.asarray(rng.integers(0, J, pad.shape), jnp.int32), cond.joint),
-        control=jnp.where(pad, jnp.asarray(rng.integers(0, K, pad.shape), jnp.int32), cond.control),
+        frame=jnp.where(pad, jnp.asarray(rng.integers(0, 31, pad.shape), jnp.int32), cond.frame),
     )
     assert trees_differ(moved, cond)
     assert_trees_identical(tiny_model.apply(tiny_model.params, x, t, moved), base)
@@ -125,14 +126,14 @@ def test_padding_condition_slots_change_nothing(tiny_model, rng):
     garbage = cond._replace(
         position=jnp.where(pad[:, None], jnp.nan, cond.position),
         joint=jnp.where(pad, 99, cond.joint),
-        control=jnp.where(pad, -7, cond.control),
+        frame=jnp.where(pad, -7, cond.frame),
     )
     assert_trees_identical(tiny_model.apply(tiny_model.params, x, t, garbage), base)
 
     # More padding slots (a different number of slots): the same output.
     extra = Conditions(
         jnp.asarray(rng.normal(size=(5, 3)), jnp.float32), jnp.arange(5, dtype=jnp.int32) % J,
-        jnp.arange(5, dtype=jnp.int32) % K, jnp.zeros(5, bool),
+        jnp.arange(5, dtype=jnp.int32) * 7, jnp.zeros(5, bool),
     )  # fmt: skip
     longer = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), cond, extra)
     assert_trees_close(tiny_model.apply(tiny_model.params, x, t, longer), base, tol=1e-6)
@@ -141,7 +142,7 @@ def test_padding_condition_slots_change_nothing(tiny_model, rng):
     assert trees_differ(tiny_model.apply(tiny_model.params, x, t, cond._replace(valid=cond.valid.at[-1].set(True))), base)
     assert trees_differ(tiny_model.apply(tiny_model.params, x, t, cond._replace(position=cond.position.at[0, 0].add(1.0))), base)
     assert trees_differ(tiny_model.apply(tiny_model.params, x, t, cond._replace(joint=cond.joint.at[12].set((cond.joint[12] + 1) % J))), base)
-    assert trees_differ(tiny_model.apply(tiny_model.params, x, t, cond._replace(control=cond.control.at[12].set(cond.control[12] % 4 + 1))), base)
+    assert trees_differ(tiny_model.apply(tiny_model.params, x, t, cond._replace(frame=cond.frame.at[12].add(1))), base)
     # And so do the timestep and the input.
     assert trees_differ(tiny_model.apply(tiny_model.params, x, jnp.int32(322), cond), base)
 
@@ -210,7 +211,7 @@ def test_residual_prediction_adds_the_prior_to_the_network_output(stats, rng):
     x = jnp.asarray(rng.normal(size=(K, F)), jnp.float32)
     raw, raw_logits = module(x, jnp.int32(300), cond)
     x0, logits = predict_x0(module, stats, x, jnp.int32(300), cond)
-    np.testing.assert_allclose(x0 - raw, interpolation_prior(stats, cond, K), atol=1e-5)
+    np.testing.assert_allclose(x0 - raw, interpolation_prior(stats, cond, BezierLayout.from_controls(K, 6)), atol=1e-5)
     assert_trees_identical(logits, raw_logits)
     # The paper's x₀ prediction returns the network output as it is.
     plain = nnx.merge(*init_denoiser(TINY, key=jax.random.key(4)))

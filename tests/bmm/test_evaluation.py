@@ -29,6 +29,9 @@ from bezmotion.data.characteristic import FEET
 from bezmotion.metrics import contact_accuracy, foot_skating_ratio, handles_error, mean_position_error
 
 
+LAYOUT = BezierLayout.from_controls(K, 6)
+
+
 def test_handle_interpolation_by_hand():
     target = jnp.asarray(np.random.default_rng(3).normal(size=(K, 2, 3)), jnp.float32)
     mask = jnp.zeros((K, 2), bool).at[0].set(True).at[-1].set(True).at[3, 0].set(True)
@@ -127,8 +130,9 @@ def test_make_eval_set(demo_dataset, eval_set):
     np.testing.assert_array_equal(es.ctrl_pos, ds.ctrl_pos)
     np.testing.assert_array_equal(es.ctrl_tangent, ds.ctrl_tangent)
     h = es.handles
-    assert h.control.shape == (10, 4)
-    control, joint, valid = map(np.asarray, (h.control, h.joint, h.valid))
+    assert h.frame.shape == (10, 4)
+    control, joint, valid = map(np.asarray, (h.frame // 6, h.joint, h.valid))
+    np.testing.assert_array_equal(np.asarray(h.frame) % 6, 0)
     assert control.min() >= 1 and control.max() <= K - 2
     counts = valid.sum(1)
     assert counts.min() >= 1 and counts.max() <= 4
@@ -136,7 +140,7 @@ def test_make_eval_set(demo_dataset, eval_set):
     np.testing.assert_array_equal(h.position, ds.ctrl_pos[rows, control, joint])
     noise = np.asarray(es.handles_ood.position) - np.asarray(h.position)
     assert np.all(np.abs(noise) <= 16.0 + 1e-3) and np.abs(noise).max() > 4.0
-    np.testing.assert_array_equal(es.handles_ood.control, h.control)
+    np.testing.assert_array_equal(es.handles_ood.frame, h.frame)
     np.testing.assert_array_equal(es.handles_ood.valid, h.valid)
     # A subset of windows, still deterministic.
     sub = make_eval_set(ds, key=jax.random.key(5), num_windows=4)
@@ -149,19 +153,19 @@ def test_make_eval_set(demo_dataset, eval_set):
 
 def test_reference_curves_and_curve_metrics(demo_dataset, eval_set):
     es = eval_set
-    ref = reference_curves(es, es.handles, K)
+    ref = reference_curves(es, es.handles, LAYOUT)
     assert ref.ctrl_pos.shape == (10, K, J, 3) and ref.contacts.shape == (10, K, 2)
     np.testing.assert_array_equal(ref.ctrl_pos[:, 0], es.start)
     np.testing.assert_array_equal(ref.ctrl_pos[:, -1], es.end)
     h = es.handles
-    assert float(handles_error(ref.ctrl_pos, h.control, h.joint, h.position, h.valid)) == 0.0
+    assert float(handles_error(ref.ctrl_pos, h.frame // 6, h.joint, h.position, h.valid)) == 0.0
     # OOD handles are hit exactly as well (the reference trusts them).
-    ood = reference_curves(es, es.handles_ood, K)
+    ood = reference_curves(es, es.handles_ood, LAYOUT)
     o = es.handles_ood
-    assert float(handles_error(ood.ctrl_pos, o.control, o.joint, o.position, o.valid)) == 0.0
+    assert float(handles_error(ood.ctrl_pos, o.frame // 6, o.joint, o.position, o.valid)) == 0.0
     # An invalid slot is ignored: moving it changes nothing.
     moved = h._replace(position=jnp.where(h.valid[..., None], h.position, h.position + 50.0))
-    np.testing.assert_array_equal(reference_curves(es, moved, K).ctrl_pos, ref.ctrl_pos)
+    np.testing.assert_array_equal(reference_curves(es, moved, LAYOUT).ctrl_pos, ref.ctrl_pos)
 
     config = CurveMetricsConfig(demo_dataset.layout, demo_dataset.fps, floor_height=0.0)
     metrics = curve_metrics(config, ref, es, es.handles)

@@ -12,6 +12,8 @@ import numpy as np
 
 from bmm.common import F, J, K
 
+from bezmotion.bezier import BezierLayout
+
 from bezmotion.baselines import handle_interpolation
 from bezmotion.bmm.features import (
     FeatureStats,
@@ -24,6 +26,9 @@ from bezmotion.bmm.features import (
     split_features,
     to_tokens,
 )
+
+
+LAYOUT = BezierLayout.from_controls(K, 6)
 
 
 def test_feature_stats_from_dataset(demo_dataset, stats):
@@ -91,17 +96,17 @@ def test_draw_intermediate_slots_distribution():
 def test_inbetween_conditions_layout_and_normalisation(stats, rng):
     start = jnp.asarray(rng.normal(size=(J, 3)), jnp.float32)
     end = jnp.asarray(rng.normal(size=(J, 3)), jnp.float32)
-    h_control = jnp.asarray([2, 3, 1], jnp.int32)
+    h_frame = jnp.asarray([12, 19, 6], jnp.int32)
     h_joint = jnp.asarray([5, 0, 1], jnp.int32)
     h_pos = jnp.asarray(rng.normal(size=(3, 3)), jnp.float32).at[2].set(jnp.nan)  # a NaN in the padding
     h_valid = jnp.asarray([True, True, False])
-    cond = inbetween_conditions(K, start, end, h_control, h_joint, h_pos, h_valid)
+    cond = inbetween_conditions(31, start, end, h_frame, h_joint, h_pos, h_valid)
     assert cond.position.shape == (2 * J + 3, 3)
     np.testing.assert_array_equal(cond.position[:J], start)
     np.testing.assert_array_equal(cond.position[J : 2 * J], end)
     np.testing.assert_array_equal(cond.position[2 * J :2 * J + 2], h_pos[:2])
     np.testing.assert_array_equal(cond.joint, [*range(J), *range(J), 5, 0, 1])
-    np.testing.assert_array_equal(cond.control, [0] * J + [K - 1] * J + [2, 3, 1])
+    np.testing.assert_array_equal(cond.frame, [0] * J + [30] * J + [12, 19, 6])
     np.testing.assert_array_equal(cond.valid, [True] * (2 * J) + [True, True, False])
 
     translation = jnp.asarray([10.0, 0.0, -20.0])
@@ -118,9 +123,9 @@ def test_inbetween_conditions_layout_and_normalisation(stats, rng):
 
 def test_interpolation_prior_is_the_reference_curves_in_model_space(stats, demo_dataset):
     pos = jnp.asarray(demo_dataset.ctrl_pos[4])
-    handle = (jnp.asarray([3], jnp.int32), jnp.asarray([2], jnp.int32), pos[3, 2][None], jnp.asarray([True]))
-    world = inbetween_conditions(K, pos[0], pos[-1], *handle)
-    prior = interpolation_prior(stats, normalize_conditions(stats, world), K)
+    handle = (jnp.asarray([18], jnp.int32), jnp.asarray([2], jnp.int32), pos[3, 2][None], jnp.asarray([True]))
+    world = inbetween_conditions(31, pos[0], pos[-1], *handle)
+    prior = interpolation_prior(stats, normalize_conditions(stats, world), LAYOUT)
     assert prior.shape == (K, F)
     mask = np.zeros((K, J), bool)
     mask[[0, -1]] = True
@@ -132,4 +137,4 @@ def test_interpolation_prior_is_the_reference_curves_in_model_space(stats, demo_
     np.testing.assert_allclose(o, jnp.broadcast_to(stats.mean[:, 6:], o.shape), atol=1e-6)
     # Without start and end (all conditions dropped for guidance) the prior is the mean: 0.
     dropped = normalize_conditions(stats, world._replace(valid=jnp.zeros_like(world.valid)))
-    assert np.all(np.asarray(interpolation_prior(stats, dropped, K)) == 0.0)
+    assert np.all(np.asarray(interpolation_prior(stats, dropped, LAYOUT)) == 0.0)

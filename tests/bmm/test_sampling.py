@@ -27,7 +27,7 @@ def test_sampling_hits_start_end_and_handles_exactly(model, motions, sampled):
     assert np.all((np.asarray(sampled.contacts) >= 0) & (np.asarray(sampled.contacts) <= 1))
     assert np.all(grid_errors(sampled, motions) == 0.0)
     h = motions.handles
-    assert float(handles_error(sampled.ctrl_pos, h.control, h.joint, h.position, h.valid)) == 0.0
+    assert float(handles_error(sampled.ctrl_pos, h.frame // TINY.stride, h.joint, h.position, h.valid)) == 0.0
     # The padding slot is not a constraint: the curve does not go through it.
     assert np.linalg.norm(np.asarray(sampled.ctrl_pos[1, 1, 3]) - np.asarray(h.position[1, 2])) > 1e-3
     # Unconstrained points sit near the motion (the start's XZ offset is undone), not at the origin.
@@ -75,20 +75,13 @@ def test_sample_curves_input_errors(model, motions):
 def test_handles_from_frames():
     h = Handles.from_frames(["left_hand", 5, "hips"], [6, 12, 24], np.arange(9.0).reshape(3, 3), config=TINY)
     np.testing.assert_array_equal(h.joint, [CHARACTERISTIC_JOINTS.index("left_hand"), 5, HIPS])
-    np.testing.assert_array_equal(h.control, [1, 2, 4])
+    np.testing.assert_array_equal(h.frame, [6, 12, 24])
     np.testing.assert_array_equal(h.position, np.arange(9.0).reshape(3, 3))
     assert h.position.dtype == jnp.float32 and bool(h.valid.all())
     empty = Handles.empty((2,))
     assert empty.position.shape == (2, 1, 3) and not bool(empty.valid.any())
 
     pos = np.zeros((1, 3))
-    with pytest.raises(ValueError, match="control frames"):
-        Handles.from_frames(["head"], [7], pos, config=TINY)
-    with pytest.raises(ValueError, match="control frames"):
-        Handles.from_frames(["head"], [36], pos, config=TINY)  # a multiple of 6 past the window
-    for frame in (-6, 0, 30):  # the first and last frames are the start and end poses
-        with pytest.raises(ValueError, match=rf"intermediate control frames.*got {frame}"):
-            Handles.from_frames(["head"], [frame], pos, config=TINY)
     with pytest.raises(ValueError, match="unknown joint 'LeftHand'"):
         Handles.from_frames(["LeftHand"], [6], pos, config=TINY)
     with pytest.raises(ValueError, match="out of range"):
@@ -133,8 +126,8 @@ def test_fresh_residual_model_samples_the_reference_curves(stats, motions):
     for b in range(2):
         for i in range(h.valid.shape[1]):
             if bool(h.valid[b, i]):
-                mask[b, int(h.control[b, i]), int(h.joint[b, i])] = True
-                target[b, int(h.control[b, i]), int(h.joint[b, i])] = np.asarray(h.position[b, i])
+                mask[b, int(h.frame[b, i]) // 6, int(h.joint[b, i])] = True
+                target[b, int(h.frame[b, i]) // 6, int(h.joint[b, i])] = np.asarray(h.position[b, i])
     ref_pos, ref_tangent = handle_interpolation(jnp.asarray(mask), jnp.asarray(target))
     np.testing.assert_allclose(curves.ctrl_pos, ref_pos, atol=1e-3)
     np.testing.assert_allclose(curves.ctrl_tangent, ref_tangent, atol=1e-3)

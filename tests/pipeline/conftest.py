@@ -59,7 +59,7 @@ def run(clip, bmm) -> SimpleNamespace:
     hand_target = np.asarray(pos[18, idx[LEFT_HAND]]) + np.array([0.0, 20.0, 0.0])
     handles = Handles(
         joint=jnp.asarray([HIPS, LEFT_HAND, HIPS], jnp.int32),
-        control=jnp.asarray([2, 3, 2], jnp.int32),
+        frame=jnp.asarray([12, 18, 12], jnp.int32),
         position=jnp.asarray(np.stack([hips_target, hand_target, np.full(3, np.nan)]), jnp.float32),
         valid=jnp.asarray([True, True, False]),
     )

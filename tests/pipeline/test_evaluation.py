@@ -46,7 +46,7 @@ def test_full_body_handles_error_against_numpy(clip, rng):
     position = rng.normal(scale=30.0, size=(2, 4, 3)) + clip.pos_global[0, 1]
     position[~valid] = np.nan  # padding is ignored, whatever it holds
     handles = Handles(
-        jnp.asarray(joint, jnp.int32), jnp.asarray(control, jnp.int32), jnp.asarray(position, jnp.float32), jnp.asarray(valid)
+        jnp.asarray(joint, jnp.int32), jnp.asarray(control * STRIDE, jnp.int32), jnp.asarray(position, jnp.float32), jnp.asarray(valid)
     )
     pos = np_pose_positions(c, pose)  # (2, 31, 22, 3)
     idx = np.asarray(c.characteristic)

@@ -1,0 +1,140 @@
+"""Projection of Bézier curves onto point constraints at any frame (ours; BMM overwrites
+control points only, §4.2, and names the fixed handle frames a limitation, §7.1, §8).
+
+A curve's point at frame ``f`` is linear in the positions and tangents of the control
+points around it (:func:`bezmotion.bezier.basis`), and the curves a model works with are
+an affine per-(joint, coordinate) map of its variables (``P = mean + std·p̃``; identity
+in world space). So "the curve of joint ``j`` passes through ``y`` at frame ``f``" is one
+linear equation per coordinate in that joint's variables, and the constraints of one
+joint and coordinate stack into ``A z = b`` (one row per handle on that joint).
+
+:func:`project_off_grid` moves the variables by the smallest correction (Euclidean, in
+the variables' own space) that satisfies those equations, ``z ← z + A⁺ (b − A z)``,
+keeping fixed the control positions that grid constraints have already set. A handle on
+a control frame is such a grid constraint: it is an overwrite of one control position
+(the old behaviour, bit for bit), so the projection takes only off-grid rows, and
+everything else — padding, grid rows, other joints' rows — enters as zero rows, whose
+correction is exactly zero. :func:`project_onto_handles` does both in world space.
+
+Everything is written for one motion with static shapes (any mix of grid, off-grid and
+padding handles is the same computation); ``jax.vmap`` it over a batch.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
+
+from bezmotion.bezier import BezierLayout, basis
+
+
+def on_control_frame(layout: BezierLayout, frame: Int[ArrayLike, "*shape"]) -> tuple[Bool[Array, "*shape"], Int[Array, "*shape"]]:
+    """``(on_grid, control)``: whether each frame is a control frame, and its control index
+    there (clipped into range elsewhere, so it is always safe to index with)."""
+    frame = jnp.asarray(frame)
+    controls = jnp.asarray(layout.control_frames, frame.dtype)
+    control = jnp.clip(jnp.searchsorted(controls, frame), 0, layout.num_controls - 1).astype(jnp.int32)
+    return controls[control] == frame, control
+
+
+def project_off_grid(
+    layout: BezierLayout,
+    ctrl_pos: Float[Array, "controls joints 3"],
+    ctrl_tangent: Float[Array, "controls joints 3"],
+    fixed: Bool[Array, "controls joints"],
+    joint: Int[Array, "handles"],
+    frame: Int[Array, "handles"],
+    target: Float[Array, "handles 3"],
+    valid: Bool[Array, "handles"],
+    *,
+    pos_mean: Float[ArrayLike, "joints 3"] = 0.0,
+    pos_std: Float[ArrayLike, "joints 3"] = 1.0,
+    tangent_mean: Float[ArrayLike, "joints 3"] = 0.0,
+    tangent_std: Float[ArrayLike, "joints 3"] = 1.0,
+) -> tuple[Float[Array, "controls joints 3"], Float[Array, "controls joints 3"]]:
+    """Minimum-norm correction of the curves onto their off-grid point constraints (one motion).
+
+    The curves are ``P = pos_mean + pos_std·ctrl_pos`` and ``T = tangent_mean +
+    tangent_std·ctrl_tangent`` (defaults: the arrays are the curves themselves); each valid
+    handle off the control frames asks ``evaluate(P, T)[frame, joint] = target``. Handles
+    on control frames, padding (``valid=False``) and the positions marked ``fixed`` (set by
+    grid constraints, which the caller has already written) do not move anything;
+    constraints with no off-grid handle give exactly the input back.
+
+    Args:
+      layout: the curves' layout.
+      ctrl_pos, ctrl_tangent: ``(controls, joints, 3)`` the variables (e.g. normalised).
+      fixed: ``(controls, joints)`` control positions that must not change.
+      joint, frame: ``(handles,)`` joint index and integer frame of each handle.
+      target: ``(handles, 3)`` where the curve must be, in the curves' units (e.g. cm).
+      valid: ``(handles,)`` which handles are real.
+      pos_mean, pos_std, tangent_mean, tangent_std: the affine map from variables to
+        curves, broadcastable to ``(joints, 3)``.
+    Returns:
+      ``(ctrl_pos, ctrl_tangent)`` corrected, same space as the inputs.
+    """
+    k, j = ctrl_pos.shape[:2]
+    dtype = ctrl_pos.dtype
+    shape = (j, 3)
+    pos_mean, pos_std, tangent_mean, tangent_std = (
+        jnp.broadcast_to(jnp.asarray(a, dtype), shape) for a in (pos_mean, pos_std, tangent_mean, tangent_std)
+    )
+    on_grid, _ = on_control_frame(layout, frame)
+    rows = valid & ~on_grid  # (H,)
+    # Padding may hold any frame: evaluate it somewhere harmless (its row is zeroed anyway).
+    w_pos, w_tan = basis(layout, jnp.where(rows, frame, 0).astype(dtype))  # (H, K)
+    w_pos, w_tan = w_pos.astype(dtype), w_tan.astype(dtype)
+    curve_pos = pos_mean + pos_std * ctrl_pos  # (K, J, 3)
+    curve_tan = tangent_mean + tangent_std * ctrl_tangent
+    safe_joint = jnp.clip(joint, 0, j - 1)
+    current = jnp.einsum("hk,hkd->hd", w_pos, curve_pos[:, safe_joint].swapaxes(0, 1)) + jnp.einsum(
+        "hk,hkd->hd", w_tan, curve_tan[:, safe_joint].swapaxes(0, 1)
+    )
+    owns = rows[None, :] & (joint[None, :] == jnp.arange(j)[:, None])  # (J, H): row h constrains joint j
+    residual = jnp.where(owns[:, :, None], jnp.where(rows[:, None], target - current, 0.0)[None], 0.0)  # (J, H, 3)
+    # A[j, d, h] = [w_pos[h]·pos_std[j, d] (free positions only) | w_tan[h]·tangent_std[j, d]].
+    free = ~fixed.T  # (J, K)
+    a_pos = jnp.where(owns[:, None, :, None] & free[:, None, None, :], w_pos[None, None] * pos_std[:, :, None, None], 0.0)
+    a_tan = jnp.where(owns[:, None, :, None], w_tan[None, None] * tangent_std[:, :, None, None], 0.0)
+    a = jnp.concatenate([a_pos, a_tan], axis=-1)  # (J, 3, H, 2K)
+    # Pseudo-inverse, not a solve: identical duplicate handles make A rank-deficient, and
+    # zero rows (no off-grid handle) must give a zero correction, not a division by zero.
+    delta = jnp.einsum("jdkh,jhd->jdk", jnp.linalg.pinv(a), residual)  # (J, 3, 2K)
+    delta = jnp.moveaxis(delta, -1, 0)  # (2K, J, 3)
+    return ctrl_pos + delta[:k], ctrl_tangent + delta[k:]
+
+
+def project_onto_handles(
+    layout: BezierLayout,
+    ctrl_pos: Float[Array, "controls joints 3"],
+    ctrl_tangent: Float[Array, "controls joints 3"],
+    joint: Int[Array, "handles"],
+    frame: Int[Array, "handles"],
+    position: Float[Array, "handles 3"],
+    valid: Bool[Array, "handles"],
+    *,
+    fixed: Bool[Array, "controls joints"] | None = None,
+) -> tuple[Float[Array, "controls joints 3"], Float[Array, "controls joints 3"]]:
+    """World-space curves through every valid handle (one motion): handles on control
+    frames overwrite their control position (exactly), the others are met by the
+    minimum-norm correction of :func:`project_off_grid`.
+
+    Args:
+      ctrl_pos, ctrl_tangent: ``(controls, joints, 3)`` curves (cm).
+      joint, frame, position, valid: ``(handles,)`` handles (positions ``(handles, 3)``, cm).
+      fixed: further control positions that must not move (e.g. the start and end poses).
+    Returns:
+      ``(ctrl_pos, ctrl_tangent)``.
+    """
+    on_grid, control = on_control_frame(layout, frame)
+    grid = valid & on_grid
+    # Non-grid slots scatter out of range and are dropped, so they never overwrite a grid one.
+    control = jnp.where(grid, control, layout.num_controls)
+    ctrl_pos = ctrl_pos.at[control, joint].set(position.astype(ctrl_pos.dtype), mode="drop")
+    mask = jnp.zeros(ctrl_pos.shape[:2], bool).at[control, joint].set(True, mode="drop")
+    if fixed is not None:
+        mask = mask | fixed
+    return project_off_grid(layout, ctrl_pos, ctrl_tangent, mask, joint, frame, position, valid)
+
+
+__all__ = ["on_control_frame", "project_off_grid", "project_onto_handles"]
