@@ -15,7 +15,17 @@ evaluates the EMA parameters on subject-5 windows:
   the mocap's own skating ratio;
 - Table 3 analogue: with and without overwrite;
 - Table 6 analogue: 5, 10, 25, 50 and 100 DDIM steps;
-- ours: the same with foot locking on the predicted contacts (``sample_curves(foot_lock=True)``).
+- ours: the same with foot locking on the predicted contacts (``sample_curves(foot_lock=True)``);
+- ours: ``--handle-frames off_grid|any`` also evaluates the Table 1 analogue with the
+  same windows' handles moved off the control grid (to frames between control frames, or
+  to any intermediate frame; positions the fitted curves there), beside the grid figures;
+  ``--off-grid-handles P`` trains with handles off the grid with probability P.
+
+``--model PATH|bundled`` evaluates a saved BMM (``bundled``: the one in
+:mod:`bezmotion.assets`) instead of training one, e.g.
+
+    python experiments/bmm_lafan1.py --corpus bandai_namco --model bundled --eval-windows 200 \
+        --handle-frames off_grid --table6-steps 10 --out results/bmm_off_grid.json
 
 Several processes train one model data-parallel (each its share of every batch; one
 machine or several): start the same command once per process with ``--coordinator
@@ -37,7 +47,9 @@ import jax
 import numpy as np
 
 from bezmotion.io import write_results
+from bezmotion.assets import BUNDLED_BMM
 from bezmotion.bmm.evaluation import (
+    HANDLE_FRAMES,
     CurveMetricsConfig,
     curve_metrics,
     floor_height_from,
@@ -52,7 +64,7 @@ from bezmotion.data.curves import CurveDataset, curve_dataset
 from bezmotion.data.sources import default_source, load_corpus
 from bezmotion.bmm.denoiser import PREDICTIONS, BMMConfig
 from bezmotion.bmm.features import FeatureStats
-from bezmotion.bmm.sampling import BezierMotionModel, sample_curves, save_model
+from bezmotion.bmm.sampling import BezierMotionModel, load_model, sample_curves, save_model
 from bezmotion.bmm.train import CurveArrays, BMMTrainConfig, init_bmm_train_states, make_bmm_train_step
 from bezmotion.options import option, options, parse_options, presets
 from bezmotion.training import compile_train_step, count_parameters, data_mesh, run_training
@@ -87,6 +99,11 @@ class Options(DistributedOptions):
     eval_windows: int = option(1000, help="subject-5 windows evaluated (default 1000; 0 = all)")
     guidance: float = option(1.0, help="classifier-free guidance scale at sampling (1 = off)")
     table6_steps: tuple[int, ...] = option(STEP_COUNTS, help="DDIM step counts compared (default 5 10 25 50 100)")
+    model: str | None = option(None, help="evaluate this saved BMM (a folder, or 'bundled') instead of training one")
+    handle_frames: str = option(
+        "grid", choices=HANDLE_FRAMES, help="also evaluate handles off the control grid: off_grid (between control frames) or any (1…29)"
+    )
+    off_grid_handles: float = option(0.0, help="training: probability that a handle sits at any frame 1…29 (default 0: the paper's)")
     no_progress: bool = False
 
     def __post_init__(self):
@@ -119,6 +136,15 @@ def train(args, model_config: BMMConfig, train_config: BMMTrainConfig, train_set
     )  # fmt: skip
     store.close()
     return graphdef, state, history, time.perf_counter() - started
+
+
+def handles_table(args, model: BezierMotionModel, metrics_config, eval_set, key) -> dict:
+    """Table 1 analogue (10 DDIM steps, overwrite): in distribution and OOD."""
+    fn = functools.partial(sample_curves, model, steps=10, guidance=args.guidance)
+    return {
+        name: curve_metrics(metrics_config, sample_in_chunks(lambda s, e, h, k: fn(s, e, h, key=k), eval_set, handles, key=key), eval_set, handles)
+        for name, handles in (("id", eval_set.handles), ("ood", eval_set.handles_ood))
+    }
 
 
 def evaluate_model(args, model: BezierMotionModel, metrics_config, eval_set, key) -> dict:
@@ -173,6 +199,17 @@ def format_report(results: dict) -> str:
         lines.append(row(f"BMM seed {seed}", r["overwrite"]["id"], r["overwrite"]["ood"]))
         lines.append(row(f"BMM seed {seed} w/o overwrite", r["no_overwrite"]["id"], r["no_overwrite"]["ood"]))
         lines.append(row(f"BMM seed {seed} + foot lock (ours)", r["foot_lock"]["id"], r["foot_lock"]["ood"]))
+    if "handle_frames" in results:
+        section = results["handle_frames"]
+        lines += [
+            "", f"Table 1 analogue with the same handles moved off the control grid ({section['handle_frames']}), 10 DDIM steps:", "",
+            "| method | handles error ID (cm) | OOD (cm) | dense error ID (cm) | foot skating | contact acc. | dense / skating vs grid (ID) |",
+            "|---|---|---|---|---|---|---|",
+            row("reference: curves through start, end, handles", section["reference"]["id"], section["reference"]["ood"]) + " – |",
+        ]  # fmt: skip
+        for seed, r in section["bmm"].items():
+            rel = r["relative_to_grid"]["id"]
+            lines.append(row(f"BMM seed {seed}", r["id"], r["ood"]) + f" {100 * rel['dense_error_cm']:+.1f} % / {100 * rel['foot_skating_ratio']:+.1f} % |")
     lines += ["", "Table 6 analogue (with overwrite, in distribution):", "", "| seed | steps | handles error (cm) | dense error (cm) | foot skating | eval s |", "|---|---|---|---|---|---|"]
     for seed, r in results["bmm"].items():
         for steps, m in r["steps"].items():
@@ -193,12 +230,17 @@ def main(argv: list[str] | None = None) -> dict:
         train_set = concat_datasets([train_set, curve_dataset(extra, "train", progress=not args.no_progress)])
     val_set = curve_dataset(corpus, "validation", progress=not args.no_progress)
     stats = FeatureStats.from_dataset(train_set)
-    model_config = CONFIGS[args.config](prediction=args.prediction)
     train_config = BMMTrainConfig(
-        batch_size=args.batch_size, learning_rate=args.learning_rate, min_snr_gamma=args.min_snr_gamma or None
-    )
-
-    graphdef, state, history, train_s = train(args, model_config, train_config, train_set, stats)
+        batch_size=args.batch_size, learning_rate=args.learning_rate, min_snr_gamma=args.min_snr_gamma or None,
+        off_grid_handles=args.off_grid_handles,
+    )  # fmt: skip
+    if args.model:
+        saved = load_model(BUNDLED_BMM if args.model == "bundled" else args.model)
+        model_config, stats, graphdef = saved.config, saved.stats, saved.graphdef
+        state, history, train_s = None, [], 0.0
+    else:
+        model_config = CONFIGS[args.config](prediction=args.prediction)
+        graphdef, state, history, train_s = train(args, model_config, train_config, train_set, stats)
     coordinator = is_coordinator()
     leave_group()  # several processes: training is done; process 0 alone evaluates and writes
     if not coordinator:
@@ -208,10 +250,11 @@ def main(argv: list[str] | None = None) -> dict:
     metrics_config = CurveMetricsConfig(layout, val_set.fps, floor_height_from(train_set))
     eval_set = make_eval_set(val_set, key=jax.random.key(1234), num_windows=args.eval_windows or None)
     results: dict = {
-        "model": {"config": args.config, **dataclasses.asdict(model_config), "params": None},
+        "model": {"config": f"saved: {args.model}" if args.model else args.config, **dataclasses.asdict(model_config), "params": None},
         "training": {
-            "corpus": args.corpus, "steps": args.steps, "batch_size": args.batch_size, "learning_rate": args.learning_rate, "seeds": args.seeds,
-            "min_snr_gamma": train_config.min_snr_gamma,
+            "corpus": args.corpus, "steps": 0 if args.model else args.steps, "batch_size": args.batch_size, "learning_rate": args.learning_rate,
+            "seeds": ["saved"] if args.model else list(args.seeds), "saved_model": args.model,
+            "min_snr_gamma": train_config.min_snr_gamma, "off_grid_handles": train_config.off_grid_handles,
             "train_windows": len(train_set), "bandai_namco": bool(args.bandai_namco), "wall_s_this_run": train_s,
             "history": history,
         },
@@ -223,17 +266,40 @@ def main(argv: list[str] | None = None) -> dict:
         },
         "bmm": {},
     }
-    for i, seed in enumerate(args.seeds):
-        ema = jax.tree.map(lambda x: x[i], state.ema)
-        model = BezierMotionModel(ema, stats, graphdef, model_config)
-        results["model"]["params"] = count_parameters(ema)
-        if i == 0:
-            save_model(Path(args.run_dir) / "model", model)
-        results["bmm"][str(seed)] = evaluate_model(args, model, metrics_config, eval_set, jax.random.key(seed + 99))
+    if args.model:
+        models = {"saved": saved}
+    else:
+        models = {str(seed): BezierMotionModel(jax.tree.map(lambda x: x[i], state.ema), stats, graphdef, model_config) for i, seed in enumerate(args.seeds)}
+        save_model(Path(args.run_dir) / "model", models[str(args.seeds[0])])
+    seed_keys = {name: jax.random.key((0 if args.model else int(name)) + 99) for name in models}
+    for name, model in models.items():
+        results["model"]["params"] = count_parameters(model.params)
+        results["bmm"][name] = evaluate_model(args, model, metrics_config, eval_set, seed_keys[name])
+    if args.handle_frames != "grid":
+        # The same windows, joints, handle counts and noise; only the frames move.
+        moved = make_eval_set(val_set, key=jax.random.key(1234), num_windows=args.eval_windows or None, handle_frames=args.handle_frames)
+        section: dict = {
+            "handle_frames": args.handle_frames,
+            "frames": np.asarray(moved.handles.frame)[np.asarray(moved.handles.valid)].tolist(),
+            "reference": {
+                name: curve_metrics(metrics_config, reference_curves(moved, h, layout), moved, h)
+                for name, h in (("id", moved.handles), ("ood", moved.handles_ood))
+            },
+            "bmm": {},
+        }
+        for name, model in models.items():
+            table = handles_table(args, model, metrics_config, moved, seed_keys[name])
+            grid = results["bmm"][name]["overwrite"]
+            table["relative_to_grid"] = {
+                split: {m: table[split][m] / grid[split][m] - 1.0 for m in ("dense_error_cm", "foot_skating_ratio")} for split in ("id", "ood")
+            }
+            section["bmm"][name] = table
+        results["handle_frames"] = section
     results["wall_s"] = time.perf_counter() - started
     report = format_report(results)
     write_results(args.out, results, report)
-    print(f"model in {Path(args.run_dir) / 'model'}")
+    if not args.model:
+        print(f"model in {Path(args.run_dir) / 'model'}")
     return results
 
 

@@ -114,8 +114,8 @@ def test_demo_prints_the_data_attribution(demo_run, capsys):
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["--frame", "7"], "multiples of 6"),
-        (["--frame", "30"], "multiples of 6"),
+        (["--frame", "0"], "strictly between 0 and 30"),
+        (["--frame", "30"], "strictly between 0 and 30"),
         (["--steps", "0"], "--steps must be at least 1, got 0"),
         (["--bmm-corpus", "amass"], "--bmm-corpus must be one of"),
     ],
