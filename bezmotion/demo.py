@@ -5,7 +5,7 @@ No downloads: the clip (Bandai-Namco, CC BY-NC 4.0) and the small pretrained mod
 ``experiments/train_ik.py --corpus bandai_namco``) ship in :mod:`bezmotion.assets`.
 
 The first 31 frames of the clip are a BMM window: its first and last frames are the
-start and end poses, and one handle moves a joint at an intermediate control frame.
+start and end poses, and one handle moves a joint at an intermediate frame.
 The pipeline generates curves through the handle, IK turns them into full-body poses,
 and the demo writes them as BVH (read back and checked by forward kinematics), a PNG
 of the curves and poses, a glTF file (the skeleton and the six curves as CUBICSPLINE
