@@ -29,12 +29,16 @@ from bezmotion.data.characteristic import FEET
 from bezmotion.data.curves import CurveDataset
 from bezmotion.metrics import contact_accuracy, foot_skating_ratio, handles_error, mean_position_error
 from bezmotion.baselines import handle_interpolation
-from bezmotion.bmm.features import MAX_INTERMEDIATE_HANDLES, draw_handle_frames, draw_intermediate_slots, handle_positions
+from bezmotion.bmm.features import (
+    HANDLE_FRAMES,
+    MAX_INTERMEDIATE_HANDLES,
+    draw_intermediate_frames,
+    handle_positions,
+)
 from bezmotion.diffusion.projection import on_control_frame, project_off_grid
 from bezmotion.bmm.sampling import Handles, SampledCurves
 
 OOD_NOISE_CM = 16.0  # BMM §5.1: uniform noise of ±16 cm per axis on the handles
-HANDLE_FRAMES = ("grid", "off_grid", "any")
 
 
 class EvalSet(NamedTuple):
@@ -78,10 +82,10 @@ def make_eval_set(
       num_windows: evaluate a random subset of this many windows (``None``: all).
       max_handles: intermediate handles per window are 1…max_handles.
       handle_frames: ``"grid"`` (the paper): handles on control frames; ``"off_grid"``:
-        each of those handles moved to a uniformly drawn frame between control frames;
-        ``"any"``: to a uniformly drawn intermediate frame (1 … 29). Windows, joints,
-        handle counts and noise are the same draws in all three; positions are the
-        fitted curves at the handles' frames.
+        on frames between control frames; ``"any"``: on any intermediate frame (1 … 29);
+        see :func:`~bezmotion.bmm.features.draw_intermediate_frames`. Windows, handle
+        counts and OOD noise are the same draws for all three; positions are the fitted
+        curves at the handles' frames (on control frames, the control points).
     """
     n_total, k, j = dataset.ctrl_pos.shape[:3]
     if max_handles < 1 or max_handles > (k - 2) * j:
@@ -95,19 +99,12 @@ def make_eval_set(
         rows = np.arange(n_total)
     n = len(rows)
     ctrl_pos = jnp.asarray(dataset.ctrl_pos[rows])
-    draw = functools.partial(draw_intermediate_slots, num_controls=k, num_joints=j, max_handles=max_handles, min_handles=1)
-    slot_keys = jax.random.split(slot_key, n)
-    control, joint, valid = jax.vmap(lambda key: draw(key))(slot_keys)
+    draw = functools.partial(
+        draw_intermediate_frames, layout=dataset.layout, num_joints=j, max_handles=max_handles, min_handles=1, frames=handle_frames
+    )
+    frame, joint, valid = jax.vmap(lambda key: draw(key))(jax.random.split(slot_key, n))
     ctrl_tangent = jnp.asarray(dataset.ctrl_tangent[rows])
-    if handle_frames == "grid":
-        frame = control * dataset.layout.stride
-        position = ctrl_pos[jnp.arange(n)[:, None], control, joint]
-    else:
-        frames = functools.partial(
-            draw_handle_frames, layout=dataset.layout, off_grid=1.0, exclude_grid=handle_frames == "off_grid"
-        )
-        frame = jax.vmap(lambda key, c: frames(jax.random.fold_in(key, 1), c))(slot_keys, control)
-        position = jax.vmap(functools.partial(handle_positions, dataset.layout))(ctrl_pos, ctrl_tangent, joint, frame)
+    position = jax.vmap(functools.partial(handle_positions, dataset.layout))(ctrl_pos, ctrl_tangent, joint, frame)
     noise = jax.random.uniform(noise_key, position.shape, minval=-ood_noise, maxval=ood_noise)
     handles = Handles(joint, frame, position, valid)
     return EvalSet(

@@ -102,12 +102,11 @@ def draw_intermediate_slots(
     return control, joint, jnp.arange(max_handles) < n
 
 
-def draw_handle_frames(
-    key: Array, control: Int[Array, "*shape"], layout: BezierLayout, off_grid: float, *, exclude_grid: bool = False
-) -> Int[Array, "*shape"]:
-    """Frames for handles drawn on control points: each stays on its control frame, or with
-    probability ``off_grid`` moves to a uniformly drawn intermediate frame (1 … last − 1;
-    with ``exclude_grid``, only frames between control frames).
+def draw_handle_frames(key: Array, control: Int[Array, "*shape"], layout: BezierLayout, off_grid: float) -> Int[Array, "*shape"]:
+    """Frames for handles drawn on control points (training): each stays on its control
+    frame, or with probability ``off_grid`` moves to a uniformly drawn intermediate frame
+    (1 … last − 1). Two handles of one joint may land on one frame: their positions come
+    from the same curve, so they agree.
 
     ``off_grid = 0`` returns ``control · stride`` without drawing anything (the paper's
     handles, and the same random stream as before).
@@ -115,12 +114,44 @@ def draw_handle_frames(
     frame = jnp.asarray(layout.control_frames, jnp.int32)[control]
     if off_grid == 0.0:
         return frame
-    inner = np.arange(1, layout.num_frames - 1)
-    if exclude_grid:
-        inner = np.setdiff1d(inner, layout.control_frames)
     move_key, frame_key = jax.random.split(key)
-    anywhere = jnp.asarray(inner, jnp.int32)[jax.random.randint(frame_key, frame.shape, 0, len(inner))]
+    anywhere = jax.random.randint(frame_key, frame.shape, 1, layout.num_frames - 1).astype(jnp.int32)
     return jnp.where(jax.random.bernoulli(move_key, off_grid, frame.shape), anywhere, frame)
+
+
+HANDLE_FRAMES = ("grid", "off_grid", "any")
+
+
+def handle_frame_choices(layout: BezierLayout, frames: str) -> np.ndarray:
+    """The intermediate frames handles may sit on: ``"grid"`` the control frames,
+    ``"off_grid"`` the frames between them, ``"any"`` all of 1 … last − 1."""
+    inner = np.arange(1, layout.num_frames - 1)
+    on_grid = np.isin(inner, layout.control_frames)
+    choices = {"grid": inner[on_grid], "off_grid": inner[~on_grid], "any": inner}
+    if frames not in choices:
+        raise ValueError(f"handle frames must be one of {HANDLE_FRAMES}, got {frames!r}")
+    return choices[frames]
+
+
+def draw_intermediate_frames(
+    key: Array, layout: BezierLayout, num_joints: int, max_handles: int, min_handles: int = 0, *, frames: str = "grid"
+) -> tuple[Int[Array, "max_handles"], Int[Array, "max_handles"], Bool[Array, "max_handles"]]:
+    """Random distinct (frame, joint) slots among ``handle_frame_choices(layout, frames)``:
+    :func:`draw_intermediate_slots` over frames rather than control points, with the same
+    draws — ``frames="grid"`` gives its slots exactly, and every choice of ``frames`` the
+    same number of handles for one key. Distinct slots: never two handles on one joint and
+    frame (noisy copies of them could not both be met).
+
+    Returns:
+      ``(frame, joint, valid)``, each ``(max_handles,)``; the first ``n`` are valid.
+    """
+    choices = handle_frame_choices(layout, frames)
+    count_key, order_key = jax.random.split(key)
+    n = jax.random.randint(count_key, (), min_handles, max_handles + 1)
+    order = jnp.argsort(jax.random.uniform(order_key, (len(choices) * num_joints,)))[:max_handles]
+    frame = jnp.asarray(choices, jnp.int32)[order // num_joints]
+    joint = (order % num_joints).astype(jnp.int32)
+    return frame, joint, jnp.arange(max_handles) < n
 
 
 def handle_positions(

@@ -21,6 +21,8 @@ from bezmotion.bmm.denoiser import init_denoiser
 from bezmotion.bmm.evaluation import CurveMetricsConfig, curve_metrics, make_eval_set, reference_curves
 from bezmotion.bmm.features import (
     draw_handle_frames,
+    draw_intermediate_frames,
+    draw_intermediate_slots,
     from_tokens,
     handle_positions,
     inbetween_conditions,
@@ -247,11 +249,23 @@ def test_draw_handle_frames():
     assert_trees_identical(draw_handle_frames(jax.random.key(0), control, LAYOUT, 0.0), control * 6)
     anywhere = np.asarray(draw_handle_frames(jax.random.key(0), control, LAYOUT, 1.0))
     assert anywhere.min() == 1 and anywhere.max() == 29 and len(set(anywhere.tolist())) == 29
-    between = np.asarray(draw_handle_frames(jax.random.key(0), control, LAYOUT, 1.0, exclude_grid=True))
-    assert np.all(between % 6 != 0) and between.min() >= 1 and between.max() <= 29
     half = np.asarray(draw_handle_frames(jax.random.key(1), control, LAYOUT, 0.5))
     moved = half != np.asarray(control) * 6
     assert 0.35 < moved.mean() < 0.55  # some moves land on their own control frame
+
+
+def test_draw_intermediate_frames():
+    keys = jax.random.split(jax.random.key(2), 300)
+    grid = jax.vmap(lambda k: draw_intermediate_frames(k, LAYOUT, J, 4, 1))(keys)
+    slots = jax.vmap(lambda k: draw_intermediate_slots(k, K, J, 4, 1))(keys)
+    assert_trees_identical(grid, (slots[0] * 6, slots[1], slots[2]))  # the paper's draw, in frames
+    for frames, allowed in (("off_grid", set(range(1, 30)) - {6, 12, 18, 24}), ("any", set(range(1, 30)))):
+        frame, joint, valid = map(np.asarray, jax.vmap(lambda k: draw_intermediate_frames(k, LAYOUT, J, 4, 1, frames=frames))(keys))
+        assert set(frame.ravel().tolist()) == allowed
+        np.testing.assert_array_equal(valid, grid[2])  # the same handle counts
+        assert all(len(set(zip(f, j))) == 4 for f, j in zip(frame, joint))  # distinct (frame, joint) slots
+    with pytest.raises(ValueError, match="handle frames must be one of"):
+        draw_intermediate_frames(keys[0], LAYOUT, J, 4, frames="odd")
 
 
 def test_training_with_off_grid_handles(demo_dataset, stats):
@@ -274,8 +288,12 @@ def test_handle_positions_and_eval_set_off_grid(demo_dataset):
 
     grid = make_eval_set(ds, key=jax.random.key(5))
     off = make_eval_set(ds, key=jax.random.key(5), handle_frames="off_grid")
-    assert_trees_identical((off.handles.joint, off.handles.valid), (grid.handles.joint, grid.handles.valid))
+    assert_trees_identical((off.handles.valid, off.rows), (grid.handles.valid, grid.rows))
     assert np.all(np.asarray(off.handles.frame) % 6 != 0)
+    for b in range(len(off.rows)):
+        for s in range(4):
+            f, jj = int(off.handles.frame[b, s]), int(off.handles.joint[b, s])
+            np.testing.assert_allclose(off.handles.position[b, s], curve_at(off.ctrl_pos[b], off.ctrl_tangent[b], jj, f), atol=1e-4)
     ref = reference_curves(off, off.handles, LAYOUT)
     config = CurveMetricsConfig(LAYOUT, ds.fps, floor_height=0.0)
     assert curve_metrics(config, ref, off, off.handles)["handles_error_cm"] < 1e-4
