@@ -44,6 +44,7 @@ import time
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from bezmotion.io import write_results
@@ -100,6 +101,7 @@ class Options(DistributedOptions):
     guidance: float = option(1.0, help="classifier-free guidance scale at sampling (1 = off)")
     table6_steps: tuple[int, ...] = option(STEP_COUNTS, help="DDIM step counts compared (default 5 10 25 50 100)")
     model: str | None = option(None, help="evaluate this saved BMM (a folder, or 'bundled') instead of training one")
+    init: str | None = option(None, help="fine-tune this saved BMM (a folder, or 'bundled'): its size, statistics and parameters")
     handle_frames: str = option(
         "grid", choices=HANDLE_FRAMES, help="also evaluate handles off the control grid: off_grid (between control frames) or any (1…29)"
     )
@@ -108,6 +110,10 @@ class Options(DistributedOptions):
 
     def __post_init__(self):
         super().__post_init__()
+        if self.model and self.init:
+            raise ValueError("--model evaluates a saved BMM, --init fine-tunes one: give one of them")
+        if self.run_dir is None and self.init:
+            object.__setattr__(self, "run_dir", str(runs_dir(f"bmm_{self.corpus}_finetune_{Path(self.init).name}_offgrid{self.off_grid_handles:g}")))
         if self.run_dir is None:
             suffix = "" if self.prediction == "x0" else f"_{self.prediction}"
             object.__setattr__(self, "run_dir", str(runs_dir(f"bmm_{self.corpus}_{self.config}{suffix}")))
@@ -120,8 +126,11 @@ def concat_datasets(parts: list[CurveDataset]) -> CurveDataset:
     return dataclasses.replace(first, **{k: np.concatenate([getattr(p, k) for p in parts]) for k in CurveDataset._ARRAYS})
 
 
-def train(args, model_config: BMMConfig, train_config: BMMTrainConfig, train_set: CurveDataset, stats: FeatureStats):
+def train(args, model_config: BMMConfig, train_config: BMMTrainConfig, train_set: CurveDataset, stats: FeatureStats, init=None):
     graphdef, state = init_bmm_train_states(model_config, train_config, args.seeds)
+    if init is not None:  # fine-tuning: every seed starts from the saved parameters (fresh optimiser state)
+        start = jax.tree.map(lambda x: jnp.broadcast_to(x, (len(args.seeds), *x.shape)), init.params)
+        state = dataclasses.replace(state, params=start, ema=start)
     step = compile_train_step(make_bmm_train_step(graphdef, model_config, train_config, stats, mesh=data_mesh()), num_seeds=len(args.seeds))
     store = CheckpointStore(Path(args.run_dir) / "checkpoints")
     config = {
@@ -239,8 +248,10 @@ def main(argv: list[str] | None = None) -> dict:
         model_config, stats, graphdef = saved.config, saved.stats, saved.graphdef
         state, history, train_s = None, [], 0.0
     else:
-        model_config = CONFIGS[args.config](prediction=args.prediction)
-        graphdef, state, history, train_s = train(args, model_config, train_config, train_set, stats)
+        init = load_model(BUNDLED_BMM if args.init == "bundled" else args.init) if args.init else None
+        model_config = init.config if init else CONFIGS[args.config](prediction=args.prediction)
+        stats = init.stats if init else stats
+        graphdef, state, history, train_s = train(args, model_config, train_config, train_set, stats, init)
     coordinator = is_coordinator()
     leave_group()  # several processes: training is done; process 0 alone evaluates and writes
     if not coordinator:
@@ -253,7 +264,7 @@ def main(argv: list[str] | None = None) -> dict:
         "model": {"config": f"saved: {args.model}" if args.model else args.config, **dataclasses.asdict(model_config), "params": None},
         "training": {
             "corpus": args.corpus, "steps": 0 if args.model else args.steps, "batch_size": args.batch_size, "learning_rate": args.learning_rate,
-            "seeds": ["saved"] if args.model else list(args.seeds), "saved_model": args.model,
+            "seeds": ["saved"] if args.model else list(args.seeds), "saved_model": args.model, "fine_tuned_from": args.init,
             "min_snr_gamma": train_config.min_snr_gamma, "off_grid_handles": train_config.off_grid_handles,
             "train_windows": len(train_set), "bandai_namco": bool(args.bandai_namco), "wall_s_this_run": train_s,
             "history": history,
