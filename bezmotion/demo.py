@@ -35,6 +35,7 @@ from bezmotion.pipeline.authoring import (
     ResultFiles,
     bvh_fk_error_cm,
     load_profile,
+    ik_model_joint_limits,
     make_ik,
     make_transfer,
     motion_poses,
@@ -115,11 +116,13 @@ def demo(
       joint, frame, offset: the handle: ``joint`` (a characteristic joint) is moved by
         ``offset`` (cm) from where the mocap has it at ``frame`` (any frame in 1…29).
       ik: ``"refined"`` (default: the bundled learned IK, then exact two-bone arms and legs),
-        ``"learned"`` (the learned IK alone) or ``"rig"`` (analytic, no data).
+        ``"learned"`` (the learned IK alone), ``"rig"`` (analytic, no data) or ``"exact"``
+        (the learned IK, then a whole-body least-squares solve onto all six targets, with
+        the joint limits stored beside the IK model).
       steps, seed: DDIM steps and PRNG seed of the sampler.
       bmm_dir, bmm_corpus: the BMM and the corpus it was trained on (one with a profile in
         :data:`~bezmotion.assets.PROFILES_DIR`; another skeleton's curves are transferred).
-      ik_dir: the learned IK (for ``ik="learned"``).
+      ik_dir: the learned IK (for every ``ik`` but ``"rig"``).
       channels: the BVH files' channels: ``"default"`` (positions on the root and the hips,
         rotations elsewhere) or ``"clip"`` (the clip's own layout). Either way the files
         carry the clip's OFFSETs and End Sites and its whole frame rate.
@@ -146,7 +149,8 @@ def demo(
     truth = motion_poses(motion, character, slice(0, frames))
     # Joints the rig does not solve (clavicles, toes) keep the start pose's rotations.
     ik_fn, ik_params = make_ik(
-        ik, recognised, rest_quat_local=np.asarray(truth.quat_local[0]), ik_model=None if ik == "rig" else load_ik_model(ik_dir)
+        ik, recognised, rest_quat_local=np.asarray(truth.quat_local[0]), ik_model=None if ik == "rig" else load_ik_model(ik_dir),
+        limits=ik_model_joint_limits(ik_dir, character) if ik == "exact" else None,
     )  # fmt: skip
     _, true_pos = pose_fk(character, truth)
     j = CHARACTERISTIC_JOINTS.index(joint)

@@ -7,6 +7,7 @@
   about 1e-6.
 - BMM's curve metrics: handles error, foot-skating ratio, contact accuracy, mean
   position error (BMM §5.1 and appendix B).
+- Pops: per-frame joint rotation change, and its largest value next to the keys.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
-from bezmotion.geometry.rotations import quat_fix_continuity
+from bezmotion.geometry.rotations import quat_conjugate, quat_fix_continuity, quat_mul
 
 
 def l2q(
@@ -132,3 +133,18 @@ def mean_position_error(
 ) -> Float[Array, ""]:
     """Mean per-joint position error (cm) over all batch entries, frames and joints."""
     return jnp.mean(jnp.linalg.norm(pred - true, axis=-1))
+
+
+def rotation_change_deg(quat_local: Float[Array, "*batch frames joints 4"]) -> Float[Array, "*batch frames-1 joints"]:
+    """Angle (degrees) each joint's local rotation turns from each frame to the next (either quaternion sign)."""
+    rel = quat_mul(quat_conjugate(quat_local[..., :-1, :, :]), quat_local[..., 1:, :, :])
+    vec = jnp.sqrt(jnp.sum(rel[..., 1:] ** 2, axis=-1))
+    return jnp.degrees(2.0 * jnp.arctan2(vec, jnp.abs(rel[..., 0])))
+
+
+def key_pop_deg(quat_local: Float[Array, "*batch frames joints 4"]) -> Float[Array, ""]:
+    """Largest per-frame change (degrees) of any joint's local rotation next to the keys:
+    frames 0 → 1 and the last but one → last (29 → 30 in a 31-frame window), over every
+    joint and batch entry. Compare with the mocap's own (the same function of the mocap)."""
+    change = rotation_change_deg(quat_local)
+    return jnp.max(jnp.stack([change[..., 0, :], change[..., -1, :]]))

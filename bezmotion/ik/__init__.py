@@ -3,6 +3,7 @@
 See :mod:`bezmotion.ik.protocol` for the ``ik_fn(params, targets) -> pose`` protocol.
 """
 
+from bezmotion.ik.exact import ExactIKFn, ExactIKParams, ExactIKResult, JointLimits, exact_ik, joint_limits_from_motion
 from bezmotion.ik.protocol import (
     Character,
     IKFn,
@@ -12,6 +13,7 @@ from bezmotion.ik.protocol import (
     pose_from_global,
     pose_from_motion,
     pose_local,
+    solve_frames,
     targets_from_pose,
 )
 from bezmotion.ik.protores import (
@@ -30,13 +32,19 @@ __all__ = [
     "RIG_PRESETS",
     "Character",
     "Effectors",
+    "ExactIKFn",
+    "ExactIKParams",
+    "ExactIKResult",
     "IKFn",
     "IKTargets",
+    "JointLimits",
     "Pose",
     "ProtoResConfig",
     "ProtoResModel",
     "Rig",
     "RigSpec",
+    "exact_ik",
+    "joint_limits_from_motion",
     "load_ik_model",
     "make_rig",
     "pose_fk",
@@ -48,6 +56,7 @@ __all__ = [
     "refine_limbs",
     "rig_ik",
     "save_ik_model",
+    "solve_frames",
     "solve_effectors",
     "targets_from_pose",
 ]

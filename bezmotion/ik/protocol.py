@@ -169,6 +169,19 @@ def pose_from_global(character: Character, quat_global: Float[Array, "*batch joi
     return pose_from_motion(character, quat_local, pos_local)
 
 
+def solve_frames(ik_fn: IKFn, params: Any, targets: IKTargets) -> Pose:
+    """Poses of a window of frames: ``targets`` are ``(frames, 6, …)``.
+
+    An IK whose ``ik_fn`` has a ``solve_window(params, targets)`` method solves the window
+    itself (e.g. :class:`~bezmotion.ik.exact.ExactIKFn`, which smooths over time);
+    otherwise ``ik_fn`` is vmapped over the frames.
+    """
+    window = getattr(ik_fn, "solve_window", None)
+    if window is not None:
+        return window(params, targets)
+    return jax.vmap(ik_fn, in_axes=(None, 0))(params, targets)
+
+
 def targets_from_pose(character: Character, pose: Pose) -> IKTargets:
     """The six characteristic joints' world positions and orientations in ``pose`` (what IK should reproduce)."""
     quat_global, pos_global = pose_fk(character, pose)

@@ -37,13 +37,15 @@ from bezmotion.data.bvh import BvhMotion, read_bvh, write_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, SKELETON_MAPS
 from bezmotion.geometry.skeleton import forward_kinematics
 from bezmotion.ik.protocol import Character, IKFn, Pose, pose_fk, pose_from_motion
+from bezmotion.ik.exact import JointLimits, exact_ik
 from bezmotion.ik.protores import ProtoResModel, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import RigSpec, make_rig, rig_ik
 from bezmotion.pipeline.transfer import CharacterProfile, Transfer
 
-IK_CHOICES = ("refined", "learned", "rig")
+IK_CHOICES = ("refined", "learned", "rig", "exact")
 """``refined``: the learned IK, then exact two-bone arms and legs; ``learned``: the learned
-IK alone; ``rig``: the analytic rig (no data, any skeleton)."""
+IK alone; ``rig``: the analytic rig (no data, any skeleton); ``exact``: the learned IK, then
+a least-squares solve of the whole body onto all six targets (:mod:`bezmotion.ik.exact`)."""
 
 CHANNEL_CHOICES = ("default", "clip")
 """BVH channels: positions on the root and the hips only, or the clip's own layout."""
@@ -78,6 +80,13 @@ def resolve_bmm(name_or_path: str | os.PathLike) -> tuple[Path, str | None]:
     """``(folder, skeleton it was trained on or None)`` of a bundled model's name or a saved BMM's folder."""
     bundled = BUNDLED_MODELS.get(str(name_or_path))
     return (bundled.bmm, bundled.trained_on) if bundled else (Path(name_or_path), None)
+
+
+def ik_model_joint_limits(directory: str | os.PathLike, character: Character) -> JointLimits | None:
+    """The joint limits stored beside a saved learned IK (``joint_limits.json``,
+    ``experiments/joint_limits.py``), or None when it has none."""
+    path = Path(directory) / "joint_limits.json"
+    return JointLimits.load(path, character) if path.is_file() else None
 
 
 def resolve_ik_model(name_or_path: str | os.PathLike) -> Path:
@@ -289,6 +298,7 @@ def make_ik(
     *,
     rest_quat_local: np.ndarray | jax.Array,
     ik_model: ProtoResModel | None = None,
+    limits: JointLimits | None = None,
 ) -> tuple[IKFn, Any]:
     """``(ik_fn, ik_params)`` of an IK choice (:data:`IK_CHOICES`) for the clip's character.
 
@@ -297,8 +307,9 @@ def make_ik(
       recognised: the character and its rig chains.
       rest_quat_local: ``(joints, 4)`` the rotations the rig keeps on joints it does not
         solve (clavicles, toes): typically the start pose's.
-      ik_model: the learned IK (for ``"learned"`` and ``"refined"``), checked against the
-        character (:func:`check_ik_model`).
+      ik_model: the learned IK (for ``"learned"``, ``"refined"`` and ``"exact"``), checked
+        against the character (:func:`check_ik_model`).
+      limits: joint limits for ``"exact"`` (:func:`ik_model_joint_limits`); default none.
     """
     if kind not in IK_CHOICES:
         raise ValueError(f"must be one of {IK_CHOICES}, got {kind!r}")
@@ -309,6 +320,8 @@ def make_ik(
         check_ik_model(ik_model, character)
         if kind == "learned":
             return protores_ik_fn, ik_model
+        if kind == "exact":
+            return exact_ik(protores_ik_fn, ik_model, character, limits=limits)
     rig = make_rig(character, recognised.rig_spec, rest_quat_local=np.asarray(rest_quat_local))
     return (rig_ik, rig) if kind == "rig" else (protores_refined_ik_fn, (ik_model, rig))
 
@@ -410,6 +423,7 @@ __all__ = [
     "check_output",
     "derive_rig_spec",
     "load_profile",
+    "ik_model_joint_limits",
     "make_ik",
     "make_transfer",
     "motion_poses",

@@ -20,8 +20,8 @@ from bezmotion.bmm.evaluation import EvalSet, map_in_chunks
 from bezmotion.data.corpus import MotionClips
 from bezmotion.data.curves import CurveDataset
 from bezmotion.ik.protocol import Character, IKFn, Pose, pose_fk, pose_from_motion, targets_from_pose
-from bezmotion.metrics import foot_skating_ratio, mean_position_error
-from bezmotion.pipeline.inbetweening import inbetween_traced
+from bezmotion.metrics import foot_skating_ratio, key_pop_deg, mean_position_error, rotation_change_deg
+from bezmotion.pipeline.inbetweening import KEY_BLEND_FRAMES, inbetween_traced
 from bezmotion.pipeline.transfer import Transfer
 from bezmotion.metrics import handles_error
 from jaxtyping import Array, Float
@@ -74,7 +74,8 @@ class PipelineMetricsConfig:
 def pose_metrics(
     config: PipelineMetricsConfig, character: Character, pose: Pose, truth: Pose, handles: Handles
 ) -> dict[str, float]:
-    """Handles error (full skeleton), foot-skating ratio and MPJPE of ``pose`` ``(windows, frames, …)``."""
+    """Handles error (full skeleton), foot-skating ratio, MPJPE and key pop (largest per-frame
+    joint rotation change at the first and last frame pair, degrees) of ``pose`` ``(windows, frames, …)``."""
     _, pos = pose_fk(character, pose)
     _, true_pos = pose_fk(character, truth)
     feet = np.asarray(character.characteristic[4:6])
@@ -82,6 +83,7 @@ def pose_metrics(
         "handles_error_cm": float(full_body_handles_error(character, pose, handles, config.stride)),
         "foot_skating_ratio": float(foot_skating_ratio(pos[..., feet, :], config.fps, floor_height=config.floor_height)),
         "mpjpe_cm": float(mean_position_error(pos, true_pos)),
+        "key_pop_deg": float(key_pop_deg(pose.quat_local)),
     }
 
 
@@ -92,7 +94,11 @@ def ground_truth_pose_metrics(
     the true six-joint trajectories (positions and orientations) of every frame."""
     _, pos = pose_fk(character, truth)
     feet = np.asarray(character.characteristic[4:6])
-    out = {"foot_skating_ratio": float(foot_skating_ratio(pos[..., feet, :], config.fps, floor_height=config.floor_height))}
+    out = {
+        "foot_skating_ratio": float(foot_skating_ratio(pos[..., feet, :], config.fps, floor_height=config.floor_height)),
+        "key_pop_deg": float(key_pop_deg(truth.quat_local)),
+        "max_rotation_change_deg": float(jnp.max(rotation_change_deg(truth.quat_local))),
+    }
     if ik_fn is not None:
         ik = jax.jit(jax.vmap(jax.vmap(ik_fn, in_axes=(None, 0)), in_axes=(None, 0)))
         recon = map_in_chunks(lambda t, _: ik(ik_params, t), targets_from_pose(character, truth), key=jax.random.key(0))
@@ -104,11 +110,14 @@ def ground_truth_pose_metrics(
     return out
 
 
-@functools.partial(jax.jit, static_argnames=("ik_fn", "steps", "foot_lock"))
-def _run_chunk(bmm, ik_params, character, transfer, inputs, key, *, ik_fn, steps, foot_lock) -> Pose:
+@functools.partial(jax.jit, static_argnames=("ik_fn", "steps", "foot_lock", "key_blend_frames"))
+def _run_chunk(bmm, ik_params, character, transfer, inputs, key, *, ik_fn, steps, foot_lock, key_blend_frames) -> Pose:
     """:func:`~bezmotion.pipeline.inbetweening.inbetween` of a chunk of windows; one compilation per IK,
     settings and shapes, shared by every call (evaluate_pipeline's in-distribution and OOD runs)."""
-    one = functools.partial(inbetween_traced, ik_fn=ik_fn, steps=steps, guidance=1.0, foot_lock=foot_lock, keep_keyframes=True)
+    one = functools.partial(
+        inbetween_traced, ik_fn=ik_fn, steps=steps, guidance=1.0, foot_lock=foot_lock, keep_keyframes=True,
+        key_blend_frames=key_blend_frames,
+    )  # fmt: skip
     start, end, handles = inputs
     keys = jax.random.split(key, start.root_pos.shape[0])
     run = lambda s, e, h, k: one(bmm, ik_params, character, s, e, h, transfer, k).pose  # noqa: E731
@@ -128,10 +137,14 @@ def run_pipeline(
     steps: int = 10,
     foot_lock: bool = False,
     chunk: int = 128,
+    key_blend_frames: int = KEY_BLEND_FRAMES,
 ) -> Pose:
     """In-between every window (start and end from ``truth``) through ``handles``; poses ``(windows, frames, …)``."""
     transfer = Transfer.identity() if transfer is None else transfer
-    batch = functools.partial(_run_chunk, bmm, ik_params, character, transfer, ik_fn=ik_fn, steps=steps, foot_lock=foot_lock)
+    batch = functools.partial(
+        _run_chunk, bmm, ik_params, character, transfer, ik_fn=ik_fn, steps=steps, foot_lock=foot_lock,
+        key_blend_frames=key_blend_frames,
+    )  # fmt: skip
     first = jax.tree.map(lambda x: x[:, 0], truth)
     last = jax.tree.map(lambda x: x[:, -1], truth)
     return map_in_chunks(batch, (first, last, handles), key=key, chunk=chunk)
@@ -149,10 +162,15 @@ def evaluate_pipeline(
     key: jax.Array,
     transfer: Transfer | None = None,
     foot_lock: bool = False,
+    key_blend_frames: int = KEY_BLEND_FRAMES,
+    chunk: int = 128,
 ) -> dict[str, dict[str, float]]:
     """After-IK metrics in distribution and OOD (handles with ±16 cm noise), 10 DDIM steps."""
     out = {}
     for name, handles in (("id", eval_set.handles), ("ood", eval_set.handles_ood)):
-        pose = run_pipeline(bmm, ik_fn, ik_params, character, truth, handles, key=key, transfer=transfer, foot_lock=foot_lock)
+        pose = run_pipeline(
+            bmm, ik_fn, ik_params, character, truth, handles, key=key, transfer=transfer, foot_lock=foot_lock,
+            key_blend_frames=key_blend_frames, chunk=chunk,
+        )  # fmt: skip
         out[name] = pose_metrics(config, character, pose, truth, handles)
     return out

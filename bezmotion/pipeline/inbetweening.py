@@ -28,8 +28,13 @@ from bezmotion.bezier import BezierLayout, reconstruct_dense
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, SampledCurves, sample_curves
 from bezmotion.diffusion.projection import project_onto_handles
 from bezmotion.data.characteristic import HIPS
-from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, targets_from_pose
+from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, solve_frames, targets_from_pose
+from bezmotion.pipeline.key_blend import blend_to_keys
 from bezmotion.pipeline.transfer import Transfer, floor_anchor, curves_to_target, to_source_space
+
+
+KEY_BLEND_FRAMES = 6
+"""Default frames over which the key poses' correction fades (the control stride: handles untouched)."""
 
 
 class InbetweenResult(NamedTuple):
@@ -63,6 +68,7 @@ def inbetween_traced(
     guidance: float,
     foot_lock: bool,
     keep_keyframes: bool,
+    key_blend_frames: int = 0,
 ) -> InbetweenResult:
     """The traceable body of :func:`inbetween`, for callers that batch or compile it
     themselves (``jax.vmap`` over windows in :mod:`bezmotion.pipeline.evaluation`).
@@ -96,9 +102,9 @@ def inbetween_traced(
     )
     curves = curves._replace(ctrl_pos=ctrl_pos, ctrl_tangent=ctrl_tangent)
     positions, rot6d = reconstruct_dense(layout, curves.ctrl_pos, curves.ctrl_tangent, curves.ctrl_rot6d)
-    pose = jax.vmap(ik_fn, in_axes=(None, 0))(ik_params, IKTargets(positions, rot6d))
+    pose = solve_frames(ik_fn, ik_params, IKTargets(positions, rot6d))
     if keep_keyframes:
-        pose = jax.tree.map(lambda p, a, b: p.at[0].set(a).at[-1].set(b), pose, start, end)
+        pose = blend_to_keys(pose, start, end, key_blend_frames)
     return InbetweenResult(pose, curves, positions, rot6d)
 
 
@@ -122,7 +128,7 @@ def _checked_finite(pose: Pose, name: str) -> Pose:
 @functools.cache
 def _compiled(options: tuple[tuple[str, str], ...]):
     return jax.jit(
-        inbetween_traced, static_argnames=("ik_fn", "steps", "guidance", "foot_lock", "keep_keyframes"),
+        inbetween_traced, static_argnames=("ik_fn", "steps", "guidance", "foot_lock", "keep_keyframes", "key_blend_frames"),
         compiler_options=dict(options) or None,
     )  # fmt: skip
 
@@ -142,6 +148,7 @@ def inbetween(
     guidance: float = 1.0,
     foot_lock: bool = False,
     keep_keyframes: bool = True,
+    key_blend_frames: int = KEY_BLEND_FRAMES,
 ) -> InbetweenResult:
     """In-between a window of ``character`` from ``start`` to ``end`` through ``handles``.
 
@@ -159,6 +166,10 @@ def inbetween(
       steps, guidance, foot_lock: passed to :func:`~bezmotion.bmm.sampling.sample_curves`.
       keep_keyframes: output the given start and end poses at the first and last frame
         (rather than their IK reconstruction), so the window joins its neighbours exactly.
+      key_blend_frames: with ``keep_keyframes``, the keys' difference from the IK's pose
+        fades out over this many frames after the start and before the end
+        (:func:`~bezmotion.pipeline.key_blend.blend_to_keys`), so no joint pops next to a
+        key; 0 replaces the two frames alone (the behaviour before the blend).
     Returns:
       :class:`InbetweenResult`; its curves pass through every handle exactly, so the
       full-body handle error is the IK module's alone.
@@ -182,4 +193,5 @@ def inbetween(
     return call_with_inference_options(
         _compiled, bmm, ik_params, character, start, end, handles, transfer, key,
         ik_fn=ik_fn, steps=steps, guidance=guidance, foot_lock=foot_lock, keep_keyframes=keep_keyframes,
+        key_blend_frames=key_blend_frames,
     )  # fmt: skip
