@@ -44,6 +44,10 @@ class Options:
         choices=("learned", "refined", "rig", "exact", "exact_refined"), help="IKs to evaluate",
     )
     blend: tuple[int, ...] = option((6, 0), help="key blend frames to evaluate (0 = the keys replace two frames alone)")
+    chunk: int = option(10, help="windows per compiled call")
+    rotation_weight: float | None = option(None, help="the exact IK's orientation weight (default: ExactIKParams')")
+    iterations: int | None = option(None, help="the exact IK's steps per frame (default: ExactIKParams')")
+    no_limits: bool = option(False, help="the exact IK without joint limits")
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -58,18 +62,20 @@ def main(argv: list[str] | None = None) -> dict:
     eval_set = make_eval_set(val_set, key=jax.random.key(1234), num_windows=args.windows or None)
     truth = window_poses(character, clips, val_set, eval_set.rows)
     rig = make_rig(character, "bandai_namco", rest_quat_local=np.asarray(truth.quat_local[0, 0]))
-    limits = JointLimits.load(BUNDLED_IK / "joint_limits.json", character)
+    limits = None if args.no_limits else JointLimits.load(BUNDLED_IK / "joint_limits.json", character)
+    settings = {k: v for k in ("rotation_weight", "iterations") if (v := getattr(args, k)) is not None}
     iks = {
         "learned": (protores_ik_fn, ik_model),
         "refined": (protores_refined_ik_fn, (ik_model, rig)),
         "rig": (rig_ik, rig),
-        "exact": exact_ik(protores_ik_fn, ik_model, character, limits=limits),
-        "exact_refined": exact_ik(protores_refined_ik_fn, (ik_model, rig), character, limits=limits),
+        "exact": exact_ik(protores_ik_fn, ik_model, character, limits=limits, **settings),
+        "exact_refined": exact_ik(protores_refined_ik_fn, (ik_model, rig), character, limits=limits, **settings),
     }
     config = PipelineMetricsConfig(val_set.layout.stride, val_set.fps, floor_height_from(val_set))
     results = {
         "windows": int(truth.root_pos.shape[0]),
         "mocap": ground_truth_pose_metrics(config, character, truth),
+        "exact_settings": {**settings, "limits": not args.no_limits},
         "rows": [],
     }
     print(f"mocap: {results['mocap']}", flush=True)
@@ -78,7 +84,7 @@ def main(argv: list[str] | None = None) -> dict:
         for blend in args.blend:
             t0 = time.perf_counter()
             metrics = evaluate_pipeline(
-                config, bmm, fn, params, character, truth, eval_set, key=jax.random.key(7), key_blend_frames=blend, chunk=50
+                config, bmm, fn, params, character, truth, eval_set, key=jax.random.key(7), key_blend_frames=blend, chunk=args.chunk
             )
             row = {"ik": name, "key_blend_frames": blend, **metrics, "eval_s": time.perf_counter() - t0}
             results["rows"].append(row)

@@ -229,6 +229,9 @@ class ExactIKParams:
       character: the skeleton and its six characteristic joints.
       limits: :class:`JointLimits` (:meth:`JointLimits.unlimited` for none).
       position_weight: residual weight per cm of characteristic-joint position error.
+      hips_position_scale: the hips' position weight relative to the others': where the
+        targets cannot all be met (a hand handle farther from the hips curve than the arm
+        reaches), the body shifts towards the hand rather than the hand falling short.
       rotation_weight: per unit of ortho6D difference of their orientations (≈ per rad).
       prior_weight: per radian of a joint's rotation away from its start (inner IK) pose.
       root_weight: per cm of the hips' position away from its start.
@@ -245,6 +248,7 @@ class ExactIKParams:
     character: Character
     limits: JointLimits
     position_weight: Float[Array, ""] | float = 100.0
+    hips_position_scale: Float[Array, ""] | float = 1.0
     rotation_weight: Float[Array, ""] | float = 20.0
     prior_weight: Float[Array, ""] | float = 1.0
     root_weight: Float[Array, ""] | float = 0.05
@@ -335,7 +339,7 @@ def _evaluate(params: ExactIKParams, problem: _Problem, delta: Array, root_delta
     quat_global, pos_global = pose_fk(character, pose)
     rot = matrix_from_quat(quat_global)
     idx = np.asarray(character.characteristic)
-    e_pos = pos_global[idx] - problem.target_pos
+    e_pos = (pos_global[idx] - problem.target_pos) * _position_scale(params, pos_global.dtype)
     # Orientation: 2·vec of the world-frame difference q·q_t⁻¹ (short way), ≈ angle × axis.
     rel = quat_mul(quat_global[idx], quat_conjugate(problem.target_quat))
     rel = jnp.where(rel[..., :1] < 0.0, -rel, rel)
@@ -356,6 +360,11 @@ def _inverse_3x3(m: Float[Array, "*batch 3 3"]) -> Float[Array, "*batch 3 3"]:
     c2 = jnp.cross(m[..., 0, :], m[..., 1, :])
     det = jnp.sum(m[..., 0, :] * c0, axis=-1)[..., None, None]
     return jnp.stack([c0, c1, c2], axis=-1) / det
+
+
+def _position_scale(params: ExactIKParams, dtype) -> Array:
+    """``(6, 1)`` per-joint factors on the position residuals (the hips' ``hips_position_scale``)."""
+    return jnp.ones((6, 1), dtype).at[0].set(params.hips_position_scale)
 
 
 def _prior_cost(params: ExactIKParams, delta: Array, root_delta: Array, anchor) -> Array:
@@ -387,6 +396,8 @@ def _step(params: ExactIKParams, problem: _Problem, delta: Array, root_delta: Ar
     mask = jnp.asarray(_ancestry(character), dtype)[:, :, None, None]  # (6, free, 1, 1)
     lever = pos[idx][:, None, :] - pos[free][None, :, :]  # (6, free, xyz)
     j_pos = mask * jnp.cross(axes[None], lever[:, :, None, :])  # (6, free, k, xyz)
+    scale = _position_scale(params, dtype)
+    j_pos = j_pos * scale[:, :, None, None]
     # A world turn ω of the joint changes 2·vec(q_rel) by (w I − [v]×) ω, (w, v) = q_rel.
     w, v = rel[:, :1, None], rel[:, 1:]
     zero = jnp.zeros_like(v[:, 0])
@@ -402,7 +413,7 @@ def _step(params: ExactIKParams, problem: _Problem, delta: Array, root_delta: Ar
     j_rot = mask * jnp.einsum("eab,fkb->efka", turn, axes)  # (6, free, k, xyz)
     # Rows: 18 positions then 18 orientations; columns: (free joint, k), then the root.
     jac_free = jnp.concatenate([jnp.moveaxis(j_pos, -1, 1).reshape(18, n_free, 3), jnp.moveaxis(j_rot, -1, 1).reshape(18, n_free, 3)])
-    jac_root = jnp.concatenate([jnp.tile(jnp.eye(3, dtype=dtype), (6, 1)), jnp.zeros((18, 3), dtype)])
+    jac_root = jnp.concatenate([(scale[:, :, None] * jnp.eye(3, dtype=dtype)).reshape(18, 3), jnp.zeros((18, 3), dtype)])
     res = jnp.concatenate([e_pos.reshape(-1), e_rot.reshape(-1)])
     row_weight_sq = jnp.concatenate(
         [jnp.full(18, params.position_weight**2, dtype), jnp.full(18, params.rotation_weight**2, dtype)]
