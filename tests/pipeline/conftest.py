@@ -64,7 +64,7 @@ def run(clip, bmm) -> SimpleNamespace:
         valid=jnp.asarray([True, True, False]),
     )
     key = jax.random.key(7)
-    result = inbetween(bmm, ik, rest, character, start, end, handles, key=key, steps=STEPS)
+    result = inbetween(bmm, ik, rest, character, start, end, handles, key=key, steps=STEPS, key_blend_frames=0)  # the IK's own frames
     return SimpleNamespace(
         character=character, ik=ik, rest=rest, start=start, end=end, handles=handles, result=result, key=key
     )
