@@ -397,3 +397,28 @@ def reconstruct_dense(
     pos = evaluate(layout, jnp.moveaxis(ctrl_pos, -2, -3), jnp.moveaxis(ctrl_tangent, -2, -3), frames)
     quat = interpolate_rotations(layout, jnp.moveaxis(quat_from_rot6d(ctrl_rot6d), -2, -3), frames)
     return jnp.moveaxis(pos, -3, -2), jnp.moveaxis(rot6d_from_quat(quat), -3, -2)
+
+
+def checked_controls(
+    ctrl_pos: ArrayLike | None, ctrl_tangent: ArrayLike | None, layout: BezierLayout, num_joints: int
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Curves handed to a writer (glTF, preview), as float64 NumPy: both or neither given,
+    each ``(layout.num_controls, num_joints, 3)`` and finite.
+
+    Raises:
+      ValueError: naming the array and its shape, or the non-finite one.
+    """
+    if (ctrl_pos is None) != (ctrl_tangent is None):
+        raise ValueError("give both ctrl_pos and ctrl_tangent, or neither")
+    if ctrl_pos is None:
+        return None, None
+    ctrl_pos, ctrl_tangent = np.asarray(ctrl_pos, np.float64), np.asarray(ctrl_tangent, np.float64)
+    expected = (layout.num_controls, num_joints, 3)
+    for label, a in (("ctrl_pos", ctrl_pos), ("ctrl_tangent", ctrl_tangent)):
+        if a.shape != expected:
+            raise ValueError(
+                f"{label} must be {expected} for {layout.num_frames} frames at stride {layout.stride}, got {a.shape}"
+            )
+        if not np.isfinite(a).all():
+            raise ValueError(f"{label} contains non-finite values")
+    return ctrl_pos, ctrl_tangent

@@ -54,7 +54,7 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from bezmotion.bezier import DEFAULT_STRIDE, BezierLayout
+from bezmotion.bezier import DEFAULT_STRIDE, BezierLayout, checked_controls
 from bezmotion.data.bvh import POSITION_CHANNELS, BvhMotion
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.geometry.skeleton import Skeleton
@@ -218,17 +218,8 @@ def write_glb(
     if frames < 2:
         raise ValueError(f"need at least 2 frames to animate, got {frames}")
     fps = 1.0 / motion.frame_time
-    if (ctrl_pos is None) != (ctrl_tangent is None):
-        raise ValueError("give both ctrl_pos and ctrl_tangent, or neither")
     layout = BezierLayout(frames, stride)
-    if ctrl_pos is not None:
-        ctrl_pos, ctrl_tangent = np.asarray(ctrl_pos, np.float64), np.asarray(ctrl_tangent, np.float64)
-        expected = (layout.num_controls, len(CHARACTERISTIC_JOINTS), 3)
-        for label, a in (("ctrl_pos", ctrl_pos), ("ctrl_tangent", ctrl_tangent)):
-            if a.shape != expected:
-                raise ValueError(f"{label} must be {expected} for {frames} frames at stride {stride}, got {a.shape}")
-            if not np.isfinite(a).all():
-                raise ValueError(f"{label} contains non-finite values")
+    ctrl_pos, ctrl_tangent = checked_controls(ctrl_pos, ctrl_tangent, layout, len(CHARACTERISTIC_JOINTS))
     if not (np.isfinite(motion.quat_local).all() and np.isfinite(motion.pos_local).all()):
         raise ValueError("motion contains non-finite values")
     records = _handle_records(handles, frames)

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from bezmotion.bezier import DEFAULT_STRIDE, BezierLayout
+from bezmotion.bezier import DEFAULT_STRIDE, BezierLayout, checked_controls
 from bezmotion.data.bvh import BvhMotion
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.ik.protocol import Character
@@ -113,15 +113,8 @@ def write_preview(
     if tuple(names) != tuple(character.skeleton.names):
         raise ValueError(f"motion joints {list(names)} are not {character.name}'s {list(character.skeleton.names)}")
     frames = motion.quat_local.shape[0]
-    if (ctrl_pos is None) != (ctrl_tangent is None):
-        raise ValueError("give both ctrl_pos and ctrl_tangent, or neither")
     layout = BezierLayout(frames, stride)
-    if ctrl_pos is not None:
-        ctrl_pos, ctrl_tangent = np.asarray(ctrl_pos, np.float64), np.asarray(ctrl_tangent, np.float64)
-        expected = (layout.num_controls, len(CHARACTERISTIC_JOINTS), 3)
-        for label, a in (("ctrl_pos", ctrl_pos), ("ctrl_tangent", ctrl_tangent)):
-            if a.shape != expected:
-                raise ValueError(f"{label} must be {expected} for {frames} frames at stride {stride}, got {a.shape}")
+    ctrl_pos, ctrl_tangent = checked_controls(ctrl_pos, ctrl_tangent, layout, len(CHARACTERISTIC_JOINTS))
     if reference is not None and reference.quat_local.shape[0] != frames:
         raise ValueError(f"reference has {reference.quat_local.shape[0]} frames, the motion {frames}")
     marks = []
