@@ -52,12 +52,13 @@ def yawed(pose: Pose, angle: float) -> tuple[Pose, np.ndarray]:
 
 
 def again(bmm, run, **kwargs):
-    """``run``'s in-betweening with some arguments replaced (same shapes: no recompilation)."""
+    """``run``'s in-betweening with some arguments replaced (same shapes and settings as the
+    conftest's, ``key_blend_frames=0`` included: no recompilation, comparable frames)."""
     args = dict(handles=run.handles, transfer=None, key=run.key)
     args.update(kwargs)
     return inbetween(
         bmm, run.ik, run.rest, run.character, run.start, run.end, args["handles"], key=args["key"],
-        transfer=args["transfer"], steps=STEPS,
+        transfer=args["transfer"], steps=STEPS, key_blend_frames=0,
     )  # fmt: skip
 
 
