@@ -122,6 +122,9 @@ class InbetweenOptions:
     channels: str = option(
         "default", choices=CHANNEL_CHOICES, help="BVH channels: default (positions on the root and hips) or clip (the start file's layout)"
     )  # fmt: skip
+    key_positions_only: bool = option(
+        False, help="condition the BMM on the key poses' joint positions alone (the paper); default: their orientations too"
+    )
     no_preview: bool = option(False, help="with --out FOLDER: no preview.gif (drawing it takes a few seconds)")
     no_progress: bool = option(False, help="no progress lines on stderr")
 
@@ -481,6 +484,7 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
         result = inbetween(
             p.bmm, p.ik_fn, p.ik_params, character, p.start, p.end, p.handles,
             key=jax.random.fold_in(jax.random.key(args.seed), k), transfer=p.transfer, steps=args.steps,
+            key_orientations=not args.key_positions_only,
         )  # fmt: skip
         jax.block_until_ready(result)
         seconds = time.perf_counter() - t0

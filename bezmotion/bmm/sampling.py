@@ -181,8 +181,9 @@ class SampledCurves(NamedTuple):
     contacts: Float[Array, "*batch controls 2"]
 
 
-def _sample_one(model: BezierMotionModel, start, end, handles: Handles, key, steps, guidance, overwrite, foot_lock):
+def _sample_one(model: BezierMotionModel, start, end, handles: Handles, key_rot6d, key, steps, guidance, overwrite, foot_lock):
     cfg, stats = model.config, model.stats
+    ends = jnp.asarray([0, cfg.num_controls - 1])
     layout = BezierLayout.from_controls(cfg.num_controls, cfg.stride)
     translation = start[HIPS] * jnp.asarray([1.0, 0.0, 1.0], start.dtype)
     world = inbetween_conditions(cfg.num_frames, start, end, handles.frame, handles.joint, handles.position, handles.valid)
@@ -205,6 +206,8 @@ def _sample_one(model: BezierMotionModel, start, end, handles: Handles, key, ste
         # those between control frames then move x̂₀ by the smallest correction, in the
         # model's normalised space, that puts the curves through them.
         feats = from_tokens(x0_tokens)
+        if key_rot6d is not None:  # the keys' orientations, overwritten like their positions
+            feats = feats.at[ends, :, 6:].set((key_rot6d - stats.mean[:, 6:]) / stats.std[:, 6:])
         pos = jnp.where(mask[..., None], target, feats[..., :3])
         pos, tangent = project_off_grid(
             layout, pos, feats[..., 3:6], mask, world.joint, world.frame, aligned, world.valid,
@@ -227,6 +230,8 @@ def _sample_one(model: BezierMotionModel, start, end, handles: Handles, key, ste
     pos = pos + translation
     if overwrite:
         pos, tangent = exact(pos, tangent)
+        if key_rot6d is not None:  # exactly, not through the normalisation round trip
+            rot6d = rot6d.at[ends].set(key_rot6d)
     contacts = jax.nn.sigmoid(logits)
     if foot_lock:
         pos, tangent = lock_feet(pos, tangent, contacts, mask)
@@ -246,6 +251,7 @@ def sample_curves(
     guidance: float = 1.0,
     overwrite: bool = True,
     foot_lock: bool = False,
+    key_rot6d: Float[Array, "*batch 2 6 6"] | None = None,
 ) -> SampledCurves:
     """Sample Bézier curves of the six characteristic joints between a start and an end pose.
 
@@ -268,6 +274,11 @@ def sample_curves(
       foot_lock: afterwards, hold each foot still in the ground plane while its
         predicted contact lasts (:func:`~bezmotion.bmm.foot_lock.lock_feet`; ours, not the
         paper's). Constrained points do not move.
+      key_rot6d: optionally ``(*batch, 2, 6, 6)`` global orientations (6-D, world frame) of
+        the six joints at the first and at the last frame. With ``overwrite`` they are
+        conditions like the key positions: written into x̂₀'s first and last control points
+        at every step and exactly after the last, so the curves leave and reach each key
+        facing the way it does (ours; the paper conditions on positions only, ``None``).
     Returns:
       :class:`SampledCurves` in the world frame; constrained control points equal their
       targets exactly when ``overwrite``.
@@ -277,8 +288,9 @@ def sample_curves(
     simply traced into that computation.
     """
     return call_with_inference_options(
-        _compiled_sampler, model, start, end, handles, key=key, steps=steps, guidance=guidance, overwrite=overwrite, foot_lock=foot_lock
-    )
+        _compiled_sampler, model, start, end, handles, key_rot6d,
+        key=key, steps=steps, guidance=guidance, overwrite=overwrite, foot_lock=foot_lock,
+    )  # fmt: skip
 
 
 @functools.cache
@@ -286,17 +298,20 @@ def _compiled_sampler(options: tuple[tuple[str, str], ...]):
     return jax.jit(_sample_curves, static_argnames=("steps", "guidance", "overwrite", "foot_lock"), compiler_options=dict(options) or None)
 
 
-def _sample_curves(model, start, end, handles, *, key, steps, guidance, overwrite, foot_lock) -> SampledCurves:
+def _sample_curves(model, start, end, handles, key_rot6d, *, key, steps, guidance, overwrite, foot_lock) -> SampledCurves:
     batch = start.shape[:-2]
-    if start.shape[-2:] != (model.config.num_joints, 3) or end.shape != start.shape:
-        raise ValueError(f"start and end must both be (..., {model.config.num_joints}, 3), got {start.shape}, {end.shape}")
+    joints = model.config.num_joints
+    if start.shape[-2:] != (joints, 3) or end.shape != start.shape:
+        raise ValueError(f"start and end must both be (..., {joints}, 3), got {start.shape}, {end.shape}")
+    if key_rot6d is not None and key_rot6d.shape != (*batch, 2, joints, 6):
+        raise ValueError(f"key_rot6d must be {(*batch, 2, joints, 6)} (start and end orientations), got {key_rot6d.shape}")
     if handles.position.shape[:-2] != batch:
         raise ValueError(f"handles must be batched like start {batch}, got {handles.position.shape[:-2]}")
     n = int(np.prod(batch, dtype=int))
     flat = lambda x: x.reshape(n, *x.shape[len(batch) :])  # noqa: E731
     keys = jax.random.split(key, n) if batch else key[None]
     one = functools.partial(_sample_one, model, steps=steps, guidance=guidance, overwrite=overwrite, foot_lock=foot_lock)
-    out = jax.vmap(one)(flat(start), flat(end), jax.tree.map(flat, handles), keys)
+    out = jax.vmap(one)(flat(start), flat(end), jax.tree.map(flat, handles), key_rot6d if key_rot6d is None else flat(key_rot6d), keys)
     return jax.tree.map(lambda x: x.reshape(*batch, *x.shape[1:]), out)
 
 

@@ -23,13 +23,30 @@ from bezmotion.pipeline.evaluation import (
 from bezmotion.pipeline.export import default_channels, pose_to_bvh
 from bezmotion.pipeline.gltf import GlbContents, read_glb, validate_glb, write_glb
 from bezmotion.pipeline.preview import write_preview
-from bezmotion.pipeline.inbetweening import InbetweenResult, inbetween, inbetween_traced
-from bezmotion.pipeline.transfer import CharacterProfile, Transfer, curves_to_target, facing_yaw, floor_anchor, mean_rotation, to_source_space
+from bezmotion.pipeline.inbetweening import (
+    InbetweenResult,
+    WindowCurves,
+    inbetween,
+    inbetween_traced,
+    pose_from_curves,
+    window_curves_traced,
+)
+from bezmotion.pipeline.transfer import (
+    CharacterProfile,
+    Transfer,
+    curves_to_target,
+    facing_yaw,
+    floor_anchor,
+    mean_rotation,
+    orientations_to_source_space,
+    to_source_space,
+)
 
 __all__ = [
     "CharacterProfile",
     "GlbContents",
     "InbetweenResult",
+    "WindowCurves",
     "PipelineMetricsConfig",
     "Transfer",
     "curves_to_target",
@@ -43,12 +60,15 @@ __all__ = [
     "inbetween_traced",
     "mean_rotation",
     "mpjpe",
+    "orientations_to_source_space",
+    "pose_from_curves",
     "pose_metrics",
     "pose_to_bvh",
     "read_glb",
     "run_pipeline",
     "to_source_space",
     "validate_glb",
+    "window_curves_traced",
     "window_poses",
     "write_glb",
     "write_preview",

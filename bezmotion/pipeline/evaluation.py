@@ -110,13 +110,13 @@ def ground_truth_pose_metrics(
     return out
 
 
-@functools.partial(jax.jit, static_argnames=("ik_fn", "steps", "foot_lock", "key_blend_frames"))
-def _run_chunk(bmm, ik_params, character, transfer, inputs, key, *, ik_fn, steps, foot_lock, key_blend_frames) -> Pose:
+@functools.partial(jax.jit, static_argnames=("ik_fn", "steps", "foot_lock", "key_blend_frames", "key_orientations"))
+def _run_chunk(bmm, ik_params, character, transfer, inputs, key, *, ik_fn, steps, foot_lock, key_blend_frames, key_orientations) -> Pose:
     """:func:`~bezmotion.pipeline.inbetweening.inbetween` of a chunk of windows; one compilation per IK,
     settings and shapes, shared by every call (evaluate_pipeline's in-distribution and OOD runs)."""
     one = functools.partial(
         inbetween_traced, ik_fn=ik_fn, steps=steps, guidance=1.0, foot_lock=foot_lock, keep_keyframes=True,
-        key_blend_frames=key_blend_frames,
+        key_blend_frames=key_blend_frames, key_orientations=key_orientations,
     )  # fmt: skip
     start, end, handles = inputs
     keys = jax.random.split(key, start.root_pos.shape[0])
@@ -138,12 +138,13 @@ def run_pipeline(
     foot_lock: bool = False,
     chunk: int = 128,
     key_blend_frames: int = KEY_BLEND_FRAMES,
+    key_orientations: bool = True,
 ) -> Pose:
     """In-between every window (start and end from ``truth``) through ``handles``; poses ``(windows, frames, …)``."""
     transfer = Transfer.identity() if transfer is None else transfer
     batch = functools.partial(
         _run_chunk, bmm, ik_params, character, transfer, ik_fn=ik_fn, steps=steps, foot_lock=foot_lock,
-        key_blend_frames=key_blend_frames,
+        key_blend_frames=key_blend_frames, key_orientations=key_orientations,
     )  # fmt: skip
     first = jax.tree.map(lambda x: x[:, 0], truth)
     last = jax.tree.map(lambda x: x[:, -1], truth)
@@ -163,6 +164,7 @@ def evaluate_pipeline(
     transfer: Transfer | None = None,
     foot_lock: bool = False,
     key_blend_frames: int = KEY_BLEND_FRAMES,
+    key_orientations: bool = True,
     chunk: int = 128,
 ) -> dict[str, dict[str, float]]:
     """After-IK metrics in distribution and OOD (handles with ±16 cm noise), 10 DDIM steps."""
@@ -170,7 +172,7 @@ def evaluate_pipeline(
     for name, handles in (("id", eval_set.handles), ("ood", eval_set.handles_ood)):
         pose = run_pipeline(
             bmm, ik_fn, ik_params, character, truth, handles, key=key, transfer=transfer, foot_lock=foot_lock,
-            key_blend_frames=key_blend_frames, chunk=chunk,
+            key_blend_frames=key_blend_frames, key_orientations=key_orientations, chunk=chunk,
         )  # fmt: skip
         out[name] = pose_metrics(config, character, pose, truth, handles)
     return out

@@ -30,7 +30,7 @@ from bezmotion.diffusion.projection import project_onto_handles
 from bezmotion.data.characteristic import HIPS
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, solve_frames, targets_from_pose
 from bezmotion.pipeline.key_blend import blend_to_keys
-from bezmotion.pipeline.transfer import Transfer, floor_anchor, curves_to_target, to_source_space
+from bezmotion.pipeline.transfer import Transfer, curves_to_target, floor_anchor, orientations_to_source_space, to_source_space
 
 
 KEY_BLEND_FRAMES = 6
@@ -53,6 +53,84 @@ class InbetweenResult(NamedTuple):
     rot6d: Float[Array, "frames 6 6"]
 
 
+class WindowCurves(NamedTuple):
+    """The curves stage of one window, before IK (target character, world frame, cm).
+
+    Attributes:
+      curves: the BMM curves in the target character's space, through every handle.
+      positions: ``(frames, 6, 3)`` dense characteristic-joint trajectories.
+      rot6d: ``(frames, 6, 6)`` dense characteristic-joint orientations.
+    """
+
+    curves: SampledCurves
+    positions: Float[Array, "frames 6 3"]
+    rot6d: Float[Array, "frames 6 6"]
+
+
+def window_curves_traced(
+    bmm: BezierMotionModel,
+    character: Character,
+    start: Pose,
+    end: Pose,
+    handles: Handles,
+    transfer: Transfer,
+    key: Array,
+    *,
+    steps: int,
+    guidance: float,
+    foot_lock: bool,
+    key_orientations: bool = True,
+) -> WindowCurves:
+    """The first half of :func:`inbetween_traced`: the BMM curves and their dense
+    trajectories, which any number of IK modules can then share (:func:`pose_from_curves`)."""
+    cfg = bmm.config
+    first, last = targets_from_pose(character, start), targets_from_pose(character, end)
+    anchor = floor_anchor(first.position[HIPS])
+    source = functools.partial(to_source_space, transfer, anchor)
+    key_rot6d = orientations_to_source_space(transfer, jnp.stack([first.rot6d, last.rot6d])) if key_orientations else None
+    curves = sample_curves(
+        bmm, source(first.position), source(last.position), handles._replace(position=source(handles.position)),
+        key=key, steps=steps, guidance=guidance, foot_lock=foot_lock, key_rot6d=key_rot6d,
+    )  # fmt: skip
+    curves = curves_to_target(transfer, anchor, curves)
+    # The end control points are the given poses themselves: their positions exactly
+    # (undoing the scale round trip's rounding) and their orientations (which, without
+    # ``key_orientations``, the BMM never saw).
+    ends = jnp.asarray([0, cfg.num_controls - 1])
+    curves = curves._replace(
+        ctrl_pos=curves.ctrl_pos.at[ends].set(jnp.stack([first.position, last.position])),
+        ctrl_rot6d=curves.ctrl_rot6d.at[ends].set(jnp.stack([first.rot6d, last.rot6d])),
+    )
+    # The handles exactly again after the transfer: control frames overwritten, handles
+    # between them by the minimum-norm correction; the keys' control points stay put.
+    layout = BezierLayout.from_controls(cfg.num_controls, cfg.stride)
+    keys_fixed = jnp.zeros(curves.ctrl_pos.shape[:2], bool).at[ends].set(True)
+    ctrl_pos, ctrl_tangent = project_onto_handles(
+        layout, curves.ctrl_pos, curves.ctrl_tangent, handles.joint, handles.frame, handles.position, handles.valid, fixed=keys_fixed
+    )
+    curves = curves._replace(ctrl_pos=ctrl_pos, ctrl_tangent=ctrl_tangent)
+    positions, rot6d = reconstruct_dense(layout, curves.ctrl_pos, curves.ctrl_tangent, curves.ctrl_rot6d)
+    return WindowCurves(curves, positions, rot6d)
+
+
+def pose_from_curves(
+    ik_fn: IKFn,
+    ik_params: Any,
+    window: WindowCurves,
+    start: Pose,
+    end: Pose,
+    *,
+    keep_keyframes: bool,
+    key_blend_frames: int = 0,
+) -> Pose:
+    """The second half of :func:`inbetween_traced`: IK of every frame of ``window``'s dense
+    trajectories, then (``keep_keyframes``) the given keys blended in. ``(frames, …)`` poses."""
+    pose = solve_frames(ik_fn, ik_params, IKTargets(window.positions, window.rot6d))
+    if keep_keyframes:
+        pose = blend_to_keys(pose, start, end, key_blend_frames)
+    return pose
+
+
 def inbetween_traced(
     bmm: BezierMotionModel,
     ik_params: Any,
@@ -69,43 +147,21 @@ def inbetween_traced(
     foot_lock: bool,
     keep_keyframes: bool,
     key_blend_frames: int = 0,
+    key_orientations: bool = True,
 ) -> InbetweenResult:
     """The traceable body of :func:`inbetween`, for callers that batch or compile it
     themselves (``jax.vmap`` over windows in :mod:`bezmotion.pipeline.evaluation`).
 
     Same arguments as :func:`inbetween` (``transfer`` required, ``key`` positional) but no
-    input checks and no compiler options: the caller validates and compiles.
+    input checks and no compiler options: the caller validates and compiles. It is
+    :func:`window_curves_traced` followed by :func:`pose_from_curves`.
     """
-    cfg = bmm.config
-    first, last = targets_from_pose(character, start), targets_from_pose(character, end)
-    anchor = floor_anchor(first.position[HIPS])
-    source = functools.partial(to_source_space, transfer, anchor)
-    curves = sample_curves(
-        bmm, source(first.position), source(last.position), handles._replace(position=source(handles.position)),
-        key=key, steps=steps, guidance=guidance, foot_lock=foot_lock,
+    window = window_curves_traced(
+        bmm, character, start, end, handles, transfer, key,
+        steps=steps, guidance=guidance, foot_lock=foot_lock, key_orientations=key_orientations,
     )  # fmt: skip
-    curves = curves_to_target(transfer, anchor, curves)
-    # The end control points are the given poses themselves: their positions exactly
-    # (undoing the scale round trip's rounding) and their orientations, which BMM does
-    # not take as conditions.
-    ends = jnp.asarray([0, cfg.num_controls - 1])
-    curves = curves._replace(
-        ctrl_pos=curves.ctrl_pos.at[ends].set(jnp.stack([first.position, last.position])),
-        ctrl_rot6d=curves.ctrl_rot6d.at[ends].set(jnp.stack([first.rot6d, last.rot6d])),
-    )
-    # The handles exactly again after the transfer: control frames overwritten, handles
-    # between them by the minimum-norm correction; the keys' control points stay put.
-    layout = BezierLayout.from_controls(cfg.num_controls, cfg.stride)
-    keys_fixed = jnp.zeros(curves.ctrl_pos.shape[:2], bool).at[ends].set(True)
-    ctrl_pos, ctrl_tangent = project_onto_handles(
-        layout, curves.ctrl_pos, curves.ctrl_tangent, handles.joint, handles.frame, handles.position, handles.valid, fixed=keys_fixed
-    )
-    curves = curves._replace(ctrl_pos=ctrl_pos, ctrl_tangent=ctrl_tangent)
-    positions, rot6d = reconstruct_dense(layout, curves.ctrl_pos, curves.ctrl_tangent, curves.ctrl_rot6d)
-    pose = solve_frames(ik_fn, ik_params, IKTargets(positions, rot6d))
-    if keep_keyframes:
-        pose = blend_to_keys(pose, start, end, key_blend_frames)
-    return InbetweenResult(pose, curves, positions, rot6d)
+    pose = pose_from_curves(ik_fn, ik_params, window, start, end, keep_keyframes=keep_keyframes, key_blend_frames=key_blend_frames)
+    return InbetweenResult(pose, *window)
 
 
 def _checked_finite(pose: Pose, name: str) -> Pose:
@@ -128,7 +184,8 @@ def _checked_finite(pose: Pose, name: str) -> Pose:
 @functools.cache
 def _compiled(options: tuple[tuple[str, str], ...]):
     return jax.jit(
-        inbetween_traced, static_argnames=("ik_fn", "steps", "guidance", "foot_lock", "keep_keyframes", "key_blend_frames"),
+        inbetween_traced,
+        static_argnames=("ik_fn", "steps", "guidance", "foot_lock", "keep_keyframes", "key_blend_frames", "key_orientations"),
         compiler_options=dict(options) or None,
     )  # fmt: skip
 
@@ -149,6 +206,7 @@ def inbetween(
     foot_lock: bool = False,
     keep_keyframes: bool = True,
     key_blend_frames: int = KEY_BLEND_FRAMES,
+    key_orientations: bool = True,
 ) -> InbetweenResult:
     """In-between a window of ``character`` from ``start`` to ``end`` through ``handles``.
 
@@ -170,6 +228,10 @@ def inbetween(
         fades out over this many frames after the start and before the end
         (:func:`~bezmotion.pipeline.key_blend.blend_to_keys`), so no joint pops next to a
         key; 0 replaces the two frames alone (the behaviour before the blend).
+      key_orientations: the start and end poses' global orientations of the six joints are
+        conditions of the BMM, overwritten like their positions (``sample_curves``'s
+        ``key_rot6d``), so the curves leave and reach the keys facing their way; ``False``
+        is the paper's position-only conditioning.
     Returns:
       :class:`InbetweenResult`; its curves pass through every handle exactly, so the
       full-body handle error is the IK module's alone.
@@ -193,5 +255,5 @@ def inbetween(
     return call_with_inference_options(
         _compiled, bmm, ik_params, character, start, end, handles, transfer, key,
         ik_fn=ik_fn, steps=steps, guidance=guidance, foot_lock=foot_lock, keep_keyframes=keep_keyframes,
-        key_blend_frames=key_blend_frames,
+        key_blend_frames=key_blend_frames, key_orientations=key_orientations,
     )  # fmt: skip

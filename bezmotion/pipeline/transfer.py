@@ -137,6 +137,13 @@ def to_source_space(transfer: Transfer, anchor: Float[Array, "3"], position: Flo
     return anchor + (position - anchor) / transfer.scale
 
 
+def orientations_to_source_space(transfer: Transfer, rot6d: Float[Array, "*batch 6 6"]) -> Float[Array, "*batch 6 6"]:
+    """Target-character global orientations of the six joints → the training character's
+    (the inverse of :func:`curves_to_target`'s ``q_source ⊗ rot_offset``)."""
+    offset = quat_conjugate(transfer.rot_offset.astype(rot6d.dtype))
+    return rot6d_from_quat(quat_mul(quat_from_rot6d(rot6d), offset))
+
+
 def curves_to_target(transfer: Transfer, anchor: Float[Array, "3"], curves: SampledCurves) -> SampledCurves:
     """Sampled curves of the source character → the target character (positions, tangents, orientations)."""
     quat = quat_mul(quat_from_rot6d(curves.ctrl_rot6d), transfer.rot_offset.astype(curves.ctrl_rot6d.dtype))

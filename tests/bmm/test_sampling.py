@@ -145,3 +145,19 @@ def test_sample_curves_composes_inside_a_callers_jit(model, motions, sampled):
     # ... also when every input is a constant of the caller's computation.
     constants = jax.jit(lambda: sample_curves(model, motions.start, motions.end, motions.handles, key=jax.random.key(21), steps=5))()
     assert_trees_close(constants, sampled, tol=1e-4)
+
+
+def test_key_orientations_are_conditions_hit_exactly_and_steer_the_sample(model, motions, sampled, demo_dataset):
+    """``key_rot6d`` puts the keys' orientations on the first and last control points exactly,
+    and, written into x̂₀ at every step, changes what the model predicts between them."""
+    rows = [0, 7]
+    rot = np.asarray(demo_dataset.ctrl_rot6d[rows], np.float32)  # (2, controls, 6, 6)
+    turned = np.stack([rot[:, -1], rot[:, 0]], axis=1)  # the end's orientation at the start and vice versa
+    keyed = sample_curves(
+        model, motions.start, motions.end, motions.handles, key=jax.random.key(21), steps=5, key_rot6d=jnp.asarray(turned)
+    )
+    np.testing.assert_array_equal(np.asarray(keyed.ctrl_rot6d)[:, [0, -1]], turned)
+    assert np.all(grid_errors(keyed, motions) == 0.0)  # positions still exact
+    assert trees_differ(keyed.ctrl_rot6d[:, 1:-1], sampled.ctrl_rot6d[:, 1:-1])
+    with pytest.raises((ValueError, TypeError), match="key_rot6d|shape"):
+        sample_curves(model, motions.start, motions.end, motions.handles, key=jax.random.key(0), key_rot6d=jnp.asarray(turned[:, 0]))
