@@ -73,6 +73,7 @@ def make_eval_set(
     max_handles: int = MAX_INTERMEDIATE_HANDLES,
     ood_noise: float = OOD_NOISE_CM,
     handle_frames: str = "grid",
+    per_window: bool = False,
 ) -> EvalSet:
     """Draw the evaluation conditions (deterministic given ``key``).
 
@@ -86,6 +87,12 @@ def make_eval_set(
         see :func:`~bezmotion.bmm.features.draw_intermediate_frames`. Windows, handle
         counts and OOD noise are the same draws for all three; positions are the fitted
         curves at the handles' frames (on control frames, the control points).
+      per_window: draw each window's handles and OOD noise from its own key,
+        ``fold_in(key, dataset row)``, and take the windows as a prefix of one fixed
+        permutation of the dataset (in that order, not sorted): a window's handles then
+        depend on the window alone, never on ``num_windows``, and the first ``n`` windows
+        of a larger set are exactly an ``n``-window set. ``False`` (the default) keeps the
+        original draws (sorted subset, one batch of draws), so earlier results reproduce.
     """
     n_total, k, j = dataset.ctrl_pos.shape[:3]
     if max_handles < 1 or max_handles > (k - 2) * j:
@@ -93,7 +100,9 @@ def make_eval_set(
     if handle_frames not in HANDLE_FRAMES:
         raise ValueError(f"handle_frames must be one of {HANDLE_FRAMES}, got {handle_frames!r}")
     subset_key, slot_key, noise_key = jax.random.split(key, 3)
-    if num_windows is not None and num_windows < n_total:
+    if per_window:
+        rows = np.asarray(jax.random.permutation(subset_key, n_total))[:num_windows]
+    elif num_windows is not None and num_windows < n_total:
         rows = np.sort(np.asarray(jax.random.choice(subset_key, n_total, (num_windows,), replace=False)))
     else:
         rows = np.arange(n_total)
@@ -102,10 +111,19 @@ def make_eval_set(
     draw = functools.partial(
         draw_intermediate_frames, layout=dataset.layout, num_joints=j, max_handles=max_handles, min_handles=1, frames=handle_frames
     )
-    frame, joint, valid = jax.vmap(lambda key: draw(key))(jax.random.split(slot_key, n))
+    if per_window:  # one key per window, from its dataset row
+        row_keys = lambda base: jax.vmap(lambda r: jax.random.fold_in(base, r))(jnp.asarray(rows))  # noqa: E731
+        slot_keys, noise_keys = row_keys(slot_key), row_keys(noise_key)
+    else:
+        slot_keys = jax.random.split(slot_key, n)
+    frame, joint, valid = jax.vmap(lambda key: draw(key))(slot_keys)
     ctrl_tangent = jnp.asarray(dataset.ctrl_tangent[rows])
     position = jax.vmap(functools.partial(handle_positions, dataset.layout))(ctrl_pos, ctrl_tangent, joint, frame)
-    noise = jax.random.uniform(noise_key, position.shape, minval=-ood_noise, maxval=ood_noise)
+    if per_window:
+        uniform = lambda k: jax.random.uniform(k, position.shape[1:], minval=-ood_noise, maxval=ood_noise)  # noqa: E731
+        noise = jax.vmap(uniform)(noise_keys)
+    else:
+        noise = jax.random.uniform(noise_key, position.shape, minval=-ood_noise, maxval=ood_noise)
     handles = Handles(joint, frame, position, valid)
     return EvalSet(
         start=ctrl_pos[:, 0],

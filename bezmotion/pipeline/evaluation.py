@@ -4,24 +4,36 @@ The evaluation windows are those of :func:`bezmotion.bmm.evaluation.make_eval_se
 handles, same OOD noise); here each window also carries the ground-truth full-body poses
 of the target character, so the start and end poses are real and MPJPE can be measured.
 Everything is in the windows' aligned frame (hips start at the origin in XZ).
+
+Two ways to run it: :func:`evaluate_pipeline` in-betweens each window end to end per IK
+(:func:`run_pipeline`); :func:`sample_window_curves` samples each window's curves once and
+:func:`solve_window_curves` runs any number of IKs on those same curves (timed), with
+per-window figures (:func:`window_pose_metrics`, :func:`window_curve_metrics`,
+:func:`window_mocap_metrics`) that :func:`summarize_windows` aggregates over all windows
+or any subset (e.g. one action label) — ``experiments/pipeline_eval.py``.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import Any
+import time
+from collections.abc import Mapping
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
 from bezmotion.bmm.evaluation import EvalSet, map_in_chunks
+from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, FEET
 from bezmotion.data.corpus import MotionClips
 from bezmotion.data.curves import CurveDataset
+from bezmotion.geometry.rotations import quat_conjugate, quat_from_rot6d, quat_mul
 from bezmotion.ik.protocol import Character, IKFn, Pose, pose_fk, pose_from_motion, targets_from_pose
+from bezmotion.ik.rig import Rig
 from bezmotion.metrics import foot_skating_ratio, key_pop_deg, mean_position_error, rotation_change_deg
-from bezmotion.pipeline.inbetweening import KEY_BLEND_FRAMES, inbetween_traced
+from bezmotion.pipeline.inbetweening import KEY_BLEND_FRAMES, WindowCurves, inbetween_traced, pose_from_curves, window_curves_traced
 from bezmotion.pipeline.transfer import Transfer
 from bezmotion.metrics import handles_error
 from jaxtyping import Array, Float
@@ -175,4 +187,278 @@ def evaluate_pipeline(
             key_blend_frames=key_blend_frames, key_orientations=key_orientations, chunk=chunk,
         )  # fmt: skip
         out[name] = pose_metrics(config, character, pose, truth, handles)
+    return out
+
+
+# ------------------------------------------------------- curves once, every IK on the same curves
+
+
+def window_keys(key: jax.Array, rows: np.ndarray) -> jax.Array:
+    """One sampling key per window, ``fold_in(key, dataset row)``: a window's curves depend
+    on the window alone, not on how many windows are evaluated or how they are chunked."""
+    return jax.vmap(lambda r: jax.random.fold_in(key, r))(jnp.asarray(rows))
+
+
+def _chunked(fn, inputs: Any, chunk: int) -> tuple[Any, list[float], int]:
+    """``fn(inputs_chunk)`` over the leading axis ``chunk`` rows at a time (the last chunk
+    padded by wrapping around, so one compilation serves all); ``(outputs, seconds per
+    call, rows run including padding)``. ``fn`` must return arrays ready on return."""
+    n = jax.tree.leaves(inputs)[0].shape[0]
+    chunk = min(chunk, n)
+    parts, seconds = [], []
+    for lo in range(0, n, chunk):
+        idx = np.arange(lo, lo + chunk) % n
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(fn(jax.tree.map(lambda a: a[idx], inputs)))
+        seconds.append(time.perf_counter() - t0)
+        parts.append(jax.tree.map(lambda a: np.asarray(a)[: min(chunk, n - lo)], out))
+    return jax.tree.map(lambda *xs: jnp.asarray(np.concatenate(xs)), *parts), seconds, chunk * len(seconds)
+
+
+@functools.partial(jax.jit, static_argnames=("steps", "foot_lock", "key_orientations"))
+def _curves_chunk(bmm, character, transfer, inputs, *, steps, foot_lock, key_orientations) -> WindowCurves:
+    start, end, handles, keys = inputs
+    one = functools.partial(
+        window_curves_traced, steps=steps, guidance=1.0, foot_lock=foot_lock, key_orientations=key_orientations
+    )
+    return jax.vmap(lambda s, e, h, k: one(bmm, character, s, e, h, transfer, k))(start, end, handles, keys)
+
+
+def sample_window_curves(
+    bmm: BezierMotionModel,
+    character: Character,
+    truth: Pose,
+    handles: Handles,
+    keys: jax.Array,
+    *,
+    transfer: Transfer | None = None,
+    steps: int = 10,
+    foot_lock: bool = False,
+    key_orientations: bool = True,
+    chunk: int = 128,
+) -> WindowCurves:
+    """The curves stage of every window (start and end from ``truth``, one key per window,
+    e.g. :func:`window_keys`), ``chunk`` windows per compiled call: batched
+    :class:`~bezmotion.pipeline.inbetweening.WindowCurves`, which :func:`solve_window_curves`
+    hands to any number of IKs."""
+    transfer = Transfer.identity() if transfer is None else transfer
+    first = jax.tree.map(lambda x: x[:, 0], truth)
+    last = jax.tree.map(lambda x: x[:, -1], truth)
+    run = functools.partial(
+        _curves_chunk, bmm, character, transfer, steps=steps, foot_lock=foot_lock, key_orientations=key_orientations
+    )
+    return _chunked(run, (first, last, handles, keys), chunk)[0]
+
+
+@functools.partial(jax.jit, static_argnames=("ik_fn", "key_blend_frames"))
+def _ik_chunk(ik_params, inputs, *, ik_fn, key_blend_frames) -> Pose:
+    positions, rot6d, start, end = inputs
+
+    def one(p, r, s, e):
+        window = WindowCurves(None, p, r)  # pose_from_curves reads the dense trajectories only
+        return pose_from_curves(ik_fn, ik_params, window, s, e, keep_keyframes=True, key_blend_frames=key_blend_frames)
+
+    return jax.vmap(one)(positions, rot6d, start, end)
+
+
+class IKTiming(NamedTuple):
+    """How long an IK took on a set of windows.
+
+    Attributes:
+      compile_s: the warm-up call before the timed ones: compiling the chunked IK and one call.
+      run_s: the compiled calls, each waited for (``block_until_ready``).
+      windows_run: windows those calls solved, the last chunk's padding included.
+    """
+
+    compile_s: float
+    run_s: float
+    windows_run: int
+
+    @property
+    def ms_per_window(self) -> float:
+        """Steady-state IK time per window (ms): compiled calls only, padding counted as work."""
+        return 1e3 * self.run_s / max(self.windows_run, 1)
+
+
+def solve_window_curves(
+    ik_fn: IKFn,
+    ik_params: Any,
+    curves: WindowCurves,
+    truth: Pose,
+    *,
+    key_blend_frames: int = KEY_BLEND_FRAMES,
+    chunk: int = 128,
+) -> tuple[Pose, IKTiming]:
+    """IK of every frame of every window's curves (batched, from :func:`sample_window_curves`),
+    the start and end poses of ``truth`` blended in as keys; ``(poses (windows, frames, …), timing)``.
+
+    A warm-up call on the first chunk compiles the chunked IK (``compile_s``: compiling and
+    one call; about the call alone when this IK, chunk and settings were compiled before),
+    so ``run_s`` is its steady-state time."""
+    first = jax.tree.map(lambda x: x[:, 0], truth)
+    last = jax.tree.map(lambda x: x[:, -1], truth)
+    inputs = (curves.positions, curves.rot6d, first, last)
+    n = curves.positions.shape[0]
+    chunk = min(chunk, n)
+    run = functools.partial(_ik_chunk, ik_params, ik_fn=ik_fn, key_blend_frames=key_blend_frames)
+    example = jax.tree.map(lambda a: a[np.arange(chunk)], inputs)
+    t0 = time.perf_counter()
+    jax.block_until_ready(run(example))  # warm-up: compiles (unless compiled before) and runs once, untimed below
+    compile_s = time.perf_counter() - t0
+    pose, seconds, windows_run = _chunked(run, inputs, chunk)
+    return pose, IKTiming(compile_s, float(sum(seconds)), windows_run)
+
+
+HANDLE_MISS_CM = 1.0
+"""A handle farther than this (cm) from its joint after IK counts as missed (``handles_missed_fraction``)."""
+
+
+class ReachChains(NamedTuple):
+    """How far each characteristic joint can be from the root of its chain.
+
+    Attributes:
+      root: ``(6,)`` the chain root of each characteristic joint (upper arm for the hands,
+        upper leg for the feet, the hips for the head); ``-1`` for the hips (the root moves
+        freely: always reachable).
+      length: ``(6,)`` the chain's length fully stretched, cm (sum of its bones' offsets).
+    """
+
+    root: np.ndarray
+    length: np.ndarray
+
+
+def reach_chains(rig: Rig) -> ReachChains:
+    """The chains of ``rig``: its limbs (root, middle, end) and its spine (hips → head)."""
+    bone = np.linalg.norm(np.asarray(rig.skeleton.offsets, np.float64), axis=-1)
+    root = np.full(len(CHARACTERISTIC_JOINTS), -1, np.int64)
+    length = np.zeros(len(CHARACTERISTIC_JOINTS))
+    chains = {CHARACTERISTIC_JOINTS.index("head"): rig.spine}
+    for role, limb in zip(("left_hand", "right_hand", "left_foot", "right_foot"), rig.limbs):
+        chains[CHARACTERISTIC_JOINTS.index(role)] = limb
+    for role, chain in chains.items():
+        root[role], length[role] = chain[0], bone[list(chain[1:])].sum()
+    return ReachChains(root, length)
+
+
+def handle_distances(positions: Float[Array, "*batch frames joints 3"], handles: Handles) -> Float[Array, "*batch handles"]:
+    """Distance (cm) of each handle slot from ``positions`` of its joint at its frame (padding
+    slots too: mask with ``handles.valid``)."""
+    f, j = positions.shape[-3:-1]
+    flat = positions.reshape(*positions.shape[:-3], f * j, 3)
+    slot = jnp.clip(handles.frame, 0, f - 1) * j + jnp.clip(handles.joint, 0, j - 1)
+    picked = jnp.take_along_axis(flat, slot[..., None], axis=-2)
+    return jnp.linalg.norm(picked - handles.position, axis=-1)
+
+
+def _per_window(fn, x: Array) -> np.ndarray:
+    return np.asarray(jax.vmap(fn)(x))
+
+
+def window_pose_metrics(
+    config: PipelineMetricsConfig,
+    character: Character,
+    pose: Pose,
+    truth: Pose,
+    handles: Handles,
+    chains: ReachChains | None = None,
+) -> dict[str, np.ndarray]:
+    """Per-window figures of poses ``(windows, frames, …)`` after IK, for :func:`summarize_windows`:
+    each handle's distance from the IK'd skeleton's joint (``handle_error``, ``handle_valid``),
+    MPJPE, foot skating, key pop, and (given ``chains``) ``handle_unreachable``: the handle is
+    farther from its chain's root *in the IK'd pose at that frame* than the chain's length
+    plus :data:`HANDLE_MISS_CM` (a hand beyond the arm's reach from the shoulder the IK
+    chose; hips handles never). Such a handle is necessarily missed by more than
+    :data:`HANDLE_MISS_CM`, so unreachable handles are a subset of the missed ones: the
+    rest are misses the limb itself could have avoided. (The tolerance keeps handles at
+    full extension, an arm hanging straight, from counting: the mocap's own come within a
+    few millimetres of the chain's length.)"""
+    _, pos = pose_fk(character, pose)
+    _, true_pos = pose_fk(character, truth)
+    six = pos[..., np.asarray(character.characteristic), :]
+    feet = six[..., list(FEET), :]
+    out = {
+        "handle_error": np.asarray(handle_distances(six, handles)),
+        "handle_valid": np.asarray(handles.valid),
+        "mpjpe": np.asarray(jnp.mean(jnp.linalg.norm(pos - true_pos, axis=-1), axis=(-2, -1))),
+        "skating": _per_window(lambda f: foot_skating_ratio(f, config.fps, floor_height=config.floor_height), feet),
+        "key_pop": _per_window(key_pop_deg, pose.quat_local),
+    }
+    if chains is not None:
+        root = jnp.asarray(chains.root)[handles.joint]
+        at_root = handles._replace(joint=jnp.maximum(root, 0))
+        beyond = handle_distances(pos, at_root) > jnp.asarray(chains.length, pos.dtype)[handles.joint] + HANDLE_MISS_CM
+        out["handle_unreachable"] = np.asarray(beyond & (root >= 0))
+    return out
+
+
+def _angle_deg(rot6d_a: Array, rot6d_b: Array) -> Array:
+    rel = quat_mul(quat_conjugate(quat_from_rot6d(rot6d_a)), quat_from_rot6d(rot6d_b))
+    return jnp.degrees(2.0 * jnp.arctan2(jnp.linalg.norm(rel[..., 1:], axis=-1), jnp.abs(rel[..., 0])))
+
+
+def window_curve_metrics(
+    config: PipelineMetricsConfig,
+    positions: Float[Array, "windows frames 6 3"],
+    handles: Handles,
+    true_positions: Float[Array, "windows frames 6 3"],
+    rot6d: Float[Array, "windows frames 6 6"] | None = None,
+    true_rot6d: Float[Array, "windows frames 6 6"] | None = None,
+) -> dict[str, np.ndarray]:
+    """Per-window figures of the six joints' dense curves before IK, for :func:`summarize_windows`:
+    handle distances, position error per joint (``dense``, ``(windows, 6)``), foot skating, and
+    with orientations, the angle (degrees) between the curves' and the mocap's global
+    orientation per joint (``orientation``, ``(windows, 6)``)."""
+    out = {
+        "handle_error": np.asarray(handle_distances(positions, handles)),
+        "handle_valid": np.asarray(handles.valid),
+        "dense": np.asarray(jnp.mean(jnp.linalg.norm(positions - true_positions, axis=-1), axis=-2)),
+        "skating": _per_window(
+            lambda f: foot_skating_ratio(f, config.fps, floor_height=config.floor_height), positions[..., list(FEET), :]
+        ),
+    }
+    if rot6d is not None and true_rot6d is not None:
+        out["orientation"] = np.asarray(jnp.mean(_angle_deg(rot6d, true_rot6d), axis=-2))
+    return out
+
+
+def window_mocap_metrics(config: PipelineMetricsConfig, character: Character, truth: Pose) -> dict[str, np.ndarray]:
+    """Per-window figures of the mocap itself: foot skating, key pop and largest per-frame
+    rotation change (the yardsticks of :func:`ground_truth_pose_metrics`)."""
+    _, pos = pose_fk(character, truth)
+    feet = pos[..., np.asarray(character.characteristic[4:6]), :]
+    return {
+        "skating": _per_window(lambda f: foot_skating_ratio(f, config.fps, floor_height=config.floor_height), feet),
+        "key_pop": _per_window(key_pop_deg, truth.quat_local),
+        "max_rotation_change": np.asarray(jnp.max(rotation_change_deg(truth.quat_local), axis=(-2, -1))),
+    }
+
+
+def summarize_windows(per_window: Mapping[str, np.ndarray], select: np.ndarray | None = None) -> dict[str, Any]:
+    """Aggregate per-window figures (of ``window_*_metrics``) over all windows or the ``select``
+    ones (a boolean mask or indices). Means over valid handles / windows; maxima for the
+    largest handle error, key pop and rotation change; per joint by role name."""
+    pick = (lambda a: a) if select is None else (lambda a: np.asarray(a)[select])  # noqa: E731
+    w = {k: pick(v) for k, v in per_window.items()}
+    out: dict[str, Any] = {}
+    if "handle_error" in w:
+        valid = w["handle_valid"].astype(bool)
+        error = w["handle_error"][valid]
+        out["handles_error_cm"] = float(error.mean()) if error.size else 0.0
+        out["handles_error_max_cm"] = float(error.max()) if error.size else 0.0
+        out["handles_missed_fraction"] = float(np.mean(error > HANDLE_MISS_CM)) if error.size else 0.0
+        if "handle_unreachable" in w:
+            out["unreachable_fraction"] = float(w["handle_unreachable"][valid].mean()) if error.size else 0.0
+    if "dense" in w:
+        out["dense_error_cm"] = float(w["dense"].mean())
+        out["dense_error_per_joint_cm"] = dict(zip(CHARACTERISTIC_JOINTS, map(float, w["dense"].mean(axis=0))))
+    if "orientation" in w:
+        out["orientation_error_deg"] = float(w["orientation"].mean())
+        out["orientation_error_per_joint_deg"] = dict(zip(CHARACTERISTIC_JOINTS, map(float, w["orientation"].mean(axis=0))))
+    if "mpjpe" in w:
+        out["mpjpe_cm"] = float(w["mpjpe"].mean())
+    if "skating" in w:
+        out["foot_skating_ratio"] = float(w["skating"].mean())
+    for key, name in (("key_pop", "key_pop_deg"), ("max_rotation_change", "max_rotation_change_deg")):
+        if key in w:
+            out[name] = float(w[key].max())
     return out

@@ -1,0 +1,328 @@
+"""The whole pipeline on one corpus, every IK on the same curves (issue 15, item 6).
+
+    python experiments/pipeline_eval.py --corpus bandai_namco --windows 100 --out results/pipeline_eval_bn.json
+    python experiments/pipeline_eval.py --corpus bandai_namco --bvh-dir my_clips/ --ik exact --out mine.json
+    python experiments/pipeline_eval.py --corpus lafan1 --bmm runs/bmm/model --ik-model runs/ik/model --out lafan1.json
+
+**Windows.** The validation split of the corpus (Bandai-Namco: every 10th take; LaFAN1:
+subject 5), or with ``--bvh-dir`` every ``*.bvh`` of a folder of the corpus's skeleton (a
+user's own clips; all of them are evaluated). Windows and handles are
+:func:`~bezmotion.bmm.evaluation.make_eval_set`'s draws with ``per_window=True`` (key
+``--seed``): the windows are a prefix of one fixed permutation and each window's 1–4
+handles and OOD noise (±16 cm per axis) come from ``fold_in(key, window row)``, so a
+window's handles depend on the window alone and the first ``n`` windows of a larger run
+are an ``n``-window run. ``--handle-frames`` puts handles on control frames (``grid``,
+the paper), between them (``off_grid``) or on any intermediate frame (``any``).
+
+**Curves once.** Each window's BMM curves are sampled once (``--steps`` DDIM steps, key
+``fold_in(--sample-seed, window row)``, in distribution and OOD) and every IK of ``--ik``
+runs on those same dense trajectories, the start and end poses blended in over
+``--key-blend`` frames. ``learned``: the bundled / given learned IK; ``refined``: it plus
+the rig's exact two-bone limbs; ``rig``: the analytic rig alone; ``exact``: the learned
+IK then the exact damped least-squares stage (:mod:`bezmotion.ik.exact`) with the joint
+limits stored beside the IK model; ``exact_refined``: the same on top of ``refined``.
+
+**Metrics.** Per IK, in distribution (``id``) and OOD (``ood``):
+
+- ``handles_error_cm`` / ``handles_error_max_cm``: mean / largest distance between a
+  handle and the IK'd skeleton's joint at its frame;
+- ``handles_missed_fraction``: handles farther than 1 cm from their joint after IK;
+- ``unreachable_fraction``: handles out of the limb's reach: farther from the root of
+  their chain in the IK'd pose at that frame (the upper arm for a hand, the upper leg
+  for a foot, the hips for the head) than the chain's length stretched out (sum of its
+  bones) plus 1 cm; hips handles are always reachable. Such handles are missed by more
+  than 1 cm whatever the limb does, so they are a subset of the missed ones; the rest
+  (``handles_missed_fraction − unreachable_fraction``) are misses the limb could have
+  avoided. (The 1 cm keeps handles at full extension, an arm hanging straight, from
+  counting: the mocap's own lie within millimetres of the chain's length.)
+- ``mpjpe_cm`` (every joint and frame against the mocap window), ``foot_skating_ratio``;
+- ``key_pop_deg``: the largest per-frame joint rotation change at frames 0→1 and 29→30;
+- ``ik_ms_per_window``: steady-state IK time per window (the compiled IK, every call
+  waited for, ``--chunk`` windows per call, padding of the last chunk counted), beside
+  ``compile_s`` once per IK (the warm-up call that compiles it, in distribution; the OOD
+  run reuses the compilation).
+
+``curves``: the curves before IK, ``bmm`` (the sampled curves given to every IK) and
+``reference`` (interpolation through the same start, end and handles,
+:func:`~bezmotion.bmm.evaluation.reference_curves`), each ``id`` / ``ood`` with
+``handles_error_cm`` (≈ 0: the curves pass through every handle), ``dense_error_cm`` and
+per joint, ``foot_skating_ratio``, and for the BMM the orientation error (degrees between
+the curves' and the mocap's global orientation of each joint, mean and per joint).
+``mocap``: the mocap's own foot skating, key pop and largest per-frame rotation change.
+``labels``: the same figures per content / action label (Bandai-Namco ``content``; LaFAN1
+the file's sequence without its number, ``walk4`` → ``walk``; a folder, the file stem
+without trailing digits).
+
+**JSON**::
+
+    {"windows": n, "corpus": …, "settings": {…}, "seconds": …,
+     "ik": {"<ik>": {"compile_s": …, "id": {<after-IK metrics>}, "ood": {…}}, …},
+     "curves": {"bmm": {"id": {…}, "ood": {…}}, "reference": {"id": {…}, "ood": {…}}},
+     "mocap": {…},
+     "labels": {"<label>": {"windows": k, "ik": {"<ik>": {"id", "ood"}}, "curves": {…}, "mocap": {…}}}}
+
+With a single ``--ik`` its ``id`` and ``ood`` also sit at the top level (the issue's
+``{"windows": n, "id": {…}, "ood": {…}, "curves": …}``). A Markdown report is written
+beside the JSON.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+from bezmotion.assets import BUNDLED_BMM, BUNDLED_IK
+from bezmotion.bmm.evaluation import dense_positions, floor_height_from, make_eval_set, reference_curves
+from bezmotion.bmm.features import HANDLE_FRAMES
+from bezmotion.bmm.sampling import load_model
+from bezmotion.data.corpus import Corpus, motion_clips
+from bezmotion.data.curves import CurveDataset, curve_dataset
+from bezmotion.data.sources import load_corpus
+from bezmotion.ik.exact import JointLimits, exact_ik
+from bezmotion.ik.protocol import targets_from_pose
+from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
+from bezmotion.ik.rig import make_rig, rig_ik
+from bezmotion.io import write_results
+from bezmotion.options import option, options, parse_options
+from bezmotion.pipeline.evaluation import (
+    PipelineMetricsConfig,
+    reach_chains,
+    sample_window_curves,
+    solve_window_curves,
+    summarize_windows,
+    window_curve_metrics,
+    window_keys,
+    window_mocap_metrics,
+    window_pose_metrics,
+    window_poses,
+)
+from bezmotion.pipeline.inbetweening import KEY_BLEND_FRAMES
+
+CORPORA = ("bandai_namco", "lafan1")
+IKS = ("learned", "refined", "rig", "exact", "exact_refined")
+BUNDLED = {"bandai_namco": {"bmm": BUNDLED_BMM, "ik": BUNDLED_IK}}  # no LaFAN1 models ship with the package
+CONDITIONS = ("id", "ood")
+
+
+@options
+class Options:
+    out: str = option(help="output JSON (a .md report is written beside it)")
+    corpus: str = option("bandai_namco", choices=CORPORA, help="the skeleton (and, without --bvh-dir, the validation split)")
+    bvh_dir: str | None = option(None, help="evaluate every .bvh in this folder (the corpus's skeleton) instead of the validation split")
+    bmm: str = option("bundled", help="a saved BMM folder, or 'bundled' (Bandai-Namco only)")
+    ik_model: str = option("bundled", help="a saved learned IK folder, or 'bundled' (Bandai-Namco only)")
+    joint_limits: str | None = option(None, help="the exact IK's joint limits JSON (default: joint_limits.json beside the IK model, if any)")
+    no_limits: bool = False
+    ik: tuple[str, ...] = option(("learned", "refined", "rig", "exact"), choices=IKS, help="IKs to run on the same curves")
+    windows: int = option(100, help="windows (0 = all)")
+    handle_frames: str = option("grid", choices=HANDLE_FRAMES, help="handles on control frames, between them, or any frame")
+    # --segments K (chained segments, issue 15 item 6) belongs here: K windows chained end to
+    # start, the keys shared; the curves and IK stages below then run on the chained windows.
+    steps: int = option(10, help="DDIM steps")
+    key_blend: int = option(KEY_BLEND_FRAMES, help="frames over which the start / end poses are blended in (0: replace the two frames)")
+    chunk: int = option(10, help="windows per compiled call (large chunks of the exact IK have hung XLA)")
+    seed: int = option(1234, help="key of the windows, handles and OOD noise")
+    sample_seed: int = option(7, help="key of the BMM sampler (folded with each window's row)")
+
+    def __post_init__(self):
+        for what in ("bmm", "ik_model"):
+            value = getattr(self, what)
+            flag = "--" + what.replace("_", "-")
+            if value == "bundled":
+                if self.corpus not in BUNDLED:
+                    raise ValueError(f"no bundled {what.replace('_model', '').upper()} model for {self.corpus}: pass {flag} PATH")
+            elif not Path(value).is_dir():
+                raise ValueError(f"{flag} {value}: no saved model folder there")
+        if self.bvh_dir is not None and not Path(self.bvh_dir).is_dir():
+            raise ValueError(f"--bvh-dir {self.bvh_dir}: not a folder")
+        if self.windows < 0 or self.chunk < 1 or self.steps < 1:
+            raise ValueError("--windows must be ≥ 0, --chunk and --steps ≥ 1")
+
+
+def model_path(args: Options, what: str) -> Path:
+    value = getattr(args, what)
+    return BUNDLED[args.corpus]["bmm" if what == "bmm" else "ik"] if value == "bundled" else Path(value)
+
+
+def open_windows(args: Options) -> tuple[Corpus, CurveDataset]:
+    """The corpus (validation split, or a whole BVH folder validating) and its curve dataset."""
+    if args.bvh_dir is None:
+        corpus = load_corpus(args.corpus, progress=False)
+    else:  # every file validates
+        corpus = load_corpus(args.bvh_dir, characteristic=args.corpus, validation_every=1, progress=False)
+    return corpus, curve_dataset(corpus, "validation", progress=False)
+
+
+def label_of(labels: dict) -> str:
+    """A clip's content / action: Bandai-Namco's ``content``, LaFAN1's sequence or a file stem without its number."""
+    if "content" in labels:
+        return str(labels["content"])
+    name = str(labels.get("sequence", labels.get("file", "?")))
+    return re.sub(r"[\d_\-\s]+$", "", name) or name
+
+
+def window_labels(corpus: Corpus, dataset: CurveDataset, rows: np.ndarray) -> np.ndarray:
+    clips = corpus.split("validation")
+    return np.asarray([label_of(corpus.labels(int(clips[dataset.clip_index[r]]))) for r in rows])
+
+
+def build_iks(args: Options, ik_model, rig) -> tuple[dict[str, tuple], bool]:
+    """The IKs of ``--ik`` as ``{name: (ik_fn, params)}``, and whether the exact IK has joint limits."""
+    character = ik_model.character
+    limits = None
+    if not args.no_limits:
+        path = Path(args.joint_limits) if args.joint_limits else model_path(args, "ik_model") / "joint_limits.json"
+        if path.exists():
+            limits = JointLimits.load(path, character)
+        elif args.joint_limits:
+            raise FileNotFoundError(f"--joint-limits {path}: no such file")
+    makers = {
+        "learned": lambda: (protores_ik_fn, ik_model),
+        "refined": lambda: (protores_refined_ik_fn, (ik_model, rig)),
+        "rig": lambda: (rig_ik, rig),
+        "exact": lambda: exact_ik(protores_ik_fn, ik_model, character, limits=limits),
+        "exact_refined": lambda: exact_ik(protores_refined_ik_fn, (ik_model, rig), character, limits=limits),
+    }
+    return {name: makers[name]() for name in dict.fromkeys(args.ik)}, limits is not None
+
+
+def by_label(per_window: dict, labels: np.ndarray) -> dict[str, dict]:
+    return {label: summarize_windows(per_window, labels == label) for label in sorted(set(labels))}
+
+
+def main(argv: list[str] | None = None) -> dict:
+    args = parse_options(Options, argv, description=__doc__)
+    started = time.perf_counter()
+    bmm = load_model(model_path(args, "bmm"))
+    ik_model = load_ik_model(model_path(args, "ik_model"))
+    character = ik_model.character
+    corpus, dataset = open_windows(args)
+    if corpus.skeleton.names != character.skeleton.names or corpus.skeleton.parents != character.skeleton.parents:
+        raise ValueError(f"{args.bvh_dir or args.corpus}: its skeleton is not the IK model's ({character.name}); use clips of the {args.corpus} skeleton")
+    if len(dataset.ctrl_pos) == 0:
+        raise ValueError(f"{args.bvh_dir or args.corpus}: no {dataset.layout.num_frames}-frame window in its clips")
+    clips = motion_clips(corpus, "validation")
+    eval_set = make_eval_set(
+        dataset, key=jax.random.key(args.seed), num_windows=args.windows or None, handle_frames=args.handle_frames, per_window=True
+    )
+    truth = window_poses(character, clips, dataset, eval_set.rows)
+    labels = window_labels(corpus, dataset, eval_set.rows)
+    n = int(truth.root_pos.shape[0])
+    config = PipelineMetricsConfig(dataset.layout.stride, dataset.fps, floor_height_from(dataset))
+    # The joints the rig does not solve (clavicles, toes) keep one real pose's rotations.
+    rig = make_rig(character, args.corpus, rest_quat_local=np.asarray(truth.quat_local[0, 0]))
+    chains = reach_chains(rig)
+    iks, limited = build_iks(args, ik_model, rig)
+    true_targets = targets_from_pose(character, truth)
+    keys = window_keys(jax.random.key(args.sample_seed), eval_set.rows)
+    handles = {"id": eval_set.handles, "ood": eval_set.handles_ood}
+
+    mocap = window_mocap_metrics(config, character, truth)
+    curve_windows: dict[str, dict[str, dict]] = {"bmm": {}, "reference": {}}
+    ik_windows: dict[str, dict[str, dict]] = {name: {} for name in iks}
+    ik_results: dict[str, dict] = {name: {} for name in iks}
+    for cond in CONDITIONS:
+        t0 = time.perf_counter()
+        curves = sample_window_curves(bmm, character, truth, handles[cond], keys, steps=args.steps, chunk=args.chunk)
+        print(f"{cond}: curves of {n} windows sampled once ({time.perf_counter() - t0:.0f} s)", flush=True)
+        curve_windows["bmm"][cond] = window_curve_metrics(
+            config, curves.positions, handles[cond], true_targets.position, curves.rot6d, true_targets.rot6d
+        )
+        ref = reference_curves(eval_set, handles[cond], dataset.layout)
+        ref_positions = dense_positions(dataset.layout, ref.ctrl_pos, ref.ctrl_tangent)
+        curve_windows["reference"][cond] = window_curve_metrics(config, ref_positions, handles[cond], true_targets.position)
+        for name, (fn, params) in iks.items():
+            pose, timing = solve_window_curves(fn, params, curves, truth, key_blend_frames=args.key_blend, chunk=args.chunk)
+            ik_windows[name][cond] = window_pose_metrics(config, character, pose, truth, handles[cond], chains)
+            summary = summarize_windows(ik_windows[name][cond])
+            ik_results[name][cond] = {**summary, "ik_ms_per_window": timing.ms_per_window}
+            ik_results[name].setdefault("compile_s", timing.compile_s)  # the OOD run reuses the compilation
+            print(f"{cond} {name}: {ik_results[name][cond]} (compile {timing.compile_s:.1f} s)", flush=True)
+
+    results = {
+        "windows": n,
+        "corpus": args.corpus,
+        "source": args.bvh_dir or f"{args.corpus} validation",
+        "settings": {
+            "bmm": str(model_path(args, "bmm")), "ik_model": str(model_path(args, "ik_model")), "joint_limits": limited,
+            "handle_frames": args.handle_frames, "steps": args.steps, "key_blend_frames": args.key_blend,
+            "chunk": args.chunk, "seed": args.seed, "sample_seed": args.sample_seed, "segments": 1,
+            "rows": [int(r) for r in eval_set.rows],
+        },  # fmt: skip
+        "ik": {name: {"compile_s": r.pop("compile_s"), **r} for name, r in ik_results.items()},
+        "curves": {kind: {cond: summarize_windows(w) for cond, w in conds.items()} for kind, conds in curve_windows.items()},
+        "mocap": summarize_windows(mocap),
+        "labels": {},
+    }
+    if len(iks) == 1:
+        only = next(iter(results["ik"].values()))
+        results["id"], results["ood"] = only["id"], only["ood"]
+    for label in sorted(set(labels)):
+        mask = labels == label
+        results["labels"][label] = {
+            "windows": int(mask.sum()),
+            "ik": {name: {cond: summarize_windows(ik_windows[name][cond], mask) for cond in CONDITIONS} for name in iks},
+            "curves": {kind: {cond: summarize_windows(w, mask) for cond, w in conds.items()} for kind, conds in curve_windows.items()},
+            "mocap": summarize_windows(mocap, mask),
+        }
+    results["seconds"] = time.perf_counter() - started
+    write_results(args.out, results, format_report(results))
+    return results
+
+
+def format_report(r: dict) -> str:
+    s = r["settings"]
+    m = r["mocap"]
+    lines = [
+        f"Pipeline on {r['source']}: {r['windows']} windows, handles on {s['handle_frames']} frames, {s['steps']} DDIM steps, "
+        f"key blend {s['key_blend_frames']} frames; the curves sampled once, every IK on the same curves ({r['seconds']:.0f} s).",
+        f"Mocap: foot skating {m['foot_skating_ratio']:.4f}, key pop {m['key_pop_deg']:.2f}°, "
+        f"largest per-frame change {m['max_rotation_change_deg']:.2f}°.",
+        "",
+        "| IK | handles ID (cm) | OOD (cm) | max ID / OOD (cm) | unreachable ID / OOD | MPJPE ID (cm) | skating ID | key pop ID / OOD (°) | IK ms/window | compile (s) |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for name, x in r["ik"].items():
+        i, o = x["id"], x["ood"]
+        lines.append(
+            f"| {name} | {i['handles_error_cm']:.4f} | {o['handles_error_cm']:.4f} | {i['handles_error_max_cm']:.2f} / {o['handles_error_max_cm']:.2f} | "
+            f"{i['unreachable_fraction']:.3f} / {o['unreachable_fraction']:.3f} | {i['mpjpe_cm']:.3f} | {i['foot_skating_ratio']:.4f} | "
+            f"{i['key_pop_deg']:.2f} / {o['key_pop_deg']:.2f} | {i['ik_ms_per_window']:.1f} | {x['compile_s']:.1f} |"
+        )
+    lines += [
+        "",
+        "Curves before IK (six joints):",
+        "",
+        "| curves | handles ID / OOD (cm) | dense error ID / OOD (cm) | skating ID / OOD | orientation ID / OOD (°) |",
+        "|---|---|---|---|---|",
+    ]
+    for kind, c in r["curves"].items():
+        i, o = c["id"], c["ood"]
+        orientation = f"{i['orientation_error_deg']:.2f} / {o['orientation_error_deg']:.2f}" if "orientation_error_deg" in i else "–"
+        lines.append(
+            f"| {kind} | {i['handles_error_cm']:.4f} / {o['handles_error_cm']:.4f} | {i['dense_error_cm']:.3f} / {o['dense_error_cm']:.3f} | "
+            f"{i['foot_skating_ratio']:.4f} / {o['foot_skating_ratio']:.4f} | {orientation} |"
+        )
+    first_ik = next(iter(r["ik"]))
+    lines += [
+        "",
+        f"Per label (in distribution; after IK: {first_ik}):",
+        "",
+        "| label | windows | BMM dense (cm) | reference dense (cm) | BMM orientation (°) | handles (cm) | MPJPE (cm) | skating | mocap skating |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for label, x in r["labels"].items():
+        b, ref, ik = x["curves"]["bmm"]["id"], x["curves"]["reference"]["id"], x["ik"][first_ik]["id"]
+        lines.append(
+            f"| {label} | {x['windows']} | {b['dense_error_cm']:.3f} | {ref['dense_error_cm']:.3f} | {b['orientation_error_deg']:.2f} | "
+            f"{ik['handles_error_cm']:.4f} | {ik['mpjpe_cm']:.3f} | {ik['foot_skating_ratio']:.4f} | {x['mocap']['foot_skating_ratio']:.4f} |"
+        )
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    main()
