@@ -17,6 +17,7 @@ never from here, so this file can re-export anything without an import cycle.
 
 # Bundled data and models (paths; load them with the verbs below).
 from bezmotion.assets import BUNDLED_BMM, BUNDLED_IK, DEMO_CLIP, PROFILES_DIR
+from bezmotion.assets.registry import Pretrained, pretrained  # models by name: bm.pretrained("bandai_namco")
 
 # Bézier curves.
 from bezmotion.bezier import BezierLayout, evaluate, fit_curves
@@ -64,6 +65,7 @@ __all__ = [
     "IKTargets",
     "InbetweenResult",
     "Pose",
+    "Pretrained",
     "SampledCurves",
     "Skeleton",
     "Transfer",
@@ -80,6 +82,7 @@ __all__ = [
     "pose_fk",
     "pose_from_motion",
     "pose_to_bvh",
+    "pretrained",
     "protores_ik_fn",
     "protores_refined_ik_fn",
     "read_bvh",

@@ -3,6 +3,7 @@
     bezmotion demo [--out DIR] [--joint J --frame F --offset X Y Z] [--ik learned|rig] [--channels clip]
     bezmotion inbetween CLIP.bvh --frames 0 30 [--handle JOINT@FRAME=X,Y,Z …] [--out out.bvh|out.glb|DIR]
     bezmotion inbetween --start A.bvh@F --end B.bvh@G [--handles FILE] [--samples N] [--ik rig] [--mapping MAP.json]
+    bezmotion models [--check | --write-manifest]   # the pretrained models: bundled or not, size, data, licence, retraining
 
 Errors are one line, ``bezmotion: error: …`` naming the argument and its value, with exit
 status 2; nothing is written then.
@@ -16,7 +17,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from bezmotion.assets import BUNDLED_BMM, BUNDLED_IK
+from bezmotion.assets.registry import check_manifest, models_table, write_manifest
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.demo import demo
 from bezmotion.inbetween_command import InbetweenOptions, run_inbetween
@@ -40,9 +41,13 @@ class DemoOptions:
     )  # fmt: skip
     steps: int = option(10, help="DDIM steps (default 10)")
     seed: int = 0
-    bmm: Path = option(BUNDLED_BMM, help="a saved BMM (default: the bundled one)")
-    bmm_corpus: str = option("bandai_namco", help="the corpus --bmm was trained on: bandai_namco (default) or lafan1 (transferred)")
-    ik_model: Path = option(BUNDLED_IK, help="a saved learned IK (default: the bundled one)")
+    bmm: str = option(
+        "bandai_namco", metavar="NAME|PATH", help="the BMM: a pretrained model's name (default bandai_namco; bezmotion models lists them) or a saved BMM's folder"
+    )
+    bmm_corpus: str | None = option(
+        None, help="the corpus --bmm was trained on: bandai_namco or lafan1 (transferred); default: a named model's own, else bandai_namco"
+    )
+    ik_model: str = option("bandai_namco", metavar="NAME|PATH", help="the learned IK: a pretrained model's name (default bandai_namco) or a saved one's folder")
     channels: str = option(
         "default", choices=CHANNEL_CHOICES,
         help="BVH channels: default (positions on the root and hips, rotations elsewhere) or clip (the clip's own layout)",
@@ -80,6 +85,13 @@ def main(argv: list[str] | None = None) -> int:
         description=InbetweenOptions.__doc__, epilog=INBETWEEN_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter,
     )  # fmt: skip
     add_options(p_inbetween, InbetweenOptions)
+    p_models = sub.add_parser(
+        "models", help="list the pretrained models: bundled or how to train them, size, data, licence, retrain commands",
+        description="The pretrained models by name (bezmotion.pretrained(NAME) in Python; --model NAME, --ik-model NAME here).",
+    )  # fmt: skip
+    manifest = p_models.add_mutually_exclusive_group()
+    manifest.add_argument("--check", action="store_true", help="check every bundled model's files against the checksum manifest")
+    manifest.add_argument("--write-manifest", action="store_true", help="rewrite the checksum manifest from the bundled files (after retraining one)")
     parsed = parser.parse_args(argv)
 
     try:
@@ -92,6 +104,13 @@ def main(argv: list[str] | None = None) -> int:
             )  # fmt: skip
         elif parsed.command == "inbetween":
             run_inbetween(options_from(p_inbetween, InbetweenOptions, parsed))
+        elif parsed.command == "models":
+            if parsed.write_manifest:
+                print(f"wrote {write_manifest()}")
+            elif parsed.check:
+                print(f"every bundled model matches {check_manifest()}")
+            else:
+                print(models_table())
     except (ValueError, FileNotFoundError) as e:
         print(f"bezmotion: error: {' '.join(str(e).split())}", file=sys.stderr)
         return 2

@@ -17,13 +17,15 @@ from __future__ import annotations
 
 import json
 import time
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import jax
 import numpy as np
 
 from bezmotion.io import atomic_write_text, save_figure
-from bezmotion.assets import BUNDLED_BMM, BUNDLED_IK, DEMO_CLIP, DEMO_CLIP_ATTRIBUTION
+from bezmotion.assets import DEMO_CLIP, DEMO_CLIP_ATTRIBUTION
 from bezmotion.data.bvh import read_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.ik.protocol import Character, Pose, pose_fk
@@ -41,6 +43,8 @@ from bezmotion.pipeline.authoring import (
     motion_poses,
     profile_names,
     recognise_character,
+    resolve_bmm,
+    resolve_ik_model,
     target_profile,
     write_result,
 )
@@ -94,6 +98,16 @@ def _plot(
     plt.close(fig)
 
 
+def _resolve(flag: str, name_or_path: str | Path, resolve: Callable[[str | Path], Any]) -> Any:
+    """A model's name or folder resolved, its errors naming the flag."""
+    try:
+        return resolve(name_or_path)
+    except FileNotFoundError as error:
+        raise FileNotFoundError(f"{flag} {name_or_path}: {error}") from None
+    except ValueError as error:
+        raise ValueError(f"{flag} {name_or_path}: {error}") from None
+
+
 def demo(
     out: Path,
     *,
@@ -103,9 +117,9 @@ def demo(
     ik: str = "refined",
     steps: int = 10,
     seed: int = 0,
-    bmm_dir: Path = BUNDLED_BMM,
-    bmm_corpus: str = "bandai_namco",
-    ik_dir: Path = BUNDLED_IK,
+    bmm_dir: str | Path = "bandai_namco",
+    bmm_corpus: str | None = None,
+    ik_dir: str | Path = "bandai_namco",
     clip: Path = DEMO_CLIP,
     channels: str = "default",
 ) -> dict:
@@ -120,9 +134,11 @@ def demo(
         (the learned IK, then a whole-body least-squares solve onto all six targets, with
         the joint limits stored beside the IK model).
       steps, seed: DDIM steps and PRNG seed of the sampler.
-      bmm_dir, bmm_corpus: the BMM and the corpus it was trained on (one with a profile in
-        :data:`~bezmotion.assets.PROFILES_DIR`; another skeleton's curves are transferred).
-      ik_dir: the learned IK (for every ``ik`` but ``"rig"``).
+      bmm_dir, bmm_corpus: the BMM — a pretrained model's name (:mod:`bezmotion.assets.registry`,
+        ``bezmotion models``) or a saved BMM's folder — and the corpus it was trained on (one
+        with a profile in :data:`~bezmotion.assets.PROFILES_DIR`; default: a named model's
+        own, else ``"bandai_namco"``; another skeleton's curves are transferred).
+      ik_dir: the learned IK, a name or a folder (for every ``ik`` but ``"rig"``).
       channels: the BVH files' channels: ``"default"`` (positions on the root and the hips,
         rotations elsewhere) or ``"clip"`` (the clip's own layout). Either way the files
         carry the clip's OFFSETs and End Sites and its whole frame rate.
@@ -135,11 +151,14 @@ def demo(
         raise ValueError(f"--channels must be one of {CHANNEL_CHOICES}, got {channels!r}")
     if not (steps >= 1):
         raise ValueError(f"--steps must be at least 1, got {steps}")
-    if bmm_corpus not in profile_names():
+    if bmm_corpus is not None and bmm_corpus not in profile_names():
         raise ValueError(f"--bmm-corpus must be one of {profile_names()}, got {bmm_corpus!r}")
     started = time.perf_counter()
+    bmm_folder, trained_on = _resolve("--bmm", bmm_dir, resolve_bmm)
+    bmm_corpus = bmm_corpus if bmm_corpus is not None else trained_on or "bandai_namco"
+    ik_folder = None if ik == "rig" else _resolve("--ik-model", ik_dir, resolve_ik_model)
     motion = read_bvh(clip)
-    bmm = load_model(bmm_dir)
+    bmm = load_model(bmm_folder)
     # The clip's own skeleton (its offsets) throughout: the files' FK is the pipeline's.
     recognised = recognise_character(motion)
     character = recognised.character
@@ -149,8 +168,8 @@ def demo(
     truth = motion_poses(motion, character, slice(0, frames))
     # Joints the rig does not solve (clavicles, toes) keep the start pose's rotations.
     ik_fn, ik_params = make_ik(
-        ik, recognised, rest_quat_local=np.asarray(truth.quat_local[0]), ik_model=None if ik == "rig" else load_ik_model(ik_dir),
-        limits=ik_model_joint_limits(ik_dir, character) if ik == "exact" else None,
+        ik, recognised, rest_quat_local=np.asarray(truth.quat_local[0]), ik_model=None if ik_folder is None else load_ik_model(ik_folder),
+        limits=ik_model_joint_limits(ik_folder, character) if ik == "exact" else None,
     )  # fmt: skip
     _, true_pos = pose_fk(character, truth)
     j = CHARACTERISTIC_JOINTS.index(joint)

@@ -111,11 +111,15 @@ class InbetweenOptions:
         help="auto (default): refined when the learned IK fits the skeleton, else rig; refined: learned IK then "
         "exact two-bone limbs; learned: the learned IK alone; rig: analytic, any skeleton, no training",
     )  # fmt: skip
-    model: str = option("bandai_namco", metavar="NAME|PATH", help="the BMM: a bundled model's name (bandai_namco, default) or a saved BMM's folder")
-    ik_model: str = option("bandai_namco", metavar="NAME|PATH", help="the learned IK: a bundled model's name (default bandai_namco) or a saved one's folder")
+    model: str = option(
+        "bandai_namco", metavar="NAME|PATH", help="the BMM: a pretrained model's name (bandai_namco, default; bezmotion models lists them) or a saved BMM's folder"
+    )
+    ik_model: str = option(
+        "bandai_namco", metavar="NAME|PATH", help="the learned IK: a pretrained model's name (default bandai_namco) or a saved one's folder"
+    )
     trained_on: str | None = option(
         None, metavar="NAME|PROFILE.json", help="the skeleton --model was trained on: a profile name (bandai_namco, lafan1) or a profile JSON; "
-        "default: a bundled model's own; for a folder, the clips' skeleton (no transfer)",
+        "default: a named model's own; for a folder, the clips' skeleton (no transfer)",
     )  # fmt: skip
     mapping: Path | None = option(None, metavar="MAP.json", help="JSON or TOML naming the six characteristic joints (and optionally the rig's chains) of another skeleton")
     out: Path = option(Path("results/inbetween"), metavar="PATH", help="a .bvh, .glb or .gif file, or a folder (default results/inbetween)")
@@ -404,8 +408,8 @@ def plan(args: InbetweenOptions) -> Plan:
         _role(r, recognised)
 
     # The models.
-    bmm_dir, bundled_trained_on = resolve_bmm(args.model)
     try:
+        bmm_dir, bundled_trained_on = resolve_bmm(args.model)
         bmm = load_model(bmm_dir)
     except (FileNotFoundError, ValueError, TypeError) as error:
         raise _error("--model", args.model, error) from None

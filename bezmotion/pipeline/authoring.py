@@ -4,7 +4,8 @@ from the BMM's training skeleton, and results written by file suffix.
 
 ``bezmotion demo`` and ``bezmotion inbetween`` are built from these pieces:
 
-- :data:`BUNDLED_MODELS`, :func:`resolve_bmm`, :func:`resolve_ik_model`: ``--model NAME|PATH``;
+- :func:`resolve_bmm`, :func:`resolve_ik_model`: ``--model NAME|PATH``, a name from the one
+  registry of pretrained models (:mod:`bezmotion.assets.registry`) or a folder;
 - :func:`recognise_character`: a BVH skeleton is LaFAN1 or Bandai-Namco when it has that
   preset's six characteristic joint names; any other skeleton needs a mapping file
   (:func:`read_mapping`: the six joints, and optionally the rig's chains — without them the
@@ -31,7 +32,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bezmotion.assets import BUNDLED_BMM, BUNDLED_IK, DEMO_CLIP_ATTRIBUTION, PROFILES_DIR
+from bezmotion.assets import PROFILES_DIR
+from bezmotion.assets.registry import resolve_folder
 from bezmotion.bmm.sampling import SampledCurves
 from bezmotion.data.bvh import BvhMotion, read_bvh, write_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, SKELETON_MAPS
@@ -54,32 +56,17 @@ CHANNEL_CHOICES = ("default", "clip")
 # ------------------------------------------------------------------------------ models
 
 
-@dataclasses.dataclass(frozen=True)
-class BundledModel:
-    """A pretrained BMM and learned IK shipped in :mod:`bezmotion.assets`.
-
-    Attributes:
-      bmm, ik: the saved models' folders.
-      trained_on: the skeleton both were trained on (a profile in ``PROFILES_DIR``).
-      attribution: the training data's credit line.
-    """
-
-    bmm: Path
-    ik: Path
-    trained_on: str
-    attribution: str
-
-
-BUNDLED_MODELS: Mapping[str, BundledModel] = {
-    "bandai_namco": BundledModel(BUNDLED_BMM, BUNDLED_IK, "bandai_namco", DEMO_CLIP_ATTRIBUTION),
-}
-"""Bundled models by the name ``--model`` and ``--ik-model`` take."""
-
-
 def resolve_bmm(name_or_path: str | os.PathLike) -> tuple[Path, str | None]:
-    """``(folder, skeleton it was trained on or None)`` of a bundled model's name or a saved BMM's folder."""
-    bundled = BUNDLED_MODELS.get(str(name_or_path))
-    return (bundled.bmm, bundled.trained_on) if bundled else (Path(name_or_path), None)
+    """``(folder, skeleton it was trained on or None)`` of a registered model's name
+    (:data:`bezmotion.assets.registry.REGISTRY`; a bundled one's checksum is checked) or a
+    saved BMM's folder.
+
+    Raises:
+      ChecksumError: a bundled model's files differ from the manifest.
+      FileNotFoundError: a registered model that is not bundled was not trained (naming the command).
+    """
+    folder, entry = resolve_folder(name_or_path, "bmm")
+    return folder, entry.skeleton if entry is not None else None
 
 
 def ik_model_joint_limits(directory: str | os.PathLike, character: Character) -> JointLimits | None:
@@ -90,9 +77,8 @@ def ik_model_joint_limits(directory: str | os.PathLike, character: Character) ->
 
 
 def resolve_ik_model(name_or_path: str | os.PathLike) -> Path:
-    """The folder of a bundled learned IK's name or of a saved one."""
-    bundled = BUNDLED_MODELS.get(str(name_or_path))
-    return bundled.ik if bundled else Path(name_or_path)
+    """The folder of a registered learned IK's name (checked like :func:`resolve_bmm`) or of a saved one."""
+    return resolve_folder(name_or_path, "ik")[0]
 
 
 def profile_names() -> list[str]:
@@ -411,11 +397,9 @@ def write_result(path: str | os.PathLike, result: ResultFiles) -> None:
 
 
 __all__ = [
-    "BUNDLED_MODELS",
     "CHANNEL_CHOICES",
     "IK_CHOICES",
     "WRITERS",
-    "BundledModel",
     "RecognisedCharacter",
     "ResultFiles",
     "bvh_fk_error_cm",

@@ -1,0 +1,429 @@
+"""Pretrained models by name: one registry of what ships, what must be retrained, and how.
+
+    pt = bezmotion.pretrained("bandai_namco")    # BMM, learned IK, character, profile, joint limits
+    bezmotion models                             # what is bundled: size, data, licence, retrain commands
+    bezmotion models --write-manifest            # after retraining a bundled model (--check: verify)
+
+Each :class:`ModelEntry` names a BMM and a learned IK trained on one skeleton, the data
+they were trained on and its licence, and the commands that retrain them. Only models
+whose data's licence allows shipping are bundled (in :data:`~bezmotion.assets.MODELS_DIR`,
+fp16 BMM): the Bandai-Namco ones (CC BY-NC 4.0). LaFAN1 is CC BY-NC-**ND** 4.0, so models
+trained on it stay out of the package: their entry points at the run folders under
+``<cache>/runs`` (``~/.cache/bezmotion`` unless ``BEZMOTION_CACHE``) that their commands
+write, and loading one that has not been trained there names the command.
+
+Bundled folders are checked against :data:`MANIFEST` (``MANIFEST.json`` beside them): a
+SHA-256 over every file of a folder (:func:`folder_digest`). A changed, truncated or
+missing file is a :class:`ChecksumError` naming the folder and both digests, before
+anything is loaded. ``tests/test_pretrained.py`` fails when the manifest is not updated
+along with the files.
+
+``bezmotion demo --bmm NAME`` and ``bezmotion inbetween --model NAME --ik-model NAME``
+take these names too (:func:`resolve_folder`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Literal, NamedTuple
+
+from bezmotion.assets import MODELS_DIR, PROFILES_DIR
+from bezmotion.bmm.sampling import BezierMotionModel, load_model
+from bezmotion.data.cache import cache_dir
+from bezmotion.ik.exact import JointLimits
+from bezmotion.ik.protocol import Character
+from bezmotion.ik.protores import ProtoResModel, load_ik_model
+from bezmotion.io import atomic_write_text
+from bezmotion.pipeline.transfer import CharacterProfile
+
+MANIFEST = "MANIFEST.json"
+"""The checksum manifest's file name, in the bundled models' root folder."""
+MANIFEST_FORMAT = "bezmotion.pretrained/1"
+DIGEST_RULE = "sha256 over the folder's files sorted by relative POSIX path: for each, the path, a NUL byte, the file's own sha256"
+
+Part = Literal["bmm", "ik"]
+PARTS: tuple[Part, ...] = ("bmm", "ik")
+
+_BANDAI_DATA = (
+    "the training takes (ids not a multiple of 10) of Bandai-Namco-Research-Motiondataset-2, "
+    "(c) 2022 Bandai Namco Research Inc., https://github.com/BandaiNamcoResearchInc/Bandai-Namco-Research-Motiondataset"
+)
+_LAFAN1_DATA = "LaFAN1 subjects 1-4, (c) Ubisoft La Forge, https://github.com/ubisoft/ubisoft-laforge-animation-dataset"
+
+
+@dataclasses.dataclass(frozen=True)
+class ModelEntry:
+    """A BMM and a learned IK trained on one skeleton, by name.
+
+    Attributes:
+      name: what :func:`pretrained`, ``--model`` and ``--ik-model`` take.
+      bmm, ik: the saved models' folders (POSIX paths): inside the models root
+        (:data:`~bezmotion.assets.MODELS_DIR`) when ``bundled``, else inside ``<cache>/runs``.
+      skeleton: the skeleton both were trained on: a profile in :data:`~bezmotion.assets.PROFILES_DIR`.
+      bundled: shipped with the package (checked against :data:`MANIFEST`).
+      data: the training data's attribution.
+      licence: the data's licence, which the models inherit.
+      commands: the commands that retrain them (the BMM's, then the IK's, and for a bundled
+        IK its joint limits); they write into ``<cache>/runs``, from where a bundled model is
+        copied into the package (``bezmotion/assets/README.md``) and re-checksummed.
+      metrics: what they scored, in words.
+      metrics_file: where the BMM's command writes its full results (not shipped).
+    """
+
+    name: str
+    bmm: str
+    ik: str
+    skeleton: str
+    bundled: bool
+    data: str
+    licence: str
+    commands: tuple[str, ...]
+    metrics: str = ""
+    metrics_file: str | None = None
+
+    def folder(self, part: Part, *, root: str | os.PathLike | None = None) -> Path:
+        """The ``"bmm"`` or ``"ik"`` folder: under ``root`` (default :data:`MODELS_DIR`) when
+        bundled, else under ``<cache>/runs`` (read at the call)."""
+        if part not in PARTS:
+            raise ValueError(f"part must be one of {PARTS}, got {part!r}")
+        relative = getattr(self, part)
+        if not self.bundled:
+            return cache_dir() / "runs" / relative
+        return Path(root if root is not None else MODELS_DIR) / relative
+
+    def folders(self, *, root: str | os.PathLike | None = None) -> dict[Part, Path]:
+        return {part: self.folder(part, root=root) for part in PARTS}
+
+    def retrain_hint(self) -> str:
+        return "retrain with: " + " && ".join(self.commands)
+
+
+REGISTRY: Mapping[str, ModelEntry] = {
+    "bandai_namco": ModelEntry(
+        name="bandai_namco",
+        bmm="bmm_bandai_namco",
+        ik="ik_bandai_namco",
+        skeleton="bandai_namco",
+        bundled=True,
+        data=_BANDAI_DATA,
+        licence="CC BY-NC 4.0 (non-commercial use only, attribution kept)",
+        commands=(
+            "python experiments/bmm_lafan1.py --corpus bandai_namco --out results/bmm_bandai_namco_residual.json "
+            "--prediction residual --steps 3025 --learning-rate 5e-4 --min-snr-gamma 0 --eval-windows 1000 --table6-steps 10",
+            "python experiments/train_ik.py --corpus bandai_namco",
+            "python experiments/joint_limits.py --corpus bandai_namco --out bezmotion/assets/models/ik_bandai_namco/joint_limits.json",
+        ),
+        metrics=(
+            "BMM, 1,000 validation windows, curves before IK, 10 DDIM steps: dense six-joint error 6.07 cm "
+            "(reference curves through start, end and handles: 7.11 cm), handles hit exactly; learned IK, every 4th "
+            "validation frame (8,617): MPJPE 0.40 cm from the six joints' positions and rotations, 1.18 cm from positions only"
+        ),
+        metrics_file="results/bmm_bandai_namco_residual.json",
+    ),
+    "lafan1": ModelEntry(
+        name="lafan1",
+        bmm="bmm_lafan1_cpu_residual/model",
+        ik="ik_lafan1/model",
+        skeleton="lafan1",
+        bundled=False,
+        data=_LAFAN1_DATA,
+        licence="CC BY-NC-ND 4.0 (non-commercial, no derivatives: never shipped; train it locally)",
+        commands=(
+            "python experiments/bmm_lafan1.py --out results/bmm_lafan1_residual.json --prediction residual "
+            "--learning-rate 5e-4 --min-snr-gamma 0",
+            "python experiments/train_ik.py --corpus lafan1",
+        ),
+        metrics="written by its commands: results/bmm_lafan1_residual.json and <cache>/runs/ik_lafan1/training.json",
+        metrics_file="results/bmm_lafan1_residual.json",
+    ),
+}
+"""Every model by name: bundled ones and those their commands train locally."""
+
+
+class Pretrained(NamedTuple):
+    """What :func:`pretrained` returns.
+
+    Attributes:
+      bmm: the Bézier Motion Model (:func:`~bezmotion.bmm.sampling.sample_curves`).
+      ik: the learned IK, the ``ik_params`` of :func:`~bezmotion.ik.protores.protores_ik_fn`.
+      character: the skeleton both were trained on (``ik.character``).
+      profile: that skeleton's profile, for :meth:`~bezmotion.pipeline.transfer.Transfer.between`.
+      joint_limits: the IK's joint limits (``joint_limits.json``), or None.
+      entry: the registry entry (data, licence, commands).
+    """
+
+    bmm: BezierMotionModel
+    ik: ProtoResModel
+    character: Character
+    profile: CharacterProfile
+    joint_limits: JointLimits | None
+    entry: ModelEntry
+
+
+class ChecksumError(ValueError):
+    """A bundled model folder does not match its checksum in :data:`MANIFEST`."""
+
+
+# -------------------------------------------------------------------------- checksums
+
+
+def _files(folder: Path) -> list[Path]:
+    return sorted((p for p in folder.rglob("*") if p.is_file()), key=lambda p: p.relative_to(folder).as_posix())
+
+
+def folder_digest(folder: str | os.PathLike) -> str:
+    """SHA-256 hex digest of every file under ``folder`` (:data:`DIGEST_RULE`)."""
+    folder = Path(folder)
+    h = hashlib.sha256()
+    for path in _files(folder):
+        with open(path, "rb") as f:
+            own = hashlib.file_digest(f, "sha256").digest()
+        h.update(path.relative_to(folder).as_posix().encode() + b"\0" + own)
+    return h.hexdigest()
+
+
+def folder_record(folder: str | os.PathLike) -> dict:
+    """``{"sha256", "files", "bytes"}`` of a folder, as the manifest stores it."""
+    files = _files(Path(folder))
+    return {"sha256": folder_digest(folder), "files": len(files), "bytes": sum(p.stat().st_size for p in files)}
+
+
+def bundled_folders(root: str | os.PathLike | None = None) -> dict[str, Path]:
+    """Every bundled entry's folders by their name in the manifest (their path under ``root``)."""
+    out = {}
+    for entry in REGISTRY.values():
+        if entry.bundled:
+            for part in PARTS:
+                out[getattr(entry, part)] = entry.folder(part, root=root)
+    return out
+
+
+def manifest_path(root: str | os.PathLike | None = None) -> Path:
+    return Path(root if root is not None else MODELS_DIR) / MANIFEST
+
+
+def read_manifest(root: str | os.PathLike | None = None) -> dict[str, dict]:
+    """``{folder name: {"sha256", "files", "bytes"}}`` from ``root``'s :data:`MANIFEST`.
+
+    Raises:
+      FileNotFoundError: no manifest there.
+      ValueError: not a manifest of this format.
+    """
+    path = manifest_path(root)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no checksum manifest (write it with bezmotion models --write-manifest)")
+    data = json.loads(path.read_text(encoding="utf-8"))
+    if not isinstance(data, dict) or data.get("format") != MANIFEST_FORMAT or not isinstance(data.get("folders"), dict):
+        raise ValueError(f"{path}: not a {MANIFEST_FORMAT} manifest")
+    return data["folders"]
+
+
+def write_manifest(root: str | os.PathLike | None = None) -> Path:
+    """Write :data:`MANIFEST` for every bundled folder under ``root`` (default the package's); returns its path."""
+    folders = {name: folder_record(folder) for name, folder in sorted(bundled_folders(root).items())}
+    path = manifest_path(root)
+    atomic_write_text(path, json.dumps({"format": MANIFEST_FORMAT, "digest": DIGEST_RULE, "folders": folders}, indent=2) + "\n")
+    return path
+
+
+def verify_folder(folder: str | os.PathLike, *, root: str | os.PathLike | None = None) -> None:
+    """Check a bundled folder against the manifest in ``root`` (default the package's).
+
+    Raises:
+      FileNotFoundError: no such folder.
+      ChecksumError: not in the manifest, or its files differ (names both digests).
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{folder}: bundled model folder missing; reinstall bezmotion")
+    expected = read_manifest(root).get(folder.name)
+    if expected is None:
+        raise ChecksumError(f"{folder}: not in {manifest_path(root)}; run bezmotion models --write-manifest")
+    actual = folder_record(folder)
+    if actual["sha256"] != expected["sha256"]:
+        raise ChecksumError(
+            f"{folder}: checksum mismatch: expected sha256 {expected['sha256']}, got {actual['sha256']} "
+            f"({expected.get('files')} files of {expected.get('bytes')} bytes expected, {actual['files']} of {actual['bytes']} found); "
+            "the files were changed or are incomplete: reinstall bezmotion, or after retraining on purpose run "
+            "bezmotion models --write-manifest"
+        )
+
+
+# ----------------------------------------------------------------------------- lookup
+
+
+def model_names() -> list[str]:
+    return list(REGISTRY)
+
+
+def _known() -> str:
+    return ", ".join(f"{e.name} ({'bundled' if e.bundled else 'not bundled, trained locally'})" for e in REGISTRY.values())
+
+
+def get_entry(name: str) -> ModelEntry:
+    """The registry entry of ``name``.
+
+    Raises:
+      ValueError: an unknown name (the message lists the known ones).
+    """
+    entry = REGISTRY.get(str(name))
+    if entry is None:
+        raise ValueError(f"unknown pretrained model {str(name)!r}; known: {_known()}")
+    return entry
+
+
+def model_folder(name: str, part: Part, *, root: str | os.PathLike | None = None, verify: bool = True) -> Path:
+    """The checked ``"bmm"`` or ``"ik"`` folder of a registered model.
+
+    Args:
+      name: a name in :data:`REGISTRY`.
+      part: which model.
+      root: the bundled models' root (default :data:`MODELS_DIR`; a test's copy).
+      verify: check a bundled folder against the manifest (:func:`verify_folder`).
+    Raises:
+      ValueError: an unknown name.
+      ChecksumError: a bundled folder's files differ from the manifest.
+      FileNotFoundError: a bundled folder is missing, or a local model was not trained
+        (the message names the command that trains it).
+    """
+    entry = get_entry(name)
+    folder = entry.folder(part, root=root)
+    if entry.bundled:
+        if verify:
+            verify_folder(folder, root=root)
+        elif not folder.is_dir():
+            raise FileNotFoundError(f"{folder}: bundled model folder missing; reinstall bezmotion")
+    elif not (folder / "config.json").is_file():
+        raise FileNotFoundError(
+            f"pretrained model {entry.name!r} is not bundled (its data is {entry.licence.split(' (')[0]}) and its "
+            f"{'BMM' if part == 'bmm' else 'learned IK'} is not trained here: no saved model in {folder}; {entry.retrain_hint()}"
+        )
+    return folder
+
+
+def resolve_folder(name_or_path: str | os.PathLike, part: Part) -> tuple[Path, ModelEntry | None]:
+    """``(folder, entry or None)`` of a registered name (checked, :func:`model_folder`) or a saved model's folder."""
+    entry = REGISTRY.get(str(name_or_path))
+    if entry is None:
+        return Path(name_or_path), None
+    return model_folder(entry.name, part), entry
+
+
+def pretrained(name: str, *, root: str | os.PathLike | None = None, verify: bool = True) -> Pretrained:
+    """A registered model's BMM, learned IK, character, profile and joint limits.
+
+    ``bm.pretrained("bandai_namco")`` loads the bundled models (their checksums checked
+    first); ``"lafan1"`` loads the ones ``bezmotion models`` says how to train.
+
+    Args:
+      name: a name in :data:`REGISTRY` (``bezmotion models`` lists them).
+      root: the bundled models' root and manifest (default :data:`MODELS_DIR`).
+      verify: check bundled folders against the manifest.
+    Raises:
+      ValueError: an unknown name (listing the known ones).
+      ChecksumError: a bundled folder differs from the manifest (naming the folder and
+        the expected and actual digests).
+      FileNotFoundError: a model that is not bundled has not been trained (naming the command).
+    """
+    entry = get_entry(name)
+    folders = {part: model_folder(name, part, root=root, verify=verify) for part in PARTS}
+    bmm = load_model(folders["bmm"])
+    ik = load_ik_model(folders["ik"])
+    limits_file = folders["ik"] / "joint_limits.json"
+    limits = JointLimits.load(limits_file, ik.character) if limits_file.is_file() else None
+    profile = CharacterProfile.load(PROFILES_DIR / f"{entry.skeleton}.json")
+    return Pretrained(bmm, ik, ik.character, profile, limits, entry)
+
+
+# ------------------------------------------------------------------------------ listing
+
+
+def folder_bytes(folder: str | os.PathLike) -> int:
+    return sum(p.stat().st_size for p in _files(Path(folder)))
+
+
+def stored_values(folder: str | os.PathLike) -> int | None:
+    """How many numbers a saved model stores (its parameters, and a BMM's 144 feature
+    statistics), read from the latest checkpoint's metadata; None when unreadable."""
+    steps = [p for p in Path(folder).iterdir() if p.name.isdigit() and p.is_dir()] if Path(folder).is_dir() else []
+    if not steps:
+        return None
+    metadata = max(steps, key=lambda p: int(p.name)) / "default" / "_METADATA"
+    try:
+        tree = json.loads(metadata.read_text(encoding="utf-8"))["tree_metadata"]
+        return sum(math.prod(v["value_metadata"]["write_shape"]) for v in tree.values())
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
+def entry_status(entry: ModelEntry, *, root: str | os.PathLike | None = None) -> tuple[str, bool]:
+    """``(status in words, loadable)``."""
+    try:
+        for part in PARTS:
+            model_folder(entry.name, part, root=root)
+    except ChecksumError:
+        return "bundled, CHECKSUM MISMATCH", False
+    except FileNotFoundError:
+        return ("bundled, MISSING" if entry.bundled else "not bundled, not trained here"), False
+    return ("bundled, checksum ok" if entry.bundled else "not bundled, trained here"), True
+
+
+def models_table(*, root: str | os.PathLike | None = None) -> str:
+    """What ``bezmotion models`` prints: one row per entry, then each one's data, licence,
+    metrics, folders and retrain commands."""
+    rows = [("name", "status", "size", "BMM", "IK", "skeleton", "licence")]
+    details = []
+    for entry in REGISTRY.values():
+        status, present = entry_status(entry, root=root)
+        folders = entry.folders(root=root)
+        size = values = ik_values = "-"
+        if present:
+            size = f"{sum(folder_bytes(f) for f in folders.values()) / 1e6:.1f} MB"
+            counts = [stored_values(folders[part]) for part in PARTS]
+            values, ik_values = (f"{c / 1e6:.2f} M" if c else "?" for c in counts)
+        rows.append((entry.name, status, size, values, ik_values, entry.skeleton, entry.licence.split(" (")[0]))
+        commands = "\n".join(f"  {'retrain:' if i == 0 else '':9}{c}" for i, c in enumerate(entry.commands))
+        details.append(
+            f"{entry.name}\n  data:    {entry.data}\n  licence: {entry.licence}\n  metrics: {entry.metrics}\n"
+            f"  folders: {folders['bmm']}, {folders['ik']}\n{commands}"
+        )
+    widths = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
+    table = "\n".join("  ".join(cell.ljust(w) for cell, w in zip(r, widths)).rstrip() for r in rows)
+    return (
+        "Pretrained models (Python: bezmotion.pretrained(NAME); commands: --model NAME, --ik-model NAME).\n"
+        "BMM and IK: numbers stored (parameters; the BMM's also its 144 feature statistics).\n\n"
+        f"{table}\n\n" + "\n\n".join(details)
+    )
+
+
+def check_manifest(root: str | os.PathLike | None = None) -> Path:
+    """Check every bundled folder against the manifest (:func:`verify_folder`); returns the manifest's path."""
+    for folder in bundled_folders(root).values():
+        verify_folder(folder, root=root)
+    return manifest_path(root)
+
+
+__all__ = [
+    "MANIFEST",
+    "REGISTRY",
+    "ChecksumError",
+    "ModelEntry",
+    "Pretrained",
+    "check_manifest",
+    "folder_digest",
+    "get_entry",
+    "model_folder",
+    "model_names",
+    "models_table",
+    "pretrained",
+    "read_manifest",
+    "resolve_folder",
+    "verify_folder",
+    "write_manifest",
+]
