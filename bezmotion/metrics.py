@@ -8,12 +8,17 @@
 - BMM's curve metrics: handles error, foot-skating ratio, contact accuracy, mean
   position error (BMM §5.1 and appendix B).
 - Pops: per-frame joint rotation change, and its largest value next to the keys.
+- Joins: the velocity jump of each joint at the keys a chain of windows shares.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
+import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int
+import numpy as np
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from bezmotion.geometry.rotations import quat_conjugate, quat_fix_continuity, quat_mul
 
@@ -148,3 +153,38 @@ def key_pop_deg(quat_local: Float[Array, "*batch frames joints 4"]) -> Float[Arr
     joint and batch entry. Compare with the mocap's own (the same function of the mocap)."""
     change = rotation_change_deg(quat_local)
     return jnp.max(jnp.stack([change[..., 0, :], change[..., -1, :]]))
+
+
+def boundary_velocity_jump(
+    positions: Float[Array, "*batch frames joints 3"], boundary_frames: Int[ArrayLike, "boundaries"] | Sequence[int]
+) -> Float[Array, "*batch boundaries joints"]:
+    """How much each joint's velocity changes at each boundary frame (cm/frame):
+    ``‖v_after − v_before‖`` with ``v_before = p[b] − p[b − 1]`` and ``v_after = p[b + 1] − p[b]``.
+
+    At the keys two chained windows share it says whether the motion is C¹ across the join
+    (0 for a curve with one tangent there, up to the curve's own second difference). The
+    mocap's analogue is the same quantity at its ordinary frames,
+    ``boundary_velocity_jump(mocap, np.arange(1, frames - 1))``: its own frame-to-frame
+    velocity change, the scale a join's jump compares against. Multiply by the frame rate
+    for cm/s per frame.
+
+    Args:
+      positions: ``(*batch, frames, joints, 3)`` joint positions (cm), one per frame.
+      boundary_frames: ``(boundaries,)`` integer frames ``1 … frames − 2`` (each needs a
+        neighbour on either side).
+    Returns:
+      ``(*batch, boundaries, joints)`` jumps in cm/frame.
+
+    Raises:
+      ValueError: a boundary frame without a neighbour on both sides (checked when the
+        frames are concrete).
+    """
+    frames = positions.shape[-3]
+    if not isinstance(boundary_frames, jax.core.Tracer):
+        concrete = np.asarray(boundary_frames)
+        if concrete.ndim != 1 or not np.issubdtype(concrete.dtype, np.integer) or ((concrete < 1) | (concrete > frames - 2)).any():
+            raise ValueError(f"boundary frames must be integers in 1 … {frames - 2} ({frames} frames), got {concrete.tolist()}")
+    b = jnp.asarray(boundary_frames)
+    before = positions[..., b, :, :] - positions[..., b - 1, :, :]
+    after = positions[..., b + 1, :, :] - positions[..., b, :, :]
+    return jnp.linalg.norm(after - before, axis=-1)

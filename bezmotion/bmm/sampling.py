@@ -6,6 +6,11 @@ inputs (hips start at the origin in XZ, as in training), runs DDIM with x̂₀ p
 (control points on control frames overwritten, handles between them met by the
 minimum-norm correction of x̂₀), and translates the curves back. Leading batch axes on the inputs sample several motions at once, each with
 its own key.
+
+:func:`sample_chained_curves` samples the windows between consecutive key poses of a
+longer motion in one batched loop, by default joined at their shared keys (the two
+windows' tangents, orientations and contacts there averaged in the same overwrite), so
+the chain is C¹ across the keys; independent windows (BMM Appendix D.1) for comparison.
 """
 
 from __future__ import annotations
@@ -181,7 +186,44 @@ class SampledCurves(NamedTuple):
     contacts: Float[Array, "*batch controls 2"]
 
 
-def _sample_one(model: BezierMotionModel, start, end, handles: Handles, key_rot6d, key, steps, guidance, overwrite, foot_lock):
+class _Chain(NamedTuple):
+    """Where a window sits in a chain: ``jax.vmap`` over the chain's ``size`` windows runs
+    under the axis name ``axis``, so each window can read its neighbours' boundaries."""
+
+    axis: str
+    size: int
+
+
+def share_boundaries(x: Float[Array, "windows controls ..."]) -> Float[Array, "windows controls ..."]:
+    """A chain's per-window control values with every shared key's set to the mean of its
+    two windows' (window ``i``'s last and window ``i + 1``'s first). The chain's own first
+    and last keys have no neighbour and keep theirs; both sides get the same bits."""
+    mean = 0.5 * (x[:-1, -1] + x[1:, 0])
+    return x.at[:-1, -1].set(mean).at[1:, 0].set(mean)
+
+
+def shared_key_mask(windows: int, num_controls: int, num_joints: int) -> Bool[Array, "windows controls joints"]:
+    """The control points a window shares with a neighbour in a chain of ``windows``: its
+    first unless it starts the chain, its last unless it ends it (every joint)."""
+    rows = jnp.zeros((windows, num_controls), bool).at[1:, 0].set(True).at[:-1, -1].set(True)
+    return jnp.broadcast_to(rows[:, :, None], (windows, num_controls, num_joints))
+
+
+def _couple(x: Float[Array, "controls ..."], chain: _Chain) -> Float[Array, "controls ..."]:
+    """:func:`share_boundaries` seen from one window, inside ``jax.vmap`` over ``chain.axis``."""
+    return share_boundaries(jax.lax.all_gather(x, chain.axis))[jax.lax.axis_index(chain.axis)]
+
+
+def _shared_keys(chain: _Chain, num_controls: int, num_joints: int) -> Bool[Array, "controls joints"]:
+    """:func:`shared_key_mask` of this window, inside ``jax.vmap`` over ``chain.axis``."""
+    return shared_key_mask(chain.size, num_controls, num_joints)[jax.lax.axis_index(chain.axis)]
+
+
+def _sample_one(
+    model: BezierMotionModel, start, end, handles: Handles, key_rot6d, key, steps, guidance, overwrite, foot_lock, chain: _Chain | None = None
+):
+    """One window; with ``chain`` (inside ``jax.vmap`` over its windows) its boundary
+    tangents, orientations and contacts are shared with the neighbouring windows."""
     cfg, stats = model.config, model.stats
     ends = jnp.asarray([0, cfg.num_controls - 1])
     layout = BezierLayout.from_controls(cfg.num_controls, cfg.stride)
@@ -192,6 +234,9 @@ def _sample_one(model: BezierMotionModel, start, end, handles: Handles, key_rot6
     _, world_target = world.to_grid(cfg.num_controls, cfg.num_joints, cfg.stride)
     aligned = world.position - translation  # condition positions in the frame x̂₀ lives in (cm)
     denoiser = functools.partial(predict_x0, nnx.merge(model.graphdef, model.params), stats)
+    # Shared tangents are set by the coupling, so the handle projection must leave them be.
+    shared = None if chain is None else _shared_keys(chain, cfg.num_controls, cfg.num_joints)
+    couple = (lambda x: x) if chain is None else functools.partial(_couple, chain=chain)
 
     def denoise(x_t, t):
         if guidance == 1.0:
@@ -209,18 +254,25 @@ def _sample_one(model: BezierMotionModel, start, end, handles: Handles, key_rot6
         if key_rot6d is not None:  # the keys' orientations, overwritten like their positions
             feats = feats.at[ends, :, 6:].set((key_rot6d - stats.mean[:, 6:]) / stats.std[:, 6:])
         pos = jnp.where(mask[..., None], target, feats[..., :3])
+        # A chain's shared keys: tangents and orientations averaged with the neighbour's.
+        # Every window normalises them by the same affine map (no translation), so the
+        # mean here is the mean in world units.
+        tangent, rot6d = couple(feats[..., 3:6]), couple(feats[..., 6:])
         pos, tangent = project_off_grid(
-            layout, pos, feats[..., 3:6], mask, world.joint, world.frame, aligned, world.valid,
+            layout, pos, tangent, mask, world.joint, world.frame, aligned, world.valid,
             pos_mean=stats.mean[:, :3], pos_std=stats.std[:, :3], tangent_mean=stats.mean[:, 3:6], tangent_std=stats.std[:, 3:6],
+            fixed_tangent=shared,
         )  # fmt: skip
-        return to_tokens(feats.at[..., :3].set(pos).at[..., 3:6].set(tangent))
+        return to_tokens(jnp.concatenate([pos, tangent, rot6d], axis=-1))
 
     def exact(pos, tangent):
         # The handles themselves, to float rounding of the curve, not through a
         # normalise/denormalise round trip: control frames bit for bit, the others by a
-        # (tiny) world-space correction.
+        # (tiny) world-space correction; shared tangents equal in world units, bit for bit.
         pos = jnp.where(mask[..., None], world_target, pos)
-        return project_off_grid(layout, pos, tangent, mask, world.joint, world.frame, world.position, world.valid)
+        return project_off_grid(
+            layout, pos, couple(tangent), mask, world.joint, world.frame, world.position, world.valid, fixed_tangent=shared
+        )
 
     x_T = jax.random.normal(key, (cfg.num_controls, cfg.frame_features))
     x0, logits = ddim_sample(
@@ -232,7 +284,9 @@ def _sample_one(model: BezierMotionModel, start, end, handles: Handles, key_rot6
         pos, tangent = exact(pos, tangent)
         if key_rot6d is not None:  # exactly, not through the normalisation round trip
             rot6d = rot6d.at[ends].set(key_rot6d)
-    contacts = jax.nn.sigmoid(logits)
+    rot6d = couple(rot6d)  # after denormalising: equal bits at shared keys (a no-op with key_rot6d)
+    # A shared key is one frame: both windows agree on whether a foot is planted there.
+    contacts = couple(jax.nn.sigmoid(logits))
     if foot_lock:
         pos, tangent = lock_feet(pos, tangent, contacts, mask)
         if overwrite:  # locking moves control points that off-grid handles depend on
@@ -307,12 +361,112 @@ def _sample_curves(model, start, end, handles, key_rot6d, *, key, steps, guidanc
         raise ValueError(f"key_rot6d must be {(*batch, 2, joints, 6)} (start and end orientations), got {key_rot6d.shape}")
     if handles.position.shape[:-2] != batch:
         raise ValueError(f"handles must be batched like start {batch}, got {handles.position.shape[:-2]}")
+    one = functools.partial(_sample_one, model, steps=steps, guidance=guidance, overwrite=overwrite, foot_lock=foot_lock)
+    return _over_batch(one, batch, key, start, end, handles, key_rot6d)
+
+
+def _over_batch(fn, batch: tuple[int, ...], key: Array, *args):
+    """``fn(*args, key)`` vmapped over the leading ``batch`` axes of every argument, each
+    entry with its own key (``key`` itself when unbatched)."""
     n = int(np.prod(batch, dtype=int))
     flat = lambda x: x.reshape(n, *x.shape[len(batch) :])  # noqa: E731
     keys = jax.random.split(key, n) if batch else key[None]
-    one = functools.partial(_sample_one, model, steps=steps, guidance=guidance, overwrite=overwrite, foot_lock=foot_lock)
-    out = jax.vmap(one)(flat(start), flat(end), jax.tree.map(flat, handles), key_rot6d if key_rot6d is None else flat(key_rot6d), keys)
+    out = jax.vmap(fn)(*(jax.tree.map(flat, a) for a in args), keys)  # None (no key_rot6d) has no leaves
     return jax.tree.map(lambda x: x.reshape(*batch, *x.shape[1:]), out)
+
+
+def sample_chained_curves(
+    model: BezierMotionModel,
+    key_pos: Float[Array, "*batch keys 6 3"],
+    handles: Handles,
+    *,
+    key: Array,
+    steps: int = 10,
+    guidance: float = 1.0,
+    coupled: bool = True,
+    overwrite: bool = True,
+    foot_lock: bool = False,
+    key_rot6d: Float[Array, "*batch keys 6 6"] | None = None,
+) -> SampledCurves:
+    """Sample the curves of a chain of windows through ``keys`` key poses, one window
+    (``model.config.num_frames`` frames, 31) between each pair of consecutive keys, all in
+    one batched DDIM loop.
+
+    Window ``i`` runs from key ``i`` (its frame 0) to key ``i + 1`` (its last frame) through
+    its own handles (frames 1 … 29 of that window), exactly as :func:`sample_curves` would
+    sample it. With ``coupled`` the windows are also joined at every shared key, in x̂₀ at
+    every DDIM step and exactly after the last: the two windows' tangents there are set to
+    their mean, and so are their orientations and contact probabilities, before the
+    handles are projected onto with those tangents held fixed. The curves are then C¹
+    across the keys — the same position (the key), the same velocity ``3·T/stride``
+    (cm/frame) on both sides — and still pass through every handle. ``coupled=False``
+    samples the windows independently (BMM Appendix D.1), for comparison; with the same
+    ``key`` both variants start from the same noise.
+
+    Args:
+      model: the trained BMM.
+      key_pos: ``(*batch, keys, 6, 3)`` world positions of the six characteristic joints at
+        each key (cm), ``keys ≥ 2``; consecutive keys are ``num_frames − 1`` (30) frames apart.
+      handles: intermediate handles of each window, batched ``(*batch, keys − 1, handles)``
+        (frames within the window, 1 … 29).
+      key: PRNG key; split per chain when batched, then per window.
+      steps, guidance, overwrite, foot_lock: as in :func:`sample_curves` (a coupled chain
+        needs ``overwrite``: the coupling is part of it).
+      coupled: join the windows at the shared keys (default); ``False``: independent windows.
+      key_rot6d: optionally ``(*batch, keys, 6, 6)`` global orientations (6-D) of the six
+        joints at every key, conditions like the key positions (``sample_curves``'s).
+    Returns:
+      :class:`SampledCurves` batched ``(*batch, keys − 1, controls, …)``, world frame; window
+      ``i``'s last control point and window ``i + 1``'s first are the same key.
+
+    Compiled once per input shape and static argument, like :func:`sample_curves`.
+    """
+    return call_with_inference_options(
+        _compiled_chain_sampler, model, key_pos, handles, key_rot6d,
+        key=key, steps=steps, guidance=guidance, coupled=coupled, overwrite=overwrite, foot_lock=foot_lock,
+    )  # fmt: skip
+
+
+@functools.cache
+def _compiled_chain_sampler(options: tuple[tuple[str, str], ...]):
+    return jax.jit(
+        _sample_chained_curves,
+        static_argnames=("steps", "guidance", "coupled", "overwrite", "foot_lock"),
+        compiler_options=dict(options) or None,
+    )
+
+
+CHAIN_AXIS = "chain_window"  # the vmap axis the windows of one chain are coupled over
+
+
+def _sample_chained_curves(model, key_pos, handles, key_rot6d, *, key, steps, guidance, coupled, overwrite, foot_lock) -> SampledCurves:
+    joints = model.config.num_joints
+    if key_pos.ndim < 3 or key_pos.shape[-2:] != (joints, 3) or key_pos.shape[-3] < 2:
+        raise ValueError(f"key_pos must be (..., keys ≥ 2, {joints}, 3), got {key_pos.shape}")
+    *batch, num_keys = key_pos.shape[:-2]
+    batch = tuple(batch)
+    if key_rot6d is not None and key_rot6d.shape != (*batch, num_keys, joints, 6):
+        raise ValueError(f"key_rot6d must be {(*batch, num_keys, joints, 6)} (one orientation per key), got {key_rot6d.shape}")
+    if handles.position.shape[:-2] != (*batch, num_keys - 1):
+        raise ValueError(
+            f"handles must be batched (..., windows, handles) = {(*batch, num_keys - 1)} for {num_keys} keys, "
+            f"got {handles.position.shape[:-2]}"
+        )
+    if coupled and not overwrite:
+        raise ValueError("a coupled chain needs overwrite=True (the coupling is part of the overwrite); use coupled=False")
+    windows = num_keys - 1
+    start, end = key_pos[..., :-1, :, :], key_pos[..., 1:, :, :]
+    pairs = None if key_rot6d is None else jnp.stack([key_rot6d[..., :-1, :, :], key_rot6d[..., 1:, :, :]], axis=-3)
+    one = functools.partial(
+        _sample_one, model, steps=steps, guidance=guidance, overwrite=overwrite, foot_lock=foot_lock,
+        chain=_Chain(CHAIN_AXIS, windows) if coupled else None,
+    )  # fmt: skip
+
+    def chain(start, end, handles, pairs, key):
+        # One vmap over the windows: its DDIM scans run as one batched loop.
+        return jax.vmap(one, axis_name=CHAIN_AXIS)(start, end, handles, pairs, jax.random.split(key, windows))
+
+    return _over_batch(chain, batch, key, start, end, handles, pairs)
 
 
 STORAGE_DTYPES = ("float32", "float16", "bfloat16")

@@ -51,6 +51,7 @@ def project_off_grid(
     pos_std: Float[ArrayLike, "joints 3"] = 1.0,
     tangent_mean: Float[ArrayLike, "joints 3"] = 0.0,
     tangent_std: Float[ArrayLike, "joints 3"] = 1.0,
+    fixed_tangent: Bool[Array, "controls joints"] | None = None,
 ) -> tuple[Float[Array, "controls joints 3"], Float[Array, "controls joints 3"]]:
     """Minimum-norm correction of the curves onto their off-grid point constraints (one motion).
 
@@ -59,7 +60,9 @@ def project_off_grid(
     handle off the control frames asks ``evaluate(P, T)[frame, joint] = target``. Handles
     on control frames, padding (``valid=False``) and the positions marked ``fixed`` (set by
     grid constraints, which the caller has already written) do not move anything;
-    constraints with no off-grid handle give exactly the input back.
+    constraints with no off-grid handle give exactly the input back. Fixed positions and
+    tangents come back bit for bit (the pseudo-inverse's rows for them are zero only to
+    round-off, so they are restored rather than trusted).
 
     Args:
       layout: the curves' layout.
@@ -70,6 +73,9 @@ def project_off_grid(
       valid: ``(handles,)`` which handles are real.
       pos_mean, pos_std, tangent_mean, tangent_std: the affine map from variables to
         curves, broadcastable to ``(joints, 3)``.
+      fixed_tangent: ``(controls, joints)`` control tangents that must not change either
+        (e.g. a tangent shared with the next window of a chain); default none. A joint whose
+        handles then outnumber its free variables in a stride gets the least-squares fit.
     Returns:
       ``(ctrl_pos, ctrl_tangent)`` corrected, same space as the inputs.
     """
@@ -93,15 +99,19 @@ def project_off_grid(
     owns = rows[None, :] & (joint[None, :] == jnp.arange(j)[:, None])  # (J, H): row h constrains joint j
     residual = jnp.where(owns[:, :, None], jnp.where(rows[:, None], target - current, 0.0)[None], 0.0)  # (J, H, 3)
     # A[j, d, h] = [w_pos[h]·pos_std[j, d] (free positions only) | w_tan[h]·tangent_std[j, d]].
-    free = ~fixed.T  # (J, K)
+    fixed_tangent = jnp.zeros_like(fixed) if fixed_tangent is None else fixed_tangent
+    free, free_tan = ~fixed.T, ~fixed_tangent.T  # (J, K)
     a_pos = jnp.where(owns[:, None, :, None] & free[:, None, None, :], w_pos[None, None] * pos_std[:, :, None, None], 0.0)
-    a_tan = jnp.where(owns[:, None, :, None], w_tan[None, None] * tangent_std[:, :, None, None], 0.0)
+    a_tan = jnp.where(owns[:, None, :, None] & free_tan[:, None, None, :], w_tan[None, None] * tangent_std[:, :, None, None], 0.0)
     a = jnp.concatenate([a_pos, a_tan], axis=-1)  # (J, 3, H, 2K)
     # Pseudo-inverse, not a solve: identical duplicate handles make A rank-deficient, and
     # zero rows (no off-grid handle) must give a zero correction, not a division by zero.
     delta = jnp.einsum("jdkh,jhd->jdk", jnp.linalg.pinv(a), residual)  # (J, 3, 2K)
     delta = jnp.moveaxis(delta, -1, 0)  # (2K, J, 3)
-    return ctrl_pos + delta[:k], ctrl_tangent + delta[k:]
+    return (
+        jnp.where(fixed[..., None], ctrl_pos, ctrl_pos + delta[:k]),
+        jnp.where(fixed_tangent[..., None], ctrl_tangent, ctrl_tangent + delta[k:]),
+    )
 
 
 def project_onto_handles(
@@ -114,6 +124,7 @@ def project_onto_handles(
     valid: Bool[Array, "handles"],
     *,
     fixed: Bool[Array, "controls joints"] | None = None,
+    fixed_tangent: Bool[Array, "controls joints"] | None = None,
 ) -> tuple[Float[Array, "controls joints 3"], Float[Array, "controls joints 3"]]:
     """World-space curves through every valid handle (one motion): handles on control
     frames overwrite their control position (exactly), the others are met by the
@@ -123,6 +134,7 @@ def project_onto_handles(
       ctrl_pos, ctrl_tangent: ``(controls, joints, 3)`` curves (cm).
       joint, frame, position, valid: ``(handles,)`` handles (positions ``(handles, 3)``, cm).
       fixed: further control positions that must not move (e.g. the start and end poses).
+      fixed_tangent: control tangents that must not move (e.g. shared with a neighbouring window).
     Returns:
       ``(ctrl_pos, ctrl_tangent)``.
     """
@@ -134,7 +146,7 @@ def project_onto_handles(
     mask = jnp.zeros(ctrl_pos.shape[:2], bool).at[control, joint].set(True, mode="drop")
     if fixed is not None:
         mask = mask | fixed
-    return project_off_grid(layout, ctrl_pos, ctrl_tangent, mask, joint, frame, position, valid)
+    return project_off_grid(layout, ctrl_pos, ctrl_tangent, mask, joint, frame, position, valid, fixed_tangent=fixed_tangent)
 
 
 __all__ = ["on_control_frame", "project_off_grid", "project_onto_handles"]
