@@ -23,7 +23,15 @@ from bezmotion.assets.registry import Pretrained, pretrained  # models by name: 
 from bezmotion.bezier import BezierLayout, evaluate, fit_curves
 
 # The Bézier Motion Model: sampling curves through handles, saving and loading.
-from bezmotion.bmm.sampling import BezierMotionModel, Handles, SampledCurves, load_model, sample_curves, save_model
+from bezmotion.bmm.sampling import (
+    BezierMotionModel,
+    Handles,
+    SampledCurves,
+    load_model,
+    sample_chained_curves,
+    sample_curves,
+    save_model,
+)
 
 # Mocap files, corpora (published or a folder of your BVH files) and the six characteristic joints.
 from bezmotion.data.bvh import BvhMotion, read_bvh, write_bvh
@@ -42,7 +50,7 @@ from bezmotion.ik.rig import make_rig, rig_ik
 # In-betweening end to end, character transfer, export (BVH, glTF, animated preview).
 from bezmotion.pipeline.export import pose_to_bvh
 from bezmotion.pipeline.gltf import read_glb, write_glb
-from bezmotion.pipeline.inbetweening import InbetweenResult, inbetween
+from bezmotion.pipeline.inbetweening import ChainResult, InbetweenResult, inbetween, inbetween_chain
 from bezmotion.pipeline.preview import write_preview
 from bezmotion.pipeline.transfer import CharacterProfile, Transfer
 
@@ -57,6 +65,7 @@ __all__ = [
     "BezierLayout",
     "BezierMotionModel",
     "BvhMotion",
+    "ChainResult",
     "Character",
     "CharacterProfile",
     "Corpus",
@@ -74,6 +83,7 @@ __all__ = [
     "fit_curves",
     "forward_kinematics",
     "inbetween",
+    "inbetween_chain",
     "inverse_kinematics",
     "load_corpus",
     "load_ik_model",
@@ -88,6 +98,7 @@ __all__ = [
     "read_bvh",
     "read_glb",
     "rig_ik",
+    "sample_chained_curves",
     "sample_curves",
     "save_ik_model",
     "save_model",

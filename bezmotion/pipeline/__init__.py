@@ -3,7 +3,8 @@
     start pose, end pose, handles ──▶ BMM curves of the six characteristic joints
         ──▶ dense trajectories ──▶ ik_fn per frame ──▶ full-body poses ──▶ BVH
 
-:mod:`~bezmotion.pipeline.inbetweening` (the jit-compiled :func:`inbetween`),
+:mod:`~bezmotion.pipeline.inbetweening` (the jit-compiled :func:`inbetween`, and
+:func:`inbetween_chain` through several keys),
 :mod:`~bezmotion.pipeline.transfer` (driving one skeleton with another's BMM),
 :mod:`~bezmotion.pipeline.export` (BVH), :mod:`~bezmotion.pipeline.gltf` (glTF: skeleton
 and curves), :mod:`~bezmotion.pipeline.preview` (animated GIF), :mod:`~bezmotion.pipeline.evaluation` (metrics
@@ -24,10 +25,15 @@ from bezmotion.pipeline.export import default_channels, pose_to_bvh
 from bezmotion.pipeline.gltf import GlbContents, read_glb, validate_glb, write_glb
 from bezmotion.pipeline.preview import write_preview
 from bezmotion.pipeline.inbetweening import (
+    ChainResult,
     InbetweenResult,
     WindowCurves,
+    chain_curves_traced,
     inbetween,
+    inbetween_chain,
+    inbetween_chain_traced,
     inbetween_traced,
+    join_windows,
     pose_from_curves,
     window_curves_traced,
 )
@@ -43,12 +49,14 @@ from bezmotion.pipeline.transfer import (
 )
 
 __all__ = [
+    "ChainResult",
     "CharacterProfile",
     "GlbContents",
     "InbetweenResult",
-    "WindowCurves",
     "PipelineMetricsConfig",
     "Transfer",
+    "WindowCurves",
+    "chain_curves_traced",
     "curves_to_target",
     "default_channels",
     "evaluate_pipeline",
@@ -57,7 +65,10 @@ __all__ = [
     "full_body_handles_error",
     "ground_truth_pose_metrics",
     "inbetween",
+    "inbetween_chain",
+    "inbetween_chain_traced",
     "inbetween_traced",
+    "join_windows",
     "mean_rotation",
     "mpjpe",
     "orientations_to_source_space",

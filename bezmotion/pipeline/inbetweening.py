@@ -8,6 +8,9 @@
 (``ik_fn(params, targets) -> pose``, :mod:`bezmotion.ik.protocol`), so any learned,
 analytic or user-written IK drives any character.
 
+:func:`inbetween_chain` does the same through any number of key poses 30 frames apart:
+its windows sampled together and joined C¹ at the shared keys, one IK over the chain.
+
 Character transfer lives in :mod:`bezmotion.pipeline.transfer`, BVH export in
 :mod:`bezmotion.pipeline.export`, metrics after IK in :mod:`bezmotion.pipeline.evaluation`.
 """
@@ -21,11 +24,18 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
 from bezmotion.xla_options import call_with_inference_options
 from bezmotion.bezier import BezierLayout, reconstruct_dense
-from bezmotion.bmm.sampling import BezierMotionModel, Handles, SampledCurves, sample_curves
+from bezmotion.bmm.sampling import (
+    BezierMotionModel,
+    Handles,
+    SampledCurves,
+    sample_chained_curves,
+    sample_curves,
+    shared_key_mask,
+)
 from bezmotion.diffusion.projection import project_onto_handles
 from bezmotion.data.characteristic import HIPS
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, solve_frames, targets_from_pose
@@ -83,7 +93,6 @@ def window_curves_traced(
 ) -> WindowCurves:
     """The first half of :func:`inbetween_traced`: the BMM curves and their dense
     trajectories, which any number of IK modules can then share (:func:`pose_from_curves`)."""
-    cfg = bmm.config
     first, last = targets_from_pose(character, start), targets_from_pose(character, end)
     anchor = floor_anchor(first.position[HIPS])
     source = functools.partial(to_source_space, transfer, anchor)
@@ -92,6 +101,23 @@ def window_curves_traced(
         bmm, source(first.position), source(last.position), handles._replace(position=source(handles.position)),
         key=key, steps=steps, guidance=guidance, foot_lock=foot_lock, key_rot6d=key_rot6d,
     )  # fmt: skip
+    return _window_in_target(bmm, transfer, anchor, curves, first, last, handles)
+
+
+def _window_in_target(
+    bmm: BezierMotionModel,
+    transfer: Transfer,
+    anchor: Float[Array, "3"],
+    curves: SampledCurves,
+    first: IKTargets,
+    last: IKTargets,
+    handles: Handles,
+    shared: Bool[Array, "controls 6"] | None = None,
+) -> WindowCurves:
+    """Sampled curves of one window (BMM's space) → the target character's, through its
+    keys and handles exactly, and their dense trajectories. ``shared``: control tangents a
+    chain shares with the neighbouring windows, which the handle projection keeps."""
+    cfg = bmm.config
     curves = curves_to_target(transfer, anchor, curves)
     # The end control points are the given poses themselves: their positions exactly
     # (undoing the scale round trip's rounding) and their orientations (which, without
@@ -106,8 +132,9 @@ def window_curves_traced(
     layout = BezierLayout.from_controls(cfg.num_controls, cfg.stride)
     keys_fixed = jnp.zeros(curves.ctrl_pos.shape[:2], bool).at[ends].set(True)
     ctrl_pos, ctrl_tangent = project_onto_handles(
-        layout, curves.ctrl_pos, curves.ctrl_tangent, handles.joint, handles.frame, handles.position, handles.valid, fixed=keys_fixed
-    )
+        layout, curves.ctrl_pos, curves.ctrl_tangent, handles.joint, handles.frame, handles.position, handles.valid,
+        fixed=keys_fixed, fixed_tangent=shared,
+    )  # fmt: skip
     curves = curves._replace(ctrl_pos=ctrl_pos, ctrl_tangent=ctrl_tangent)
     positions, rot6d = reconstruct_dense(layout, curves.ctrl_pos, curves.ctrl_tangent, curves.ctrl_rot6d)
     return WindowCurves(curves, positions, rot6d)
@@ -256,4 +283,202 @@ def inbetween(
         _compiled, bmm, ik_params, character, start, end, handles, transfer, key,
         ik_fn=ik_fn, steps=steps, guidance=guidance, foot_lock=foot_lock, keep_keyframes=keep_keyframes,
         key_blend_frames=key_blend_frames, key_orientations=key_orientations,
+    )  # fmt: skip
+
+
+class ChainResult(NamedTuple):
+    """A chain of in-betweened windows through ``keys`` key poses (target character, world frame, cm).
+
+    With 31-frame windows the motion has ``(keys − 1)·30 + 1`` frames, key ``k`` at frame
+    ``30·k`` (each shared key once).
+
+    Attributes:
+      pose: :class:`~bezmotion.ik.protocol.Pose` per frame of the whole motion, ``(frames, …)``.
+      curves: the BMM curves of each window in the target character's space, batched
+        ``(keys − 1, controls, …)``; window ``i`` runs from key ``i`` to key ``i + 1``.
+      positions: ``(frames, 6, 3)`` dense characteristic-joint trajectories given to IK.
+      rot6d: ``(frames, 6, 6)`` dense characteristic-joint orientations given to IK.
+    """
+
+    pose: Pose
+    curves: SampledCurves
+    positions: Float[Array, "frames 6 3"]
+    rot6d: Float[Array, "frames 6 6"]
+
+
+def join_windows(x: Float[Array, "windows window_frames ..."]) -> Float[Array, "frames ..."]:
+    """Per-window frames of a chain → the chain's frames, each shared key once (window
+    ``i``'s last frame is window ``i + 1``'s first; the earlier window's is kept)."""
+    return jnp.concatenate([x[:, :-1].reshape(-1, *x.shape[2:]), x[-1, -1:]])
+
+
+def chain_curves_traced(
+    bmm: BezierMotionModel,
+    character: Character,
+    keys: Pose,
+    handles: Handles,
+    transfer: Transfer,
+    key: Array,
+    *,
+    steps: int,
+    guidance: float,
+    foot_lock: bool,
+    coupled: bool = True,
+    key_orientations: bool = True,
+) -> WindowCurves:
+    """:func:`window_curves_traced` for a chain: the curves of every window between
+    consecutive ``keys`` (batched ``(keys, …)``) from one
+    :func:`~bezmotion.bmm.sampling.sample_chained_curves` call, and their dense
+    trajectories, batched ``(keys − 1, …)``. One transfer anchor (the first key's hips on
+    the floor) for the whole chain, so a shared key is one point in the BMM's space too."""
+    targets = targets_from_pose(character, keys)  # (keys, 6, ·)
+    anchor = floor_anchor(targets.position[0, HIPS])
+    source = functools.partial(to_source_space, transfer, anchor)
+    key_rot6d = orientations_to_source_space(transfer, targets.rot6d) if key_orientations else None
+    curves = sample_chained_curves(
+        bmm, source(targets.position), handles._replace(position=source(handles.position)),
+        key=key, steps=steps, guidance=guidance, coupled=coupled, foot_lock=foot_lock, key_rot6d=key_rot6d,
+    )  # fmt: skip
+    windows, cfg = targets.position.shape[0] - 1, bmm.config
+    # The handle projection after the transfer must keep the tangents the chain shares.
+    shared = shared_key_mask(windows, cfg.num_controls, cfg.num_joints) if coupled else None
+    first = jax.tree.map(lambda a: a[:-1], targets)
+    last = jax.tree.map(lambda a: a[1:], targets)
+    finish = functools.partial(_window_in_target, bmm, transfer, anchor)
+    return jax.vmap(finish)(curves, first, last, handles, shared)
+
+
+def inbetween_chain_traced(
+    bmm: BezierMotionModel,
+    ik_params: Any,
+    character: Character,
+    keys: Pose,
+    handles: Handles,
+    transfer: Transfer,
+    key: Array,
+    *,
+    ik_fn: IKFn,
+    steps: int,
+    guidance: float,
+    foot_lock: bool,
+    keep_keyframes: bool,
+    key_blend_frames: int = 0,
+    coupled: bool = True,
+    key_orientations: bool = True,
+) -> ChainResult:
+    """The traceable body of :func:`inbetween_chain` (no input checks, no compiler options)."""
+    windows = chain_curves_traced(
+        bmm, character, keys, handles, transfer, key,
+        steps=steps, guidance=guidance, foot_lock=foot_lock, coupled=coupled, key_orientations=key_orientations,
+    )  # fmt: skip
+    positions, rot6d = join_windows(windows.positions), join_windows(windows.rot6d)
+    # One IK over the whole chain (an IK that smooths over time sees across the keys).
+    pose = solve_frames(ik_fn, ik_params, IKTargets(positions, rot6d))
+    if keep_keyframes:
+        # Each window's frames blended to its two keys: the fades of neighbouring windows
+        # meet only at their shared key, where both put that key exactly.
+        num_windows, length = windows.positions.shape[:2]
+        window_frames = np.arange(num_windows)[:, None] * (length - 1) + np.arange(length)  # (windows, length)
+        blend = functools.partial(blend_to_keys, frames=key_blend_frames)
+        starts, ends = (jax.tree.map(lambda a, s=s: a[s], keys) for s in (slice(None, -1), slice(1, None)))
+        per_window = jax.vmap(blend)(jax.tree.map(lambda a: a[window_frames], pose), starts, ends)
+        pose = jax.tree.map(join_windows, per_window)
+    return ChainResult(pose, windows.curves, positions, rot6d)
+
+
+@functools.cache
+def _compiled_chain(options: tuple[tuple[str, str], ...]):
+    return jax.jit(
+        inbetween_chain_traced,
+        static_argnames=(
+            "ik_fn", "steps", "guidance", "foot_lock", "keep_keyframes", "key_blend_frames", "coupled", "key_orientations",
+        ),
+        compiler_options=dict(options) or None,
+    )  # fmt: skip
+
+
+def _checked_chain_handles(handles: Handles, windows: int, num_frames: int) -> None:
+    """Handles of a chain, when concrete: ``(windows, handles)`` slots, valid ones on frames
+    strictly inside their window and at finite positions (padding may hold anything)."""
+    shape = handles.position.shape
+    if len(shape) != 3 or shape[:1] != (windows,) or shape[-1] != 3:
+        raise ValueError(f"handles must be ({windows}, handles, 3) positions (one row per window), got {shape}")
+    for name in ("joint", "frame", "valid"):
+        if getattr(handles, name).shape != shape[:2]:
+            raise ValueError(f"handles.{name} must be {shape[:2]} like the positions, got {getattr(handles, name).shape}")
+    if any(isinstance(x, jax.core.Tracer) for x in handles):
+        return
+    valid = np.asarray(handles.valid)
+    frame = np.asarray(handles.frame)
+    outside = valid & ((frame < 1) | (frame > num_frames - 2))
+    if outside.any():
+        raise ValueError(
+            f"handle frames are within each window, 1 … {num_frames - 2}; got {frame[outside].tolist()} "
+            f"(window, slot) {np.argwhere(outside).tolist()}"
+        )
+    bad = valid & ~np.isfinite(np.asarray(handles.position)).all(axis=-1)
+    if bad.any():
+        raise ValueError(f"handle positions must be finite; (window, slot) {np.argwhere(bad).tolist()} are not")
+
+
+def inbetween_chain(
+    bmm: BezierMotionModel,
+    ik_fn: IKFn,
+    ik_params: Any,
+    character: Character,
+    keys: Pose,
+    handles: Handles,
+    *,
+    key: Array,
+    coupled: bool = True,
+    transfer: Transfer | None = None,
+    steps: int = 10,
+    guidance: float = 1.0,
+    foot_lock: bool = False,
+    keep_keyframes: bool = True,
+    key_blend_frames: int = KEY_BLEND_FRAMES,
+    key_orientations: bool = True,
+) -> ChainResult:
+    """In-between ``character`` through ``keys`` key poses ``bmm.config.num_frames − 1`` (30)
+    frames apart, with handles anywhere between them: one window per pair of consecutive
+    keys, all sampled in one batched call (:func:`~bezmotion.bmm.sampling.sample_chained_curves`),
+    then one IK over the whole motion. One compilation per shape.
+
+    Args:
+      bmm, ik_fn, ik_params, character: as in :func:`inbetween`.
+      keys: :class:`~bezmotion.ik.protocol.Pose` of every key, batched ``(keys, …)``, ``keys ≥ 2``.
+      handles: each window's handles, batched ``(keys − 1, handles)``: window ``i``'s
+        frames 1 … 29 lie between key ``i`` and key ``i + 1`` (the chain's frames
+        ``30·i + 1 … 30·i + 29``); pad with ``valid=False`` to give windows different counts.
+      key: PRNG key of the diffusion sampler.
+      coupled: join the windows C¹ at their shared keys (the same tangent, orientation and
+        contacts on both sides); ``False`` samples them independently (BMM Appendix D.1),
+        for comparison.
+      transfer, steps, guidance, foot_lock, keep_keyframes, key_blend_frames,
+        key_orientations: as in :func:`inbetween`, applied to every window.
+    Returns:
+      :class:`ChainResult`: ``(keys − 1)·30 + 1`` frames, exactly the given keys at frames
+      ``0, 30, 60, …`` with ``keep_keyframes``; the curves pass through every handle.
+
+    Raises:
+      ValueError: fewer than two keys, keys not poses of this character, handles not
+        ``(keys − 1, handles)``, a valid handle outside its window or at a non-finite
+        position, or a key with non-finite values (naming it).
+    """
+    num_keys = keys.root_pos.shape[0] if keys.root_pos.ndim == 2 else None
+    if num_keys is None or keys.quat_local.shape != (num_keys, character.num_joints, 4):
+        raise ValueError(
+            f"keys must be poses of {character.name} batched (keys, …): root_pos (keys, 3), quat_local "
+            f"(keys, {character.num_joints}, 4); got {keys.root_pos.shape}, {keys.quat_local.shape}"
+        )
+    if num_keys < 2:
+        raise ValueError(f"a chain needs at least 2 keys, got {num_keys}")
+    _checked_chain_handles(handles, num_keys - 1, bmm.config.num_frames)
+    checked = [_checked_finite(jax.tree.map(lambda a, k=k: a[k], keys), f"key {k}") for k in range(num_keys)]
+    keys = Pose(*(jnp.stack(a) for a in zip(*checked)))
+    transfer = Transfer.identity() if transfer is None else transfer
+    return call_with_inference_options(
+        _compiled_chain, bmm, ik_params, character, keys, handles, transfer, key,
+        ik_fn=ik_fn, steps=steps, guidance=guidance, foot_lock=foot_lock, keep_keyframes=keep_keyframes,
+        key_blend_frames=key_blend_frames, coupled=coupled, key_orientations=key_orientations,
     )  # fmt: skip

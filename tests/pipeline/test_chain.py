@@ -1,0 +1,130 @@
+"""``inbetween_chain`` (``bezmotion.pipeline.inbetweening``): windows between several keys
+sampled together, continuity at the chained keys (the curves share their tangents there,
+the motion holds each key exactly), the handles hit, one compilation, a transfer, and the
+input checks.
+"""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from ik.demo_poses import fk, frame, targets_of
+from pipeline.common import FRAMES, K, LEFT_HAND, STEPS
+
+from bezmotion.bmm.sampling import Handles
+from bezmotion.data.characteristic import HIPS
+from bezmotion.ik.protocol import Pose
+from bezmotion.metrics import boundary_velocity_jump
+from bezmotion.pipeline import Transfer, inbetween_chain, join_windows
+
+KEY_FRAMES = [0, 30, 39]  # clip frames of the three keys (the clip has 40)
+WINDOWS = len(KEY_FRAMES) - 1
+LENGTH = WINDOWS * (FRAMES - 1) + 1  # 61 frames of chained motion
+
+
+@pytest.fixture(scope="module")
+def chain(clip, bmm, run) -> SimpleNamespace:
+    """Three keys of the demo clip, two windows: hips 10 cm up at window 0's frame 29 (next
+    to the shared key) and the left hand 10 cm up at its frame 12; the left hand where the
+    mocap has it at window 1's frame 1 (the other side of the key: no kink forced there)
+    and a padding slot holding NaN."""
+    character = clip.character
+    keys = jax.tree.map(lambda a: a[jnp.asarray(KEY_FRAMES)], clip.pose)
+    _, pos = fk(character, clip.pose)
+    idx = np.asarray(character.characteristic)
+    up = np.array([0.0, 10.0, 0.0], np.float32)
+    position = np.stack([
+        [pos[29, idx[HIPS]] + up, pos[12, idx[LEFT_HAND]] + up],
+        [pos[31, idx[LEFT_HAND]], np.full(3, np.nan, np.float32)],
+    ]).astype(np.float32)  # fmt: skip
+    handles = Handles(
+        jnp.asarray([[HIPS, LEFT_HAND], [LEFT_HAND, HIPS]], jnp.int32),
+        jnp.asarray([[29, 12], [1, 5]], jnp.int32),
+        jnp.asarray(position),
+        jnp.asarray([[True, True], [True, False]]),
+    )
+    args = (bmm, run.ik, run.rest, character, keys, handles)
+    result = inbetween_chain(*args, key=jax.random.key(3), steps=STEPS)
+    return SimpleNamespace(character=character, keys=keys, handles=handles, args=args, result=result)
+
+
+def test_chain_has_all_frames_and_holds_every_key(chain):
+    r, keys = chain.result, chain.keys
+    assert r.pose.root_pos.shape == (LENGTH, 3) and r.pose.quat_local.shape == (LENGTH, 22, 4)
+    assert r.positions.shape == (LENGTH, 6, 3) and r.rot6d.shape == (LENGTH, 6, 6)
+    assert r.curves.ctrl_pos.shape == (WINDOWS, K, 6, 3) and all(np.isfinite(np.asarray(a)).all() for a in (*r.pose, *r.curves))
+    # keep_keyframes: the given keys exactly at frames 0, 30, 60.
+    for k, f in enumerate(range(0, LENGTH, FRAMES - 1)):
+        np.testing.assert_array_equal(r.pose.root_pos[f], keys.root_pos[k])
+        np.testing.assert_array_equal(r.pose.quat_local[f], keys.quat_local[k])
+        t = targets_of(chain.character, frame(keys, k))
+        np.testing.assert_allclose(r.positions[f], t.position, atol=1e-3)
+        np.testing.assert_allclose(r.rot6d[f], t.rot6d, atol=1e-5)
+
+
+def test_chain_curves_are_c1_at_the_shared_key_and_hit_the_handles(chain):
+    r, h = chain.result, chain.handles
+    tangent, pos = np.asarray(r.curves.ctrl_tangent), np.asarray(r.curves.ctrl_pos)
+    np.testing.assert_array_equal(tangent[0, -1], tangent[1, 0])
+    np.testing.assert_array_equal(pos[0, -1], pos[1, 0])
+    np.testing.assert_array_equal(np.asarray(r.curves.ctrl_rot6d)[0, -1], np.asarray(r.curves.ctrl_rot6d)[1, 0])
+    # The dense trajectories given to IK: handles at chain frame 30·window + frame.
+    np.testing.assert_allclose(r.positions[29, HIPS], h.position[0, 0], atol=1e-3)
+    np.testing.assert_allclose(r.positions[12, LEFT_HAND], h.position[0, 1], atol=1e-3)
+    np.testing.assert_allclose(r.positions[31, LEFT_HAND], h.position[1, 0], atol=1e-3)
+    # At the shared key the velocity changes no more than the curvature either side allows.
+    jump = np.asarray(boundary_velocity_jump(r.positions, [FRAMES - 1]))[0]
+    inner = np.asarray(boundary_velocity_jump(r.positions, [FRAMES - 2, FRAMES]))
+    assert (jump <= 2.0 * inner.max(axis=0) + 1e-3).all(), (jump, inner)
+
+
+def test_independent_windows_jump_at_the_shared_key_and_the_chain_compiles_once(chain):
+    traces = len(chain.args[1].traces)
+    apart = inbetween_chain(*chain.args, key=jax.random.key(3), steps=STEPS, coupled=False)
+    again = inbetween_chain(*chain.args, key=jax.random.key(4), steps=STEPS, coupled=False)
+    assert len(chain.args[1].traces) == traces + 1, "a second call with the same shapes must not retrace"
+    tangent = np.asarray(apart.curves.ctrl_tangent)
+    assert np.abs(tangent[0, -1] - tangent[1, 0]).max() > 1.0  # velocity 3·T/6 differs either side
+    assert not np.array_equal(np.asarray(again.positions), np.asarray(apart.positions))
+    # The keys and handles hold either way.
+    np.testing.assert_array_equal(apart.pose.root_pos[FRAMES - 1], chain.keys.root_pos[1])
+    np.testing.assert_allclose(apart.positions[31, LEFT_HAND], chain.handles.position[1, 0], atol=1e-3)
+
+
+def test_chain_with_a_transfer_keeps_the_shared_tangent_and_the_keys(chain):
+    scaled = Transfer(jnp.asarray(1.3, jnp.float32), Transfer.identity().rot_offset)
+    r = inbetween_chain(*chain.args, key=jax.random.key(3), steps=STEPS, transfer=scaled, key_blend_frames=0)
+    tangent = np.asarray(r.curves.ctrl_tangent)
+    np.testing.assert_array_equal(tangent[0, -1], tangent[1, 0])
+    np.testing.assert_allclose(r.positions[29, HIPS], chain.handles.position[0, 0], atol=1e-3)
+    np.testing.assert_array_equal(r.pose.quat_local[FRAMES - 1], chain.keys.quat_local[1])
+
+
+def test_join_windows():
+    x = jnp.arange(2 * 4 * 3, dtype=jnp.float32).reshape(2, 4, 3)
+    np.testing.assert_array_equal(join_windows(x), np.concatenate([np.asarray(x[0, :3]), np.asarray(x[1])]))
+
+
+def test_chain_input_errors(chain):
+    bmm, ik, rest, character, keys, handles = chain.args
+    call = lambda keys=keys, handles=handles: inbetween_chain(bmm, ik, rest, character, keys, handles, key=jax.random.key(0), steps=1)  # noqa: E731
+    one = jax.tree.map(lambda a: a[:1], keys)
+    with pytest.raises(ValueError, match="at least 2 keys, got 1"):
+        call(keys=one, handles=jax.tree.map(lambda a: a[:0], handles))
+    with pytest.raises(ValueError, match=r"keys must be poses of .*batched \(keys, …\)"):
+        call(keys=frame(keys, 0))
+    with pytest.raises(ValueError, match=r"keys must be poses .*\(3, 5, 4\)"):
+        call(keys=Pose(keys.root_pos, keys.quat_local[:, :5]))
+    with pytest.raises(ValueError, match=r"handles must be \(2, handles, 3\).*\(1, 2, 3\)"):
+        call(handles=jax.tree.map(lambda a: a[:1], handles))
+    with pytest.raises(ValueError, match=r"1 … 29; got \[30\] \(window, slot\) \[\[1, 0\]\]"):
+        call(handles=handles._replace(frame=handles.frame.at[1, 0].set(30)))
+    with pytest.raises(ValueError, match=r"finite; \(window, slot\) \[\[0, 1\]\]"):
+        call(handles=handles._replace(position=handles.position.at[0, 1, 2].set(jnp.inf)))
+    with pytest.raises(ValueError, match="key 2 pose contains non-finite"):
+        call(keys=keys._replace(root_pos=keys.root_pos.at[2, 0].set(jnp.nan)))
