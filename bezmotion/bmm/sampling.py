@@ -220,7 +220,17 @@ def _shared_keys(chain: _Chain, num_controls: int, num_joints: int) -> Bool[Arra
 
 
 def _sample_one(
-    model: BezierMotionModel, start, end, handles: Handles, key_rot6d, key, steps, guidance, overwrite, foot_lock, chain: _Chain | None = None
+    model: BezierMotionModel,
+    start,
+    end,
+    handles: Handles,
+    key_rot6d,
+    key,
+    steps,
+    guidance,
+    overwrite,
+    foot_lock,
+    chain: _Chain | None = None,
 ):
     """One window; with ``chain`` (inside ``jax.vmap`` over its windows) its boundary
     tangents, orientations and contacts are shared with the neighbouring windows."""

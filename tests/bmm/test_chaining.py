@@ -44,7 +44,8 @@ def chain(demo_dataset) -> SimpleNamespace:
     lerp = (1 - t) * key_pos[:-1][np.arange(3)[:, None], joint] + t * key_pos[1:][np.arange(3)[:, None], joint]
     position = (lerp + np.array([0.0, 8.0, 0.0], np.float32)).astype(np.float32)
     position[2, 2] = np.nan  # padding holds anything
-    handles = Handles(jnp.asarray(joint), jnp.asarray(frame), jnp.asarray(position), jnp.asarray([[True] * 3, [True] * 3, [True, True, False]]))
+    valid = jnp.asarray([[True] * 3, [True] * 3, [True, True, False]])
+    handles = Handles(jnp.asarray(joint), jnp.asarray(frame), jnp.asarray(position), valid)
     return SimpleNamespace(key_pos=jnp.asarray(key_pos), key_rot6d=jnp.asarray(key_rot6d), handles=handles)
 
 

@@ -112,7 +112,10 @@ def test_join_windows():
 
 def test_chain_input_errors(chain):
     bmm, ik, rest, character, keys, handles = chain.args
-    call = lambda keys=keys, handles=handles: inbetween_chain(bmm, ik, rest, character, keys, handles, key=jax.random.key(0), steps=1)  # noqa: E731
+
+    def call(keys=keys, handles=handles):
+        return inbetween_chain(bmm, ik, rest, character, keys, handles, key=jax.random.key(0), steps=1)
+
     one = jax.tree.map(lambda a: a[:1], keys)
     with pytest.raises(ValueError, match="at least 2 keys, got 1"):
         call(keys=one, handles=jax.tree.map(lambda a: a[:0], handles))
