@@ -15,8 +15,6 @@ from __future__ import annotations
 import dataclasses
 import importlib.util
 import json
-import os
-import shutil
 import subprocess
 import sys
 import textwrap
@@ -27,6 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from blender import find_blender, run_in_blender
 from helpers import np_forward_kinematics
 
 from bezmotion.assets import DEMO_CLIP
@@ -147,32 +146,6 @@ def test_edited_handles_are_the_moved_interior_keys():
     keys[1] = (6.0, [1, 1, 1], [9, 0, 0])
     _, notes = bc.edited_handles("right_hand", original, keys, num_frames=31)
     assert any("tangent at frame 6 changed" in n for n in notes)
-
-
-def find_blender() -> list[str] | None:
-    """A command that runs the script in Blender: ``blender --background --python`` or a
-    Python that imports ``bpy``; ``None`` when neither is installed (nothing is downloaded)."""
-    candidates = [os.environ.get("BEZMOTION_BLENDER"), shutil.which("blender"), str(Path.home() / ".cache/bezmotion/bpy-venv/bin/python")]
-    for exe in filter(None, candidates):
-        if not (Path(exe).is_file() and os.access(exe, os.X_OK)):
-            continue
-        if "python" in Path(exe).name:
-            ok = subprocess.run([exe, "-c", "import bpy"], capture_output=True, timeout=120).returncode == 0
-            if ok:
-                return [exe]
-        else:
-            return [exe, "--background", "--factory-startup", "--python-exit-code", "1", "--python-expr"]
-    return None
-
-
-def run_in_blender(blender: list[str], code: str, cwd: Path) -> str:
-    if blender[-1] == "--python-expr":
-        command = [*blender, code]
-    else:
-        command = [*blender, "-c", code]
-    done = subprocess.run(command, capture_output=True, text=True, timeout=300, cwd=cwd)
-    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
-    return done.stdout
 
 
 def test_round_trip_through_blender(tmp_path):
