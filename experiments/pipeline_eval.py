@@ -21,6 +21,8 @@ runs on those same dense trajectories, the start and end poses blended in over
 the rig's exact two-bone limbs; ``rig``: the analytic rig alone; ``exact``: the learned
 IK then the exact damped least-squares stage (:mod:`bezmotion.ik.exact`) with the joint
 limits stored beside the IK model; ``exact_refined``: the same on top of ``refined``.
+``--exact NAME=VALUE`` (repeatable) sets an :class:`~bezmotion.ik.exact.ExactIKParams`
+field of both exact IKs, e.g. ``--exact iterations=20 --exact hips_position_scale=0.3``.
 
 **Metrics.** Per IK, in distribution (``id``) and OOD (``ood``):
 
@@ -68,6 +70,7 @@ beside the JSON.
 
 from __future__ import annotations
 
+import dataclasses
 import re
 import time
 from pathlib import Path
@@ -82,7 +85,7 @@ from bezmotion.bmm.sampling import load_model
 from bezmotion.data.corpus import Corpus, motion_clips
 from bezmotion.data.curves import CurveDataset, curve_dataset
 from bezmotion.data.sources import load_corpus
-from bezmotion.ik.exact import JointLimits, exact_ik
+from bezmotion.ik.exact import ExactIKParams, JointLimits, exact_ik
 from bezmotion.ik.protocol import targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik
@@ -117,6 +120,10 @@ class Options:
     ik_model: str = option("bundled", help="a saved learned IK folder, or 'bundled' (Bandai-Namco only)")
     joint_limits: str | None = option(None, help="the exact IK's joint limits JSON (default: joint_limits.json beside the IK model, if any)")
     no_limits: bool = False
+    exact: tuple[str, ...] = option(
+        (), repeat=True, metavar="NAME=VALUE",
+        help="an ExactIKParams setting of the exact IKs (e.g. iterations=12, rotation_weight=5); may repeat",
+    )  # fmt: skip
     ik: tuple[str, ...] = option(("learned", "refined", "rig", "exact"), choices=IKS, help="IKs to run on the same curves")
     windows: int = option(100, help="windows (0 = all)")
     handle_frames: str = option("grid", choices=HANDLE_FRAMES, help="handles on control frames, between them, or any frame")
@@ -141,6 +148,23 @@ class Options:
             raise ValueError(f"--bvh-dir {self.bvh_dir}: not a folder")
         if self.windows < 0 or self.chunk < 1 or self.steps < 1:
             raise ValueError("--windows must be ≥ 0, --chunk and --steps ≥ 1")
+        exact_settings(self)  # raises on a malformed or unknown setting
+
+
+def exact_settings(args: Options) -> dict[str, float | int]:
+    """``--exact NAME=VALUE`` as ExactIKParams keyword arguments (ints for the static counts)."""
+    fields = {f.name: f for f in dataclasses.fields(ExactIKParams)}
+    settings = {}
+    for item in args.exact:
+        name, sep, value = item.partition("=")
+        if not sep or name not in fields or name in ("inner", "character", "limits"):
+            known = sorted(set(fields) - {"inner", "character", "limits"})
+            raise ValueError(f"--exact {item}: expected NAME=VALUE with NAME one of {known}")
+        try:
+            settings[name] = int(value) if fields[name].metadata.get("static") else float(value)
+        except ValueError:
+            raise ValueError(f"--exact {item}: {value!r} is not a number") from None
+    return settings
 
 
 def model_path(args: Options, what: str) -> Path:
@@ -180,12 +204,13 @@ def build_iks(args: Options, ik_model, rig) -> tuple[dict[str, tuple], bool]:
             limits = JointLimits.load(path, character)
         elif args.joint_limits:
             raise FileNotFoundError(f"--joint-limits {path}: no such file")
+    settings = exact_settings(args)
     makers = {
         "learned": lambda: (protores_ik_fn, ik_model),
         "refined": lambda: (protores_refined_ik_fn, (ik_model, rig)),
         "rig": lambda: (rig_ik, rig),
-        "exact": lambda: exact_ik(protores_ik_fn, ik_model, character, limits=limits),
-        "exact_refined": lambda: exact_ik(protores_refined_ik_fn, (ik_model, rig), character, limits=limits),
+        "exact": lambda: exact_ik(protores_ik_fn, ik_model, character, limits=limits, **settings),
+        "exact_refined": lambda: exact_ik(protores_refined_ik_fn, (ik_model, rig), character, limits=limits, **settings),
     }
     return {name: makers[name]() for name in dict.fromkeys(args.ik)}, limits is not None
 
@@ -251,6 +276,7 @@ def main(argv: list[str] | None = None) -> dict:
             "bmm": str(model_path(args, "bmm")), "ik_model": str(model_path(args, "ik_model")), "joint_limits": limited,
             "handle_frames": args.handle_frames, "steps": args.steps, "key_blend_frames": args.key_blend,
             "chunk": args.chunk, "seed": args.seed, "sample_seed": args.sample_seed, "segments": 1,
+            "exact": exact_settings(args),
             "rows": [int(r) for r in eval_set.rows],
         },  # fmt: skip
         "ik": {name: {"compile_s": r.pop("compile_s"), **r} for name, r in ik_results.items()},

@@ -118,3 +118,18 @@ def test_lafan1_needs_its_models(experiment, capsys):
     with pytest.raises(SystemExit):
         experiment.main(["--out", "x.json", "--corpus", "lafan1"])
     assert "no bundled BMM model for lafan1: pass --bmm PATH" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "setting, message",
+    [("iterations", "expected NAME=VALUE"), ("speed=3", "expected NAME=VALUE"), ("iterations=many", "'many' is not a number")],
+)
+def test_exact_settings_are_checked(experiment, capsys, setting, message):
+    with pytest.raises(SystemExit):
+        experiment.main(["--out", "x.json", "--exact", setting])
+    assert f"--exact {setting}: {message}" in capsys.readouterr().err
+
+
+def test_exact_settings_reach_the_exact_ik(experiment):
+    args = experiment.parse_options(experiment.Options, ["--out", "x.json", "--exact", "iterations=3", "--exact", "rotation_weight=2.5"])
+    assert experiment.exact_settings(args) == {"iterations": 3, "rotation_weight": 2.5}
