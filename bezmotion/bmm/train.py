@@ -20,6 +20,7 @@ from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import optax
 from flax import nnx
 from jax.sharding import Mesh
 from jaxtyping import Array, Bool, Float
@@ -27,6 +28,7 @@ from jaxtyping import Array, Bool, Float
 from bezmotion.bezier import BezierLayout
 from bezmotion.data.curves import CurveDataset
 from bezmotion.diffusion.schedule import DiffusionSchedule, cosine_schedule
+from bezmotion.bmm.augmentation import augment
 from bezmotion.bmm.losses import LossWeights, bmm_loss_terms, min_snr_weight
 from bezmotion.bmm.denoiser import BMMConfig, init_denoiser
 from bezmotion.bmm.features import (
@@ -44,9 +46,12 @@ from bezmotion.bmm.features import (
     to_tokens,
 )
 from bezmotion.training.loop import shard_batch
-from bezmotion.training.optim import adamw_amsgrad_torch
+from bezmotion.training.optim import adamw_amsgrad_torch, warmup_then_decay
 from bezmotion.training.state import TrainState, fresh_train_state, stack_seeds
 from bezmotion.training.step import apply_gradients
+
+
+LR_SCHEDULES = ("constant", "cosine")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -57,6 +62,15 @@ class BMMTrainConfig:
     uniformly random intermediate frame (1 … 29) rather than on its control frame, its
     position the training curve there; ``0`` (default) keeps the paper's handles on
     control frames only, with the same random stream as before.
+
+    Levers of ours (issue 12), all off by default (the paper's constant rate, no augmentation):
+
+    - ``lr_schedule="cosine"``: a linear warm-up over ``warmup_steps`` from 0, then a cosine
+      decay to ``final_lr_fraction × learning_rate`` at ``total_steps``;
+    - ``yaw_augmentation``: every example turned by a uniform random angle about the vertical;
+    - ``mirror_augmentation``: the probability that an example is mirrored left/right, with
+      ``rest_reflections`` the six joints' rest mirrors of the skeleton
+      (:func:`bezmotion.bmm.augmentation.rest_reflections`; required then).
     """
 
     batch_size: int = 64
@@ -68,6 +82,13 @@ class BMMTrainConfig:
     max_intermediate_handles: int = MAX_INTERMEDIATE_HANDLES
     off_grid_handles: float = 0.0
     weights: LossWeights = LossWeights()
+    lr_schedule: str = "constant"
+    warmup_steps: int = 0
+    total_steps: int | None = None
+    final_lr_fraction: float = 0.1
+    yaw_augmentation: bool = False
+    mirror_augmentation: float = 0.0
+    rest_reflections: tuple[tuple[float, float, float], ...] | None = None
 
     def __post_init__(self):
         if self.batch_size < 1 or self.learning_rate <= 0 or self.weight_decay < 0:
@@ -76,6 +97,34 @@ class BMMTrainConfig:
             raise ValueError(f"condition_dropout and ema_decay must be in [0, 1), got {self}")
         if not 0.0 <= self.off_grid_handles <= 1.0:
             raise ValueError(f"off_grid_handles must be a probability in [0, 1], got {self.off_grid_handles}")
+        if not 0.0 <= self.mirror_augmentation <= 1.0:
+            raise ValueError(f"mirror_augmentation must be a probability in [0, 1], got {self.mirror_augmentation}")
+        if self.lr_schedule not in LR_SCHEDULES:
+            raise ValueError(f"unknown lr_schedule {self.lr_schedule!r}; known: {LR_SCHEDULES}")
+        if self.lr_schedule == "cosine" and (self.total_steps is None or not 0 <= self.warmup_steps < self.total_steps):
+            raise ValueError(
+                f"a cosine schedule needs 0 <= warmup_steps < total_steps, got warmup_steps={self.warmup_steps}, total_steps={self.total_steps}"
+            )
+        if not 0.0 <= self.final_lr_fraction <= 1.0:
+            raise ValueError(f"final_lr_fraction must be in [0, 1], got {self.final_lr_fraction}")
+        if self.mirror_augmentation and self.rest_reflections is None:
+            raise ValueError("mirror_augmentation needs rest_reflections (bezmotion.bmm.augmentation.rest_reflections)")
+        for r in self.rest_reflections or ():
+            if sorted(abs(x) for x in r) != [1.0, 1.0, 1.0] or sum(x < 0 for x in r) != 1:
+                raise ValueError(f"rest_reflections must be six axis reflections such as (-1, 1, 1), got {self.rest_reflections}")
+        if self.rest_reflections is not None and len(self.rest_reflections) != 6:
+            raise ValueError(f"rest_reflections needs one reflection per characteristic joint (6), got {len(self.rest_reflections)}")
+
+    def learning_rate_schedule(self) -> float | optax.Schedule:
+        """The rate the optimiser scales by: the constant ``learning_rate`` or the warm-up + cosine schedule."""
+        if self.lr_schedule == "constant":
+            return self.learning_rate
+        decay = optax.cosine_decay_schedule(self.learning_rate, self.total_steps - self.warmup_steps, alpha=self.final_lr_fraction)
+        return warmup_then_decay(decay, init_value=0.0, peak_value=self.learning_rate, warmup_steps=self.warmup_steps)
+
+    def optimizer(self) -> optax.GradientTransformation:
+        """AdamW with AMSGrad as the paper's PyTorch code, at :meth:`learning_rate_schedule`."""
+        return adamw_amsgrad_torch(self.learning_rate_schedule(), self.weight_decay)
 
 
 class CurveArrays(NamedTuple):
@@ -97,7 +146,7 @@ def init_bmm_train_state(
 ) -> tuple[nnx.GraphDef, TrainState]:
     """Fresh parameters and optimiser state for one seed."""
     init = lambda k: init_denoiser(model_config, key=k)  # noqa: E731
-    return fresh_train_state(init, adamw_amsgrad_torch(train_config.learning_rate, train_config.weight_decay), key=key, ema=True)
+    return fresh_train_state(init, train_config.optimizer(), key=key, ema=True)
 
 
 def init_bmm_train_states(
@@ -119,13 +168,18 @@ def make_bmm_train_step(
     """The (un-jitted) single-seed training step; see :func:`compile_train_step`."""
     schedule = cosine_schedule(model_config.num_timesteps) if schedule is None else schedule
     layout = BezierLayout.from_controls(model_config.num_controls, model_config.stride)
-    optimizer = adamw_amsgrad_torch(train_config.learning_rate, train_config.weight_decay)
+    optimizer = train_config.optimizer()
     weights = train_config.weights
     k_ctrl, k_joints = model_config.num_controls, model_config.num_joints
 
     def example_loss(params, batch_item, rng):
         pos, tangent, rot6d, contacts, dense = batch_item
         t_key, noise_key, cond_key, drop_key, dropout_key = jax.random.split(rng, 5)
+        # Augmentation draws from a key folded off rng, so without it the stream is the paper's.
+        pos, tangent, rot6d, contacts, dense = augment(
+            jax.random.fold_in(rng, 7), (pos, tangent, rot6d, contacts, dense), yaw=train_config.yaw_augmentation,
+            mirror_probability=train_config.mirror_augmentation, reflections=train_config.rest_reflections,
+        )  # fmt: skip
         t = jax.random.randint(t_key, (), 0, schedule.num_timesteps)
         x0 = to_tokens(stats.normalize(control_features(pos, tangent, rot6d)))
         x_t = schedule.add_noise(x0, t, jax.random.normal(noise_key, x0.shape, x0.dtype))
@@ -167,6 +221,7 @@ def make_bmm_train_step(
 
 
 __all__ = [
+    "LR_SCHEDULES",
     "BMMTrainConfig",
     "CurveArrays",
     "init_bmm_train_state",

@@ -1,0 +1,173 @@
+"""Training-time augmentation: the free symmetries of aligned curve windows (ours, issue 12).
+
+Curve windows are aligned by translation only (hips start at the origin in XZ, Y up,
+:mod:`bezmotion.data.curves`), so two transformations of a window give another window a
+person could have performed, with no new data:
+
+- **yaw rotation** by any angle about the vertical axis through the origin: positions,
+  tangents and dense trajectories rotate, global orientations are pre-multiplied
+  (``R' = R_y R``); foot contacts do not change. Exact for any skeleton.
+- **left/right mirror** through the vertical plane ``x = 0``: positions and tangents have
+  ``x`` negated, the left and right hands and feet (and the two foot contacts) swap, and the
+  global orientation of the joint that lands in slot ``s`` becomes ``R' = M R P_s`` with
+  ``M = diag(−1, 1, 1)`` the world reflection and ``P_s`` the reflection, in that joint's
+  own rest frame, that maps the right joint's bones onto the left one's
+  (:func:`rest_reflections`). ``M R P_s`` is a rotation (two reflections) and carries the
+  mirrored joint's bones where the mirror images of the original joint's went: for a bone
+  ``o_l = P o_r``, ``R' o_l = M R o_r``. Skeletons differ here: Bandai-Namco's feet flip
+  their X axis, its hips Y and its chest Z, so ``P`` is measured per joint from the rest
+  offsets rather than assumed.
+
+Both act on one training example ``(ctrl_pos, ctrl_tangent, ctrl_rot6d, ctrl_contacts,
+dense_pos)`` — joints in :data:`~bezmotion.data.characteristic.CHARACTERISTIC_JOINTS`
+order — inside the jitted step, before the conditions are drawn from it, so handles follow
+the augmented curves.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Bool, Float
+
+from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
+from bezmotion.geometry.rotations import matrix_from_rot6d, rot6d_from_matrix
+from bezmotion.geometry.skeleton import Skeleton
+
+# Joint order after mirroring: hips and head stay, the hands swap, the feet swap.
+_MIRRORED_JOINTS = tuple(
+    CHARACTERISTIC_JOINTS.index(name.replace("left", "@").replace("right", "left").replace("@", "right"))
+    for name in CHARACTERISTIC_JOINTS
+)
+_WORLD_MIRROR = np.diag([-1.0, 1.0, 1.0]).astype(np.float32)
+
+Example = tuple[
+    Float[Array, "controls 6 3"],  # ctrl_pos (cm)
+    Float[Array, "controls 6 3"],  # ctrl_tangent (cm per control interval)
+    Float[Array, "controls 6 6"],  # ctrl_rot6d (global orientations)
+    Bool[Array, "controls 2"],  # ctrl_contacts (left, right foot)
+    Float[Array, "frames 6 3"],  # dense_pos (cm)
+]
+
+
+Reflection = tuple[float, float, float]  # the diagonal of an axis reflection, one entry −1
+
+
+def _axis_reflection(left: np.ndarray, right: np.ndarray, tol: float = 0.05) -> Reflection | None:
+    """The axis reflection ``P`` with ``P right ≈ left`` (within ``tol`` of the bone length), if any."""
+    length = max(np.linalg.norm(left), np.linalg.norm(right))
+    if length < 1e-3:
+        return None
+    for axis in range(3):
+        diag = np.ones(3)
+        diag[axis] = -1.0
+        if abs(right[axis]) > tol * length and np.linalg.norm(diag * right - left) <= tol * length:
+            return tuple(float(d) for d in diag)
+    return None
+
+
+def _mirrored_children(skeleton: Skeleton, joint: int) -> Reflection | None:
+    """The reflection between two children of ``joint`` that are mirror images (e.g. the hips' legs)."""
+    offsets = np.asarray(skeleton.offsets, np.float64)
+    children = skeleton.children(joint)
+    for i, a in enumerate(children):
+        for b in children[i + 1 :]:
+            found = _axis_reflection(offsets[a], offsets[b])
+            if found is not None:
+                return found
+    return None
+
+
+def rest_reflections(skeleton: Skeleton, joints: dict[str, str]) -> tuple[Reflection, ...]:
+    """Per characteristic joint, the axis reflection of its rest frame that swaps the body's sides.
+
+    A left/right pair (hands, feet) takes the reflection that maps the right joint's first
+    child bone onto the left one's (a joint without a child: its own bone from its parent,
+    whose frame it shares at rest). A joint on the body's midline takes the reflection
+    between two mirror-image children (the hips' legs), or else its nearest ancestor's (the
+    head: the chest's shoulders).
+
+    Args:
+      skeleton: the skeleton (its rest offsets).
+      joints: role → joint name for every role of
+        :data:`~bezmotion.data.characteristic.CHARACTERISTIC_JOINTS`.
+    Returns:
+      Six diagonals, in :data:`~bezmotion.data.characteristic.CHARACTERISTIC_JOINTS` order.
+    Raises:
+      ValueError: naming the joint whose two sides are not mirror images along an axis.
+    """
+    offsets = np.asarray(skeleton.offsets, np.float64)
+    index = {role: skeleton.index(joints[role]) for role in CHARACTERISTIC_JOINTS}
+
+    def bone(joint: int) -> np.ndarray:
+        children = [c for c in skeleton.children(joint) if np.linalg.norm(offsets[c]) > 1e-3]
+        return offsets[children[0]] if children else offsets[joint]
+
+    found: dict[str, Reflection] = {}
+    for side in ("hand", "foot"):
+        left, right = index[f"left_{side}"], index[f"right_{side}"]
+        reflection = _axis_reflection(bone(left), bone(right))
+        if reflection is None:
+            raise ValueError(
+                f"{joints[f'left_{side}']!r} and {joints[f'right_{side}']!r} are not mirror images along an axis at rest "
+                f"(bones {bone(left).tolist()} and {bone(right).tolist()}); mirror augmentation cannot pair them"
+            )
+        found[f"left_{side}"] = found[f"right_{side}"] = reflection
+    for role in ("hips", "head"):
+        joint = index[role]
+        while joint >= 0 and (reflection := _mirrored_children(skeleton, joint)) is None:
+            joint = skeleton.parents[joint]
+        if joint < 0:
+            raise ValueError(f"no joint at or above {joints[role]!r} has mirror-image children; cannot mirror its frame")
+        found[role] = reflection
+    return tuple(found[role] for role in CHARACTERISTIC_JOINTS)
+
+
+def rotate_yaw(example: Example, angle: Float[Array, ""]) -> Example:
+    """The window turned by ``angle`` (radians) about the vertical (Y) axis through the origin."""
+    pos, tangent, rot6d, contacts, dense = example
+    c, s = jnp.cos(angle), jnp.sin(angle)
+    zero, one = jnp.zeros_like(c), jnp.ones_like(c)
+    yaw = jnp.stack([jnp.stack([c, zero, s]), jnp.stack([zero, one, zero]), jnp.stack([-s, zero, c])]).astype(pos.dtype)
+    turn = lambda v: v @ yaw.T  # noqa: E731  (row vectors: v' = R v)
+    rot6d = rot6d_from_matrix(yaw @ matrix_from_rot6d(rot6d))
+    return turn(pos), turn(tangent), rot6d, contacts, turn(dense)
+
+
+def mirror(example: Example, reflections: tuple[Reflection, ...]) -> Example:
+    """The window mirrored through the plane ``x = 0``, left and right swapped (see the module notes).
+
+    Args:
+      example: one training window.
+      reflections: the six joints' rest reflections ``P`` (:func:`rest_reflections`).
+    """
+    pos, tangent, rot6d, contacts, dense = example
+    world = jnp.asarray(_WORLD_MIRROR, pos.dtype)
+    swap = np.asarray(_MIRRORED_JOINTS)
+    flip = lambda v: (v * jnp.diag(world))[..., swap, :]  # noqa: E731
+    # Slot s receives joint swap[s]'s orientation, reflected in slot s's rest frame.
+    rest = jnp.asarray(np.stack([np.diag(r) for r in reflections]), pos.dtype)  # (6, 3, 3)
+    matrices = world @ matrix_from_rot6d(rot6d)[..., swap, :, :] @ rest
+    return flip(pos), flip(tangent), rot6d_from_matrix(matrices), contacts[..., ::-1], flip(dense)
+
+
+def augment(
+    key: Array, example: Example, *, yaw: bool, mirror_probability: float, reflections: tuple[Reflection, ...] | None
+) -> Example:
+    """A random symmetry of ``example``: a uniform yaw turn (when ``yaw``), then a mirror with ``mirror_probability``.
+
+    With ``yaw=False`` and ``mirror_probability=0`` the example comes back unchanged
+    (no random numbers drawn, so the paper's setting keeps its random stream).
+    """
+    yaw_key, mirror_key = jax.random.split(key)
+    if yaw:
+        example = rotate_yaw(example, jax.random.uniform(yaw_key, (), minval=-jnp.pi, maxval=jnp.pi))
+    if mirror_probability > 0.0:
+        mirrored = mirror(example, reflections)
+        flip = jax.random.bernoulli(mirror_key, mirror_probability)
+        example = jax.tree.map(lambda m, e: jnp.where(flip, m, e), mirrored, example)
+    return example
+
+
+__all__ = ["Reflection", "augment", "mirror", "rest_reflections", "rotate_yaw"]
