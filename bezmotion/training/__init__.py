@@ -2,10 +2,12 @@
 
 Knows no model: the BMM (:mod:`bezmotion.bmm.train`), the Δ-interpolator
 (:mod:`bezmotion.delta.train`) and the learned IK (:mod:`bezmotion.ik.training`) each
-build a ``step(state, data) -> (state, metrics)`` and hand it to :func:`run_training`.
+build a ``step(state, data) -> (state, metrics)`` and hand it to :func:`run_training`
+(or :func:`train_with_learning_curve`, which evaluates every N steps and stops early).
 """
 
 from bezmotion.training.checkpoint import CONFIG_FILE, CheckpointStore
+from bezmotion.training.learning_curve import StoppingRule, load_curve, train_with_learning_curve
 from bezmotion.training.loop import compile_train_step, data_mesh, run_training, shard_batch
 from bezmotion.training.optim import adamw_amsgrad_torch, scale_by_amsgrad_torch, warmup_then_decay
 from bezmotion.training.step import apply_gradients, count_parameters
@@ -14,6 +16,7 @@ from bezmotion.training.state import TrainState, fresh_train_state, stack_seeds
 __all__ = [
     "CONFIG_FILE",
     "CheckpointStore",
+    "StoppingRule",
     "TrainState",
     "adamw_amsgrad_torch",
     "apply_gradients",
@@ -21,9 +24,11 @@ __all__ = [
     "count_parameters",
     "data_mesh",
     "fresh_train_state",
+    "load_curve",
     "run_training",
     "scale_by_amsgrad_torch",
     "shard_batch",
     "stack_seeds",
+    "train_with_learning_curve",
     "warmup_then_decay",
 ]
