@@ -7,12 +7,17 @@ report beside it).
 
 from __future__ import annotations
 
+import fnmatch
 import json
 import os
+import re
 from pathlib import Path
+
+import numpy as np
 
 from bezmotion.data.cache import cache_dir
 from bezmotion.data.corpus import Corpus
+from bezmotion.data.curves import CurveDataset
 from bezmotion.data.sources import CORPORA, load_corpus
 
 #: ``--corpus`` help shared by the scripts that train on any corpus.
@@ -62,3 +67,30 @@ def open_corpus(name_or_path: str, *, data: str | None = None, characteristic: s
 def corpus_label(name_or_path: str) -> str:
     """A corpus's short name for run folders: the name itself, or a folder's base name."""
     return name_or_path if name_or_path in CORPORA else Path(os.path.normpath(name_or_path)).name
+
+
+def clip_label(labels: dict) -> str:
+    """A clip's content / action: Bandai-Namco's ``content``, LaFAN1's sequence or a file stem without its number."""
+    if "content" in labels:
+        return str(labels["content"])
+    name = str(labels.get("sequence", labels.get("file", "?")))
+    return re.sub(r"[\d_\-\s]+$", "", name) or name
+
+
+def window_labels(corpus: Corpus, dataset: CurveDataset, split: str, rows: np.ndarray | None = None) -> np.ndarray:
+    """The content / action label (:func:`clip_label`) of each window of ``dataset``, one split's curves.
+
+    Args:
+      corpus: the corpus the curves were fitted from.
+      dataset: ``curve_dataset(corpus, split)``.
+      split: ``"train"`` or ``"validation"``.
+      rows: only these windows (default: all, in order).
+    """
+    clips = corpus.split(split)
+    rows = np.arange(len(dataset)) if rows is None else rows
+    return np.asarray([clip_label(corpus.labels(int(clips[dataset.clip_index[r]]))) for r in rows])
+
+
+def matches_any(labels: np.ndarray, patterns: tuple[str, ...]) -> np.ndarray:
+    """``(n,)`` bool: labels matching any shell pattern (``wave-*``, ``run``)."""
+    return np.asarray([any(fnmatch.fnmatchcase(str(label), p) for p in patterns) for label in labels], bool)

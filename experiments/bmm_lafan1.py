@@ -66,11 +66,13 @@ from bezmotion.data.sources import default_source, load_corpus
 from bezmotion.bmm.denoiser import PREDICTIONS, BMMConfig
 from bezmotion.bmm.features import FeatureStats
 from bezmotion.bmm.sampling import BezierMotionModel, load_model, sample_curves, save_model
-from bezmotion.bmm.train import CurveArrays, BMMTrainConfig, init_bmm_train_states, make_bmm_train_step
+from bezmotion.bmm.augmentation import rest_reflections
+from bezmotion.bmm.train import LR_SCHEDULES, CurveArrays, BMMTrainConfig, init_bmm_train_states, make_bmm_train_step
+from bezmotion.data.characteristic import SKELETON_MAPS
 from bezmotion.options import option, options, parse_options, presets
-from bezmotion.training import compile_train_step, count_parameters, data_mesh, run_training
+from bezmotion.training import StoppingRule, compile_train_step, count_parameters, data_mesh, run_training, train_with_learning_curve
 from bezmotion.training.distributed import DistributedOptions, is_coordinator, leave_group
-from _common import runs_dir
+from _common import matches_any, runs_dir, window_labels
 
 DEFAULT_DATA = {name: default_source(name) for name in ("lafan1", "bandai_namco")}
 STEP_COUNTS = (5, 10, 25, 50, 100)
@@ -106,6 +108,18 @@ class Options(DistributedOptions):
         "grid", choices=HANDLE_FRAMES, help="also evaluate handles off the control grid: off_grid (between control frames) or any (1…29)"
     )
     off_grid_handles: float = option(0.0, help="training: probability that a handle sits at any frame 1…29 (default 0: the paper's)")
+    lr_schedule: str = option(
+        "constant", choices=LR_SCHEDULES, help="learning rate: constant (the paper) or cosine (warm-up, then cosine decay to 0.1× at --steps)"
+    )
+    warmup_steps: int = option(0, help="linear warm-up steps of the cosine schedule")
+    augment_yaw: bool = option(False, help="turn every training window by a random angle about the vertical (ours)")
+    augment_mirror: float = option(0.0, help="probability of mirroring a training window left/right (ours)")
+    holdout_contents: tuple[str, ...] = option(
+        (), help="held-out contents: train without the clips whose content/action matches these patterns (e.g. 'wave-*' run), evaluate on all their windows too"
+    )
+    eval_every: int = option(0, help="learning curve: evaluate every N steps into <run-dir>/learning_curve.json (0 = only at the end)")
+    curve_windows: int = option(200, help="validation windows per learning-curve point")
+    patience: int = option(0, help="stop when the EMA validation dense error has not improved by 1 %% over this many curve points (0 = never)")
     no_progress: bool = False
 
     def __post_init__(self):
@@ -116,7 +130,26 @@ class Options(DistributedOptions):
             object.__setattr__(self, "run_dir", str(runs_dir(f"bmm_{self.corpus}_finetune_{Path(self.init).name}_offgrid{self.off_grid_handles:g}")))
         if self.run_dir is None:
             suffix = "" if self.prediction == "x0" else f"_{self.prediction}"
-            object.__setattr__(self, "run_dir", str(runs_dir(f"bmm_{self.corpus}_{self.config}{suffix}")))
+            object.__setattr__(self, "run_dir", str(runs_dir(f"bmm_{self.corpus}_{self.config}{suffix}{self.lever_suffix()}")))
+        if self.patience and not self.eval_every:
+            raise ValueError(f"--patience {self.patience} needs --eval-every (the curve it watches)")
+        if self.eval_every < 0 or self.patience < 0 or self.curve_windows < 1:
+            raise ValueError("--eval-every and --patience must be ≥ 0, --curve-windows ≥ 1")
+        if self.holdout_contents and self.bandai_namco:
+            raise ValueError("--holdout-contents holds out contents of --corpus; it cannot be combined with --bandai-namco")
+
+    def lever_suffix(self) -> str:
+        """The run-folder suffix naming the levers that differ from the paper's training."""
+        parts = []
+        if self.lr_schedule != "constant":
+            parts.append(f"{self.lr_schedule}{self.warmup_steps}")
+        if self.augment_yaw:
+            parts.append("yaw")
+        if self.augment_mirror:
+            parts.append(f"mirror{self.augment_mirror:g}")
+        if self.holdout_contents:
+            parts.append("holdout-" + "-".join(p.replace("*", "") for p in self.holdout_contents))
+        return "".join(f"_{p}" for p in parts)
         if self.bandai_namco and self.corpus != "lafan1":
             raise ValueError("--bandai-namco adds Bandai-Namco to LaFAN1 training; with --corpus bandai_namco it is already the corpus")
 
@@ -126,7 +159,13 @@ def concat_datasets(parts: list[CurveDataset]) -> CurveDataset:
     return dataclasses.replace(first, **{k: np.concatenate([getattr(p, k) for p in parts]) for k in CurveDataset._ARRAYS})
 
 
-def train(args, model_config: BMMConfig, train_config: BMMTrainConfig, train_set: CurveDataset, stats: FeatureStats, init=None):
+def train(
+    args, model_config: BMMConfig, train_config: BMMTrainConfig, train_set: CurveDataset, stats: FeatureStats, init=None, evaluate=None
+):
+    """Train (resuming from ``args.run_dir``); with ``evaluate`` and ``--eval-every``, keep a learning curve.
+
+    Returns ``(graphdef, state, history, seconds, curve)``; ``curve`` is ``None`` without one.
+    """
     graphdef, state = init_bmm_train_states(model_config, train_config, args.seeds)
     if init is not None:  # fine-tuning: every seed starts from the saved parameters (fresh optimiser state)
         start = jax.tree.map(lambda x: jnp.broadcast_to(x, (len(args.seeds), *x.shape)), init.params)
@@ -139,12 +178,76 @@ def train(args, model_config: BMMConfig, train_config: BMMTrainConfig, train_set
     }
     store.check_resumable(config)
     started = time.perf_counter()
-    state, history = run_training(
-        step, state, CurveArrays.from_dataset(train_set), num_steps=args.steps, store=store,
-        checkpoint_every=args.checkpoint_every, config=config, progress=not args.no_progress,
-    )  # fmt: skip
+    data = CurveArrays.from_dataset(train_set)
+    kwargs = dict(store=store, checkpoint_every=args.checkpoint_every, config=config, progress=not args.no_progress)
+    curve = None
+    if args.eval_every and evaluate is not None:
+        stopping = StoppingRule("id.ema.dense_error_cm", args.patience) if args.patience else None
+        state, history, curve = train_with_learning_curve(
+            step, state, data, num_steps=args.steps, eval_every=args.eval_every, evaluate=lambda s: evaluate(graphdef, s),
+            curve_file=Path(args.run_dir) / "learning_curve.json", stopping=stopping, **kwargs,
+        )  # fmt: skip
+    else:
+        state, history = run_training(step, state, data, num_steps=args.steps, **kwargs)
     store.close()
-    return graphdef, state, history, time.perf_counter() - started
+    return graphdef, state, history, time.perf_counter() - started, curve
+
+
+def curve_evaluator(args, model_config: BMMConfig, stats: FeatureStats, metrics_config, eval_sets: dict):
+    """``evaluate(graphdef, state)`` for the learning curve: 10-step samples of seed 0's EMA and raw
+    parameters on the in-distribution set (``id``), the EMA's on the others (e.g. ``held_out``)."""
+    key = jax.random.key(7)
+
+    def metrics(params, graphdef, eval_set):
+        model = BezierMotionModel(params, stats, graphdef, model_config)
+        fn = functools.partial(sample_curves, model, steps=10, guidance=args.guidance)
+        curves = sample_in_chunks(lambda s, e, h, k: fn(s, e, h, key=k), eval_set, eval_set.handles, key=key)
+        return curve_metrics(metrics_config, curves, eval_set, eval_set.handles)
+
+    def evaluate(graphdef, state) -> dict:
+        first = lambda tree: jax.tree.map(lambda x: x[0], tree)  # noqa: E731  (seed 0 of the stacked seeds)
+        point = {"id": {"ema": metrics(first(state.ema), graphdef, eval_sets["id"]), "raw": metrics(first(state.params), graphdef, eval_sets["id"])}}
+        for name, eval_set in eval_sets.items():
+            if name != "id":
+                point[name] = {"ema": metrics(first(state.ema), graphdef, eval_set)}
+        return point
+
+    return evaluate
+
+
+def plot_learning_curve(curve: dict, references: dict, path: Path) -> None:
+    """Dense error, skating and contact accuracy against steps (PNG), with the reference curves' levels."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from bezmotion.io import save_figure
+
+    points = curve["points"]
+    steps = [p["step"] for p in points]
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4))
+    for ax, metric, title in zip(
+        axes, ("dense_error_cm", "foot_skating_ratio", "contact_accuracy"), ("dense six-joint error (cm)", "foot skating ratio", "contact accuracy")
+    ):
+        for split, style in (("id", "-"), ("held_out", "--")):
+            if split not in points[0]:
+                continue
+            for which in ("ema", "raw"):
+                if which in points[0][split]:
+                    ax.plot(steps, [p[split][which][metric] for p in points], style, marker="o", label=f"BMM {split} ({which})")
+            if split in references and metric != "contact_accuracy":
+                ax.axhline(references[split][metric], linestyle=style, color="grey", label=f"reference {split}")
+        ax.set_xlabel("training step")
+        ax.set_title(title)
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=8)
+    if curve.get("stopped_at"):
+        for ax in axes:
+            ax.axvline(curve["stopped_at"], color="red", alpha=0.4)
+    fig.tight_layout()
+    save_figure(fig, path, dpi=100)
+    plt.close(fig)
 
 
 def handles_table(args, model: BezierMotionModel, metrics_config, eval_set, key) -> dict:
@@ -219,6 +322,29 @@ def format_report(results: dict) -> str:
         for seed, r in section["bmm"].items():
             rel = r["relative_to_grid"]["id"]
             lines.append(row(f"BMM seed {seed}", r["id"], r["ood"]) + f" {100 * rel['dense_error_cm']:+.1f} % / {100 * rel['foot_skating_ratio']:+.1f} % |")
+    if "held_out" in results:
+        section = results["held_out"]
+        lines += [
+            "", f"Held-out contents ({', '.join(section['contents'])}: never trained on; {section['n_windows']} windows), 10 DDIM steps:", "",
+            "| method | handles error ID (cm) | OOD (cm) | dense error ID (cm) | foot skating | contact acc. |",
+            "|---|---|---|---|---|---|",
+            f"| mocap (GT) | – | – | – | {section['ground_truth']['foot_skating_ratio']:.4f} | – |",
+            row("reference: curves through start, end, handles", section["reference"]["id"], section["reference"]["ood"]),
+        ]  # fmt: skip
+        for seed, r in section["bmm"].items():
+            ratio = r["id"]["dense_error_cm"] / section["reference"]["id"]["dense_error_cm"]
+            lines.append(row(f"BMM seed {seed} ({ratio:.3f} × reference)", r["id"], r["ood"]))
+    curve = results["training"].get("learning_curve")
+    if curve:
+        lines += ["", f"Learning curve (seed 0, {len(curve['points'])} points; stopped early at {curve['stopped_at']}):", "",
+                  "| step | train s | loss | dense ID EMA (cm) | raw (cm) | skating ID | contact acc. | dense held-out (cm) |", "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+        for p in curve["points"]:
+            held = p.get("held_out", {}).get("ema", {}).get("dense_error_cm", float("nan"))
+            e = p["id"]["ema"]
+            lines.append(
+                f"| {p['step']} | {p['train_s']:.0f} | {p.get('loss', float('nan')):.4f} | {e['dense_error_cm']:.3f} | {p['id']['raw']['dense_error_cm']:.3f} | "
+                f"{e['foot_skating_ratio']:.4f} | {e['contact_accuracy']:.3f} | {held:.3f} |"
+            )
     lines += ["", "Table 6 analogue (with overwrite, in distribution):", "", "| seed | steps | handles error (cm) | dense error (cm) | foot skating | eval s |", "|---|---|---|---|---|---|"]
     for seed, r in results["bmm"].items():
         for steps, m in r["steps"].items():
@@ -238,11 +364,28 @@ def main(argv: list[str] | None = None) -> dict:
         extra = load_corpus("bandai_namco", source=args.bandai_namco, progress=not args.no_progress)
         train_set = concat_datasets([train_set, curve_dataset(extra, "train", progress=not args.no_progress)])
     val_set = curve_dataset(corpus, "validation", progress=not args.no_progress)
+    held_set = None
+    if args.holdout_contents:
+        # Held-out contents: no window of theirs is trained on; all of them (both splits) are evaluated.
+        held_train = matches_any(window_labels(corpus, train_set, "train"), args.holdout_contents)
+        held_val = matches_any(window_labels(corpus, val_set, "validation"), args.holdout_contents)
+        if not held_train.any() and not held_val.any():
+            raise ValueError(f"--holdout-contents {' '.join(args.holdout_contents)}: no clip of {args.corpus} has such a content")
+        held_set = concat_datasets([train_set.subset(held_train), val_set.subset(held_val)])
+        train_set, val_set = train_set.subset(~held_train), val_set.subset(~held_val)
     stats = FeatureStats.from_dataset(train_set)
+    mapping = corpus.characteristic_map
+    reflections = None
+    if args.augment_mirror:
+        reflections = rest_reflections(corpus.skeleton, dict(SKELETON_MAPS[mapping] if isinstance(mapping, str) else mapping))
     train_config = BMMTrainConfig(
         batch_size=args.batch_size, learning_rate=args.learning_rate, min_snr_gamma=args.min_snr_gamma or None,
-        off_grid_handles=args.off_grid_handles,
+        off_grid_handles=args.off_grid_handles, lr_schedule=args.lr_schedule, warmup_steps=args.warmup_steps,
+        total_steps=args.steps if args.lr_schedule != "constant" else None, yaw_augmentation=args.augment_yaw,
+        mirror_augmentation=args.augment_mirror, rest_reflections=reflections,
     )  # fmt: skip
+    metrics_config = None
+    curve = None
     if args.model:
         saved = load_model(BUNDLED_BMM if args.model == "bundled" else args.model)
         model_config, stats, graphdef = saved.config, saved.stats, saved.graphdef
@@ -251,14 +394,24 @@ def main(argv: list[str] | None = None) -> dict:
         init = load_model(BUNDLED_BMM if args.init == "bundled" else args.init) if args.init else None
         model_config = init.config if init else CONFIGS[args.config](prediction=args.prediction)
         stats = init.stats if init else stats
-        graphdef, state, history, train_s = train(args, model_config, train_config, train_set, stats, init)
+        layout = BezierLayout.from_controls(model_config.num_controls, model_config.stride)
+        metrics_config = CurveMetricsConfig(layout, val_set.fps, floor_height_from(train_set))
+        curve_sets = {"id": make_eval_set(val_set, key=jax.random.key(4321), num_windows=args.curve_windows)}
+        if held_set is not None:
+            curve_sets["held_out"] = make_eval_set(held_set, key=jax.random.key(4321), num_windows=args.curve_windows)
+        evaluate = curve_evaluator(args, model_config, stats, metrics_config, curve_sets)
+        graphdef, state, history, train_s, curve = train(args, model_config, train_config, train_set, stats, init, evaluate)
+        if curve is not None:
+            curve["reference"] = {
+                name: curve_metrics(metrics_config, reference_curves(e, e.handles, layout), e, e.handles) for name, e in curve_sets.items()
+            }
     coordinator = is_coordinator()
     leave_group()  # several processes: training is done; process 0 alone evaluates and writes
     if not coordinator:
         return {}
 
     layout = BezierLayout.from_controls(model_config.num_controls, model_config.stride)
-    metrics_config = CurveMetricsConfig(layout, val_set.fps, floor_height_from(train_set))
+    metrics_config = metrics_config or CurveMetricsConfig(layout, val_set.fps, floor_height_from(train_set))
     eval_set = make_eval_set(val_set, key=jax.random.key(1234), num_windows=args.eval_windows or None)
     results: dict = {
         "model": {"config": f"saved: {args.model}" if args.model else args.config, **dataclasses.asdict(model_config), "params": None},
@@ -267,7 +420,9 @@ def main(argv: list[str] | None = None) -> dict:
             "seeds": ["saved"] if args.model else list(args.seeds), "saved_model": args.model, "fine_tuned_from": args.init,
             "min_snr_gamma": train_config.min_snr_gamma, "off_grid_handles": train_config.off_grid_handles,
             "train_windows": len(train_set), "bandai_namco": bool(args.bandai_namco), "wall_s_this_run": train_s,
-            "history": history,
+            "lr_schedule": args.lr_schedule, "warmup_steps": args.warmup_steps, "augment_yaw": args.augment_yaw,
+            "augment_mirror": args.augment_mirror, "rest_reflections": reflections, "holdout_contents": list(args.holdout_contents),
+            "history": history, "learning_curve": curve,
         },
         "eval": {"n_windows": int(eval_set.start.shape[0]), "floor_height_cm": metrics_config.floor_height, "fps": val_set.fps},
         "ground_truth": ground_truth_metrics(metrics_config, eval_set),
@@ -286,6 +441,19 @@ def main(argv: list[str] | None = None) -> dict:
     for name, model in models.items():
         results["model"]["params"] = count_parameters(model.params)
         results["bmm"][name] = evaluate_model(args, model, metrics_config, eval_set, seed_keys[name])
+    if held_set is not None:
+        held = make_eval_set(held_set, key=jax.random.key(1234), num_windows=args.eval_windows or None)
+        results["held_out"] = {
+            "contents": list(args.holdout_contents), "n_windows": int(held.start.shape[0]),
+            "ground_truth": ground_truth_metrics(metrics_config, held),
+            "reference": {
+                name: curve_metrics(metrics_config, reference_curves(held, h, layout), held, h) for name, h in (("id", held.handles), ("ood", held.handles_ood))
+            },
+            "bmm": {name: handles_table(args, model, metrics_config, held, seed_keys[name]) for name, model in models.items()},
+        }  # fmt: skip
+    if curve is not None:
+        plot_learning_curve(curve, curve["reference"], Path(args.out).with_suffix(".curve.png"))
+        results["learning_curve_png"] = str(Path(args.out).with_suffix(".curve.png"))
     if args.handle_frames != "grid":
         # The same windows, joints, handle counts and noise; only the frames move.
         moved = make_eval_set(val_set, key=jax.random.key(1234), num_windows=args.eval_windows or None, handle_frames=args.handle_frames)

@@ -82,11 +82,13 @@ def _mirrored_children(skeleton: Skeleton, joint: int) -> Reflection | None:
 def rest_reflections(skeleton: Skeleton, joints: dict[str, str]) -> tuple[Reflection, ...]:
     """Per characteristic joint, the axis reflection of its rest frame that swaps the body's sides.
 
-    A left/right pair (hands, feet) takes the reflection that maps the right joint's first
-    child bone onto the left one's (a joint without a child: its own bone from its parent,
-    whose frame it shares at rest). A joint on the body's midline takes the reflection
-    between two mirror-image children (the hips' legs), or else its nearest ancestor's (the
-    head: the chest's shoulders).
+    A left/right pair (hands, feet) compares the right joint's bones with the left one's:
+    first their first child bones, then their own bones, then their parents' bones, and so
+    up the two chains until a pair differs by the sign of one significant component (a bone
+    along the reflection's fixed axes, equal on both sides, says nothing: Bandai-Namco's feet
+    decide at their toes, X; LaFAN1's, whose leg bones all lie along X, at the hips, Z). A
+    joint on the body's midline takes the reflection between two mirror-image children (the
+    hips' legs), or else its nearest ancestor's (the head: the chest's shoulders).
 
     Args:
       skeleton: the skeleton (its rest offsets).
@@ -95,23 +97,35 @@ def rest_reflections(skeleton: Skeleton, joints: dict[str, str]) -> tuple[Reflec
     Returns:
       Six diagonals, in :data:`~bezmotion.data.characteristic.CHARACTERISTIC_JOINTS` order.
     Raises:
-      ValueError: naming the joint whose two sides are not mirror images along an axis.
+      ValueError: naming the joints whose two sides are not mirror images along an axis.
     """
     offsets = np.asarray(skeleton.offsets, np.float64)
     index = {role: skeleton.index(joints[role]) for role in CHARACTERISTIC_JOINTS}
 
-    def bone(joint: int) -> np.ndarray:
+    def first_child(joint: int) -> int | None:
         children = [c for c in skeleton.children(joint) if np.linalg.norm(offsets[c]) > 1e-3]
-        return offsets[children[0]] if children else offsets[joint]
+        return children[0] if children else None
 
     found: dict[str, Reflection] = {}
     for side in ("hand", "foot"):
         left, right = index[f"left_{side}"], index[f"right_{side}"]
-        reflection = _axis_reflection(bone(left), bone(right))
+        pairs = [(first_child(left), first_child(right))]
+        a, b = left, right
+        while a != b and a > 0 and b > 0:  # up both chains until they meet (the bones below a shared joint)
+            pairs.append((a, b))
+            a, b = skeleton.parents[a], skeleton.parents[b]
+        reflection = None
+        for a, b in pairs:
+            if a is None or b is None:
+                continue
+            reflection = _axis_reflection(offsets[a], offsets[b])
+            length = max(np.linalg.norm(offsets[a]), 1e-3)
+            if reflection is not None or np.linalg.norm(offsets[a] - offsets[b]) > 0.05 * length:
+                break  # decided, or two bones that are not mirror images
         if reflection is None:
             raise ValueError(
-                f"{joints[f'left_{side}']!r} and {joints[f'right_{side}']!r} are not mirror images along an axis at rest "
-                f"(bones {bone(left).tolist()} and {bone(right).tolist()}); mirror augmentation cannot pair them"
+                f"{joints[f'left_{side}']!r} and {joints[f'right_{side}']!r}: no bones of the two chains are mirror images "
+                f"along an axis at rest (last compared: {offsets[a].tolist()} and {offsets[b].tolist()}); mirror augmentation cannot pair them"
             )
         found[f"left_{side}"] = found[f"right_{side}"] = reflection
     for role in ("hips", "head"):

@@ -239,3 +239,39 @@ def test_bmm_lafan1_experiment_smoke(tmp_path, monkeypatch):
     assert section["bmm"]["0"]["id"]["handles_error_cm"] < 1e-3 and section["bmm"]["0"]["ood"]["handles_error_cm"] < 1e-3
     assert section["reference"]["id"]["handles_error_cm"] < 1e-3
     assert "off the control grid" in out2.with_suffix(".md").read_text()
+
+
+@requires_shared
+def test_bmm_lafan1_levers_held_out_contents_and_learning_curve(tmp_path, monkeypatch):
+    """Issue 12's protocol end to end on the real LaFAN1 subset: the push sequences held out,
+    warm-up + cosine, yaw and mirror augmentation, a learning curve every 2 steps with the
+    stopping rule; then the same command resumes with nothing to train and keeps the curve."""
+    import importlib.util
+
+    monkeypatch.syspath_prepend(str(REPO_ROOT / "experiments"))
+    spec = importlib.util.spec_from_file_location("bmm_lafan1", REPO_ROOT / "experiments" / "bmm_lafan1.py")
+    experiment = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(experiment)
+    out = tmp_path / "levers.json"
+    args = ["--out", str(out), "--data", str(SHARED_DATA / "lafan1" / "lafan1-subset.zip"), "--config", "tiny",
+            "--steps", "4", "--checkpoint-every", "2", "--eval-windows", "6", "--table6-steps", "5",
+            "--run-dir", str(tmp_path / "run"), "--no-progress", "--holdout-contents", "push*",
+            "--lr-schedule", "cosine", "--warmup-steps", "1", "--augment-yaw", "--augment-mirror", "0.5",
+            "--eval-every", "2", "--curve-windows", "4", "--patience", "3"]  # fmt: skip
+    saved = experiment.main(args)
+    training = saved["training"]
+    assert [list(r) for r in training["rest_reflections"]] == [[1.0, 1.0, -1.0]] * 6  # LaFAN1's rest pose mirrors in Z
+    curve = training["learning_curve"]
+    assert [p["step"] for p in curve["points"]] == [2, 4] and curve["stopped_at"] is None
+    assert set(curve["points"][0]) >= {"id", "held_out", "loss", "train_s"} and set(curve["points"][0]["id"]) == {"ema", "raw"}
+    assert np.isfinite(curve["points"][-1]["held_out"]["ema"]["dense_error_cm"])
+    held = saved["held_out"]
+    assert held["contents"] == ["push*"] and held["n_windows"] == 6
+    assert held["bmm"]["0"]["id"]["handles_error_cm"] == 0.0 and held["reference"]["id"]["dense_error_cm"] > 0.0
+    assert out.with_suffix(".curve.png").stat().st_size > 1000 and "Held-out contents" in out.with_suffix(".md").read_text()
+    again = experiment.main(args)
+    assert again["training"]["history"] == [] and again["training"]["learning_curve"]["points"] == curve["points"]
+    with pytest.raises(ValueError, match="no clip"):
+        experiment.main([*args, "--holdout-contents", "nothing-like-this"])
+    with pytest.raises(ValueError, match="--patience"):
+        experiment.main([*args[:-6], "--patience", "2"])
