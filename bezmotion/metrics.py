@@ -8,12 +8,14 @@
 - BMM's curve metrics: handles error, foot-skating ratio, contact accuracy, mean
   position error (BMM §5.1 and appendix B).
 - Pops: per-frame joint rotation change, and its largest value next to the keys.
-- Joins: the velocity jump of each joint at the keys a chain of windows shares.
+- Joins: the velocity jump of each joint at the keys a chain of windows shares, and its
+  summary (mean, 95th percentile, max) beside the mocap's own frame-to-frame change.
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -188,3 +190,55 @@ def boundary_velocity_jump(
     before = positions[..., b, :, :] - positions[..., b - 1, :, :]
     after = positions[..., b + 1, :, :] - positions[..., b, :, :]
     return jnp.linalg.norm(after - before, axis=-1)
+
+
+class ChainJumps(NamedTuple):
+    """:func:`boundary_velocity_jump` over a chain's frames (cm/frame), split by where.
+
+    Attributes:
+      at_shared_keys: ``(*batch, windows − 1, joints)`` at the keys two windows share.
+      other_frames: ``(*batch, frames − 1 − windows, joints)`` at every other frame with a
+        neighbour on either side.
+      all_frames: ``(*batch, frames − 2, joints)`` at every frame with a neighbour on either
+        side, the shared keys included (the mocap's own frame-to-frame change).
+    """
+
+    at_shared_keys: Float[Array, "*batch keys joints"]
+    other_frames: Float[Array, "*batch others joints"]
+    all_frames: Float[Array, "*batch inner joints"]
+
+
+def chain_velocity_jumps(positions: Float[Array, "*batch frames joints 3"], windows: int) -> ChainJumps:
+    """The velocity jump of every joint at every inner frame of a chain of ``windows``
+    equal windows, split into the shared keys and the rest.
+
+    Args:
+      positions: ``(*batch, frames, joints, 3)`` joint positions (cm), one per frame, with
+        ``frames = windows·(window_frames − 1) + 1`` (the windows joined, each shared key
+        once: key ``k`` at frame ``k·(window_frames − 1)``).
+      windows: windows in the chain, ``≥ 1`` (one window: no shared key).
+    Returns:
+      :class:`ChainJumps`, cm/frame.
+    Raises:
+      ValueError: ``windows < 1`` or ``frames`` not a chain of ``windows`` windows of at
+        least 2 frames each.
+    """
+    frames = positions.shape[-3]
+    if windows < 1 or frames < 3 or (frames - 1) % windows:
+        raise ValueError(f"{frames} frames are not a chain of {windows} windows ((window frames − 1)·windows + 1)")
+    inner = np.arange(1, frames - 1)
+    shared = np.arange(1, windows) * ((frames - 1) // windows)
+    jumps = boundary_velocity_jump(positions, inner)
+    return ChainJumps(jumps[..., shared - 1, :], jumps[..., np.setdiff1d(inner, shared) - 1, :], jumps)
+
+
+def distribution_summary(x: ArrayLike) -> dict[str, float | int]:
+    """Mean, 95th percentile and max of all of ``x`` (float64; its units), and how many values.
+
+    Raises:
+      ValueError: ``x`` is empty (nothing to summarise).
+    """
+    x = np.asarray(x, np.float64).ravel()
+    if x.size == 0:
+        raise ValueError("no values to summarise (an empty array)")
+    return {"mean": float(x.mean()), "p95": float(np.percentile(x, 95)), "max": float(x.max()), "count": int(x.size)}

@@ -35,7 +35,7 @@ from bezmotion.data.corpus import motion_clips
 from bezmotion.data.curves import characteristic_windows
 from bezmotion.data.sources import load_corpus
 from bezmotion.io import write_results
-from bezmotion.metrics import boundary_velocity_jump
+from bezmotion.metrics import chain_velocity_jumps, distribution_summary
 from bezmotion.options import option, options, parse_options
 from bezmotion.pipeline.inbetweening import join_windows
 
@@ -51,12 +51,6 @@ class Options:
     chunk: int = option(25, help="chains per compiled call")
     seed: int = option(0, help="draws of chains, handles and noise")
     key_positions_only: bool = option(False, help="condition on the keys' positions only (the paper), not their orientations")
-
-
-def summary(x: np.ndarray) -> dict[str, float]:
-    """Mean, 95th percentile and max of ``x`` (cm/frame), and how many values."""
-    x = np.asarray(x, np.float64).ravel()
-    return {"mean": float(x.mean()), "p95": float(np.percentile(x, 95)), "max": float(x.max()), "count": int(x.size)}
 
 
 def per_joint(x: np.ndarray) -> dict[str, float]:
@@ -83,7 +77,6 @@ def main(argv: list[str] | None = None) -> dict:
     mocap, rot6d = mocap[rows], rot6d[rows]  # (chains, span, 6, ·), cm; hips start at the XZ origin
     n, windows = len(rows), args.keys - 1
     key_frames = np.arange(0, span, gap)
-    shared = key_frames[1:-1]  # the keys two windows share
     key_pos, key_rot6d = mocap[:, key_frames], rot6d[:, key_frames]
 
     # Handles: per window, distinct random (frame, joint) slots, positions from the mocap.
@@ -122,22 +115,22 @@ def main(argv: list[str] | None = None) -> dict:
         "key_orientations": not args.key_positions_only, "fps": float(clips.fps), "units": "cm/frame",
         "candidate_chains": int(len(clip_index)), "takes": int(len(np.unique(clip_index[rows]))),
     }  # fmt: skip
-    inner = np.setdiff1d(np.arange(1, span - 1), shared)  # every frame with neighbours but the shared keys
     for name, coupled in (("coupled", True), ("independent", False)):
         t0 = time.perf_counter()
         dense, errors = sample(coupled)
-        at_keys = np.asarray(boundary_velocity_jump(jnp.asarray(dense), shared))  # (chains, keys − 2, 6)
-        elsewhere = np.asarray(boundary_velocity_jump(jnp.asarray(dense), inner))
+        jumps = chain_velocity_jumps(jnp.asarray(dense), windows)
+        at_keys = np.asarray(jumps.at_shared_keys)  # (chains, keys − 2, 6)
         results[name] = {
-            "at_shared_keys": summary(at_keys), "at_shared_keys_per_joint_mean": per_joint(at_keys),
-            "other_frames": summary(elsewhere), "handles_error_max_cm": float(errors.max()),
+            "at_shared_keys": distribution_summary(at_keys), "at_shared_keys_per_joint_mean": per_joint(at_keys),
+            "other_frames": distribution_summary(jumps.other_frames), "handles_error_max_cm": float(errors.max()),
             "seconds": time.perf_counter() - t0,
         }  # fmt: skip
         print(f"{name}: {results[name]}", flush=True)
-    all_frames = np.asarray(boundary_velocity_jump(jnp.asarray(mocap), np.arange(1, span - 1)))
-    mocap_keys = np.asarray(boundary_velocity_jump(jnp.asarray(mocap), shared))
+    mocap_jumps = chain_velocity_jumps(jnp.asarray(mocap), windows)
+    all_frames = np.asarray(mocap_jumps.all_frames)
     results["mocap"] = {
-        "all_frames": summary(all_frames), "all_frames_per_joint_mean": per_joint(all_frames), "at_shared_keys": summary(mocap_keys),
+        "all_frames": distribution_summary(all_frames), "all_frames_per_joint_mean": per_joint(all_frames),
+        "at_shared_keys": distribution_summary(mocap_jumps.at_shared_keys),
     }  # fmt: skip
     results["seconds"] = time.perf_counter() - started
 

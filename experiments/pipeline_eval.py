@@ -3,6 +3,7 @@
     python experiments/pipeline_eval.py --corpus bandai_namco --windows 100 --out results/pipeline_eval_bn.json
     python experiments/pipeline_eval.py --corpus bandai_namco --bvh-dir my_clips/ --ik exact --out mine.json
     python experiments/pipeline_eval.py --corpus lafan1 --bmm runs/bmm/model --ik-model runs/ik/model --out lafan1.json
+    python experiments/pipeline_eval.py --corpus bandai_namco --windows 20 --segments 3 --ik exact --out chains.json
 
 **Windows.** The validation split of the corpus (Bandai-Namco: every 10th take; LaFAN1:
 subject 5), or with ``--bvh-dir`` every ``*.bvh`` of a folder of the corpus's skeleton (a
@@ -24,6 +25,25 @@ limits stored beside the IK model; ``exact_refined``: the same on top of ``refin
 ``--exact NAME=VALUE`` (repeatable) sets an :class:`~bezmotion.ik.exact.ExactIKParams`
 field of both exact IKs, e.g. ``--exact iterations=20 --exact hips_position_scale=0.3``.
 
+**Chained segments.** ``--segments K`` (K > 1) evaluates chains instead of windows: K
+windows of one clip, each starting 30 frames after the previous, so consecutive windows
+share a key and a chain covers ``30·K + 1`` frames
+(:func:`~bezmotion.pipeline.evaluation.chain_rows`; ``--windows`` then counts chains, a
+prefix of one permutation of every chain, key ``--seed``). Each window keeps the handles
+and OOD noise it has in a single-window run (``make_eval_set(rows=…)``), moved into the
+chain's frame; the keys are the mocap's poses at frames 0, 30, …, 30·K. The curves are
+sampled once per chain (:func:`~bezmotion.pipeline.evaluation.sample_chain_curves`, one
+``sample_chained_curves`` call, key ``fold_in(--sample-seed, first window's row)``),
+coupled C¹ at the shared keys, and every IK runs once over the chain's joined frames, each
+window blended to its two keys (:func:`~bezmotion.pipeline.inbetweening.pose_from_chain_curves`,
+as :func:`~bezmotion.pipeline.inbetweening.inbetween_chain` does); ``--chunk`` windows per
+call become ``--chunk // K`` chains (at least one). The same curves are also sampled
+independently (BMM Appendix D.1, same noise) for the velocity jump at the shared keys
+(:func:`~bezmotion.metrics.chain_velocity_jumps`, six joints, cm/frame), beside the mocap's
+own frame-to-frame change over the same chains (as ``experiments/chained_segments.py``).
+Every metric below is then taken over the chains' frames (see ``segments.metrics`` in the
+JSON); ``--segments 1`` (the default) is the single-window evaluation.
+
 **Metrics.** Per IK, in distribution (``id``) and OOD (``ood``):
 
 - ``handles_error_cm`` / ``handles_error_max_cm``: mean / largest distance between a
@@ -38,11 +58,12 @@ field of both exact IKs, e.g. ``--exact iterations=20 --exact hips_position_scal
   avoided. (The 1 cm keeps handles at full extension, an arm hanging straight, from
   counting: the mocap's own lie within millimetres of the chain's length.)
 - ``mpjpe_cm`` (every joint and frame against the mocap window), ``foot_skating_ratio``;
-- ``key_pop_deg``: the largest per-frame joint rotation change at frames 0→1 and 29→30;
+- ``key_pop_deg``: the largest per-frame joint rotation change at frames 0→1 and 29→30
+  (chains: of every window, so both sides of every key);
 - ``ik_ms_per_window``: steady-state IK time per window (the compiled IK, every call
   waited for, ``--chunk`` windows per call, padding of the last chunk counted), beside
   ``compile_s`` once per IK (the warm-up call that compiles it, in distribution; the OOD
-  run reuses the compilation).
+  run reuses the compilation). Chains: ``ik_ms_per_chain`` instead (one IK per chain).
 
 ``curves``: the curves before IK, ``bmm`` (the sampled curves given to every IK) and
 ``reference`` (interpolation through the same start, end and handles,
@@ -63,6 +84,15 @@ without trailing digits).
      "mocap": {…},
      "labels": {"<label>": {"windows": k, "ik": {"<ik>": {"id", "ood"}}, "curves": {…}, "mocap": {…}}}}
 
+With ``--segments K`` (K > 1) ``windows`` is chains × K, ``curves`` also holds
+``bmm_independent``, each label also ``chains``, and beside them::
+
+    "segments": {"k": K, "chains": n, "frames_per_chain": 30·K + 1, "key_frames": […],
+      "boundary_velocity_jump_cm_per_frame": {"coupled": {mean, p95, max, count}, "independent": {…},
+        "mocap": {…}, "mocap_at_shared_keys": {…}, "ood": {"coupled", "independent"},
+        "after_ik": {"<ik>": {"id", "ood"}}, "where": …},
+      "metrics": {<how each figure is taken over a chain>}, "not_computed": {<figure>: why}}
+
 With a single ``--ik`` its ``id`` and ``ood`` also sit at the top level (the issue's
 ``{"windows": n, "id": {…}, "ood": {…}, "curves": …}``). A Markdown report is written
 beside the JSON.
@@ -74,27 +104,33 @@ import dataclasses
 import re
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 import jax
 import numpy as np
 
 from bezmotion.assets import BUNDLED_BMM, BUNDLED_IK
-from bezmotion.bmm.evaluation import dense_positions, floor_height_from, make_eval_set, reference_curves
+from bezmotion.bmm.evaluation import EvalSet, dense_positions, floor_height_from, make_eval_set, reference_curves
 from bezmotion.bmm.features import HANDLE_FRAMES
-from bezmotion.bmm.sampling import load_model
+from bezmotion.bmm.sampling import Handles, load_model
 from bezmotion.data.corpus import Corpus, motion_clips
 from bezmotion.data.curves import CurveDataset, curve_dataset
 from bezmotion.data.sources import load_corpus
 from bezmotion.ik.exact import ExactIKParams, JointLimits, exact_ik
-from bezmotion.ik.protocol import targets_from_pose
+from bezmotion.ik.protocol import Pose, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik
 from bezmotion.io import write_results
+from bezmotion.metrics import chain_velocity_jumps, distribution_summary
 from bezmotion.options import option, options, parse_options
 from bezmotion.pipeline.evaluation import (
     PipelineMetricsConfig,
+    chain_frame_handles,
+    chain_rows,
     reach_chains,
+    sample_chain_curves,
     sample_window_curves,
+    solve_chain_curves,
     solve_window_curves,
     summarize_windows,
     window_curve_metrics,
@@ -102,8 +138,9 @@ from bezmotion.pipeline.evaluation import (
     window_mocap_metrics,
     window_pose_metrics,
     window_poses,
+    window_shifts,
 )
-from bezmotion.pipeline.inbetweening import KEY_BLEND_FRAMES
+from bezmotion.pipeline.inbetweening import KEY_BLEND_FRAMES, WindowCurves, join_windows
 
 CORPORA = ("bandai_namco", "lafan1")
 IKS = ("learned", "refined", "rig", "exact", "exact_refined")
@@ -127,8 +164,7 @@ class Options:
     ik: tuple[str, ...] = option(("learned", "refined", "rig", "exact"), choices=IKS, help="IKs to run on the same curves")
     windows: int = option(100, help="windows (0 = all)")
     handle_frames: str = option("grid", choices=HANDLE_FRAMES, help="handles on control frames, between them, or any frame")
-    # --segments K (chained segments, issue 15 item 6) belongs here: K windows chained end to
-    # start, the keys shared; the curves and IK stages below then run on the chained windows.
+    segments: int = option(1, help="windows per evaluated chain, keys 30 frames apart (1: single windows)")
     steps: int = option(10, help="DDIM steps")
     key_blend: int = option(KEY_BLEND_FRAMES, help="frames over which the start / end poses are blended in (0: replace the two frames)")
     chunk: int = option(10, help="windows per compiled call (large chunks of the exact IK have hung XLA)")
@@ -148,6 +184,8 @@ class Options:
             raise ValueError(f"--bvh-dir {self.bvh_dir}: not a folder")
         if self.windows < 0 or self.chunk < 1 or self.steps < 1:
             raise ValueError("--windows must be ≥ 0, --chunk and --steps ≥ 1")
+        if self.segments < 1:
+            raise ValueError(f"--segments {self.segments}: must be ≥ 1 (windows per chain; 1 = single windows)")
         exact_settings(self)  # raises on a malformed or unknown setting
 
 
@@ -219,6 +257,117 @@ def by_label(per_window: dict, labels: np.ndarray) -> dict[str, dict]:
     return {label: summarize_windows(per_window, labels == label) for label in sorted(set(labels))}
 
 
+class Items(NamedTuple):
+    """What is evaluated: single windows (``--segments 1``) or chains of ``--segments`` K windows.
+
+    Attributes:
+      rows: ``(items,)`` the windows' dataset rows, or ``(items, K)`` each chain's windows'.
+      eval_set: handles and OOD noise of every window (chains: ``items·K`` windows, chain by
+        chain), at window frames, in each window's own aligned frame.
+      truth: ``(items, frames, …)`` the mocap (31 frames, or a chain's ``30·K + 1``),
+        aligned like the item's first window.
+      handles: per condition, the handles the curves are sampled through: ``(items,
+        handles)``, or ``(items, K, handles)`` moved into the chain's frame.
+      metric_handles: per condition, the same handles at the item's frames: ``(items,
+        handles)``, or ``(items, K·handles)`` at chain frames.
+      shifts: chains only, ``(items, K, 3)`` cm: where each window starts in its chain's frame.
+    """
+
+    rows: np.ndarray
+    eval_set: EvalSet
+    truth: Pose
+    handles: dict[str, Handles]
+    metric_handles: dict[str, Handles]
+    shifts: jax.Array | None
+
+
+def draw_items(args: Options, dataset: CurveDataset, clips, character) -> Items:
+    """The windows, or the chains, and their handles (key ``--seed``)."""
+    key = jax.random.key(args.seed)
+    if args.segments == 1:
+        eval_set = make_eval_set(
+            dataset, key=key, num_windows=args.windows or None, handle_frames=args.handle_frames, per_window=True
+        )
+        handles = {"id": eval_set.handles, "ood": eval_set.handles_ood}
+        return Items(eval_set.rows, eval_set, window_poses(character, clips, dataset, eval_set.rows), handles, handles, None)
+    k, frames = args.segments, dataset.layout.num_frames
+    candidates = chain_rows(dataset, k)  # raises when no clip holds a chain
+    order = np.asarray(jax.random.permutation(jax.random.fold_in(key, k), len(candidates)))[: args.windows or None]
+    rows = candidates[order]
+    # Each window's own handles and noise (those of a single-window run), then in its chain's frame.
+    eval_set = make_eval_set(dataset, key=key, handle_frames=args.handle_frames, per_window=True, rows=rows.ravel())
+    truth = window_poses(character, clips, dataset, rows[:, 0], frames=k * (frames - 1) + 1)
+    shifts = window_shifts(character, truth, k)
+
+    def moved(h: Handles) -> Handles:  # (items·K, handles) → (items, K, handles), chain frame
+        h = jax.tree.map(lambda a: a.reshape(len(rows), k, *a.shape[1:]), h)
+        return h._replace(position=h.position + shifts[:, :, None, :])
+
+    handles = {"id": moved(eval_set.handles), "ood": moved(eval_set.handles_ood)}
+    at_frames = {cond: chain_frame_handles(h, frames) for cond, h in handles.items()}
+    return Items(rows, eval_set, truth, handles, at_frames, shifts)
+
+
+def chain_chunk(args: Options) -> int:
+    """Chains per compiled call: about ``--chunk`` windows' worth, at least one chain."""
+    return max(1, args.chunk // args.segments)
+
+
+def sample_items(args: Options, bmm, character, items: Items, cond: str, keys: jax.Array, coupled: bool = True) -> WindowCurves:
+    """The curves of every item, sampled once (chains: ``(items, K, …)`` per window)."""
+    if args.segments == 1:
+        return sample_window_curves(bmm, character, items.truth, items.handles[cond], keys, steps=args.steps, chunk=args.chunk)
+    return sample_chain_curves(
+        bmm, character, items.truth, items.handles[cond], keys, coupled=coupled, steps=args.steps, chunk=chain_chunk(args)
+    )
+
+
+def joined(args: Options, curves: WindowCurves) -> WindowCurves:
+    """Dense trajectories at the items' frames: a chain's windows joined, each shared key once."""
+    if args.segments == 1:
+        return curves
+    return curves._replace(positions=jax.vmap(join_windows)(curves.positions), rot6d=jax.vmap(join_windows)(curves.rot6d))
+
+
+def solve_items(args: Options, fn, params, curves: WindowCurves, truth: Pose):
+    """Every IK'd item ``(items, frames, …)`` and its timing (chains: one IK per chain)."""
+    if args.segments == 1:
+        return solve_window_curves(fn, params, curves, truth, key_blend_frames=args.key_blend, chunk=args.chunk)
+    return solve_chain_curves(fn, params, curves, truth, key_blend_frames=args.key_blend, chunk=chain_chunk(args))
+
+
+def reference_positions(items: Items, cond: str, layout) -> jax.Array:
+    """The reference's dense positions ``(items, frames, 6, 3)`` (chains: its windows joined)."""
+    handles = items.eval_set.handles if cond == "id" else items.eval_set.handles_ood
+    ref = reference_curves(items.eval_set, handles, layout)
+    positions = dense_positions(layout, ref.ctrl_pos, ref.ctrl_tangent)
+    if items.shifts is None:
+        return positions
+    n, k = items.shifts.shape[:2]
+    per_window = positions.reshape(n, k, *positions.shape[1:]) + items.shifts[:, :, None, None, :]
+    return jax.vmap(join_windows)(per_window)
+
+
+def jumps_at_keys(positions: jax.Array, k: int) -> dict:
+    """Velocity jump summary (cm/frame) of ``(chains, frames, 6, 3)`` at the shared keys."""
+    return distribution_summary(chain_velocity_jumps(positions, k).at_shared_keys)
+
+
+CHAIN_METRICS = {
+    "handles_error_cm": "every window's handles, at their chain frames, against the IK'd chain",
+    "mpjpe_cm": "every joint and frame of the chain (each shared key once) against the mocap",
+    "foot_skating_ratio": "over each chain's frames",
+    "key_pop_deg": "largest per-frame rotation change at each window's first and last frame pair: both sides of every key",
+    "max_rotation_change_deg": "over each chain's frames (mocap)",
+    "dense_error_cm": "the curves' windows joined, every chain frame",
+    "ik_ms_per_chain": "steady-state IK time per chain (one IK over its joined frames), --chunk // K chains per call",
+}
+CHAIN_NOT_COMPUTED = {
+    "ik_ms_per_window": "the IK runs once over each chain's joined frames, not per window: see ik_ms_per_chain",
+    "independent_after_ik": "the independent windows (curves.bmm_independent) are sampled for the velocity jump only, not IK'd",
+}
+
+
 def main(argv: list[str] | None = None) -> dict:
     args = parse_options(Options, argv, description=__doc__)
     started = time.perf_counter()
@@ -231,11 +380,10 @@ def main(argv: list[str] | None = None) -> dict:
     if len(dataset.ctrl_pos) == 0:
         raise ValueError(f"{args.bvh_dir or args.corpus}: no {dataset.layout.num_frames}-frame window in its clips")
     clips = motion_clips(corpus, "validation")
-    eval_set = make_eval_set(
-        dataset, key=jax.random.key(args.seed), num_windows=args.windows or None, handle_frames=args.handle_frames, per_window=True
-    )
-    truth = window_poses(character, clips, dataset, eval_set.rows)
-    labels = window_labels(corpus, dataset, eval_set.rows)
+    items = draw_items(args, dataset, clips, character)
+    k, truth = args.segments, items.truth
+    first_rows = items.rows if k == 1 else items.rows[:, 0]
+    labels = window_labels(corpus, dataset, first_rows)
     n = int(truth.root_pos.shape[0])
     config = PipelineMetricsConfig(dataset.layout.stride, dataset.fps, floor_height_from(dataset))
     # The joints the rig does not solve (clavicles, toes) keep one real pose's rotations.
@@ -243,54 +391,82 @@ def main(argv: list[str] | None = None) -> dict:
     chains = reach_chains(rig)
     iks, limited = build_iks(args, ik_model, rig)
     true_targets = targets_from_pose(character, truth)
-    keys = window_keys(jax.random.key(args.sample_seed), eval_set.rows)
-    handles = {"id": eval_set.handles, "ood": eval_set.handles_ood}
+    keys = window_keys(jax.random.key(args.sample_seed), first_rows)
+    timing_name = "ik_ms_per_window" if k == 1 else "ik_ms_per_chain"
+    what = "windows" if k == 1 else f"chains of {k} windows"
 
-    mocap = window_mocap_metrics(config, character, truth)
+    mocap = window_mocap_metrics(config, character, truth, windows=k)
     curve_windows: dict[str, dict[str, dict]] = {"bmm": {}, "reference": {}}
     ik_windows: dict[str, dict[str, dict]] = {name: {} for name in iks}
     ik_results: dict[str, dict] = {name: {} for name in iks}
+    jumps: dict[str, dict] = {cond: {} for cond in CONDITIONS}
+    after_ik: dict[str, dict] = {name: {} for name in iks}
     for cond in CONDITIONS:
         t0 = time.perf_counter()
-        curves = sample_window_curves(bmm, character, truth, handles[cond], keys, steps=args.steps, chunk=args.chunk)
-        print(f"{cond}: curves of {n} windows sampled once ({time.perf_counter() - t0:.0f} s)", flush=True)
+        curves = sample_items(args, bmm, character, items, cond, keys)
+        print(f"{cond}: curves of {n} {what} sampled once ({time.perf_counter() - t0:.0f} s)", flush=True)
+        dense = joined(args, curves)
         curve_windows["bmm"][cond] = window_curve_metrics(
-            config, curves.positions, handles[cond], true_targets.position, curves.rot6d, true_targets.rot6d
+            config, dense.positions, items.metric_handles[cond], true_targets.position, dense.rot6d, true_targets.rot6d
         )
-        ref = reference_curves(eval_set, handles[cond], dataset.layout)
-        ref_positions = dense_positions(dataset.layout, ref.ctrl_pos, ref.ctrl_tangent)
-        curve_windows["reference"][cond] = window_curve_metrics(config, ref_positions, handles[cond], true_targets.position)
+        ref_positions = reference_positions(items, cond, dataset.layout)
+        curve_windows["reference"][cond] = window_curve_metrics(config, ref_positions, items.metric_handles[cond], true_targets.position)
+        if k > 1:  # the same windows sampled independently (same noise), for the jump at the shared keys
+            independent = joined(args, sample_items(args, bmm, character, items, cond, keys, coupled=False))
+            curve_windows.setdefault("bmm_independent", {})[cond] = window_curve_metrics(
+                config, independent.positions, items.metric_handles[cond], true_targets.position, independent.rot6d, true_targets.rot6d
+            )
+            jumps[cond] = {"coupled": jumps_at_keys(dense.positions, k), "independent": jumps_at_keys(independent.positions, k)}
+            print(f"{cond}: velocity jump at the shared keys {jumps[cond]}", flush=True)
         for name, (fn, params) in iks.items():
-            pose, timing = solve_window_curves(fn, params, curves, truth, key_blend_frames=args.key_blend, chunk=args.chunk)
-            ik_windows[name][cond] = window_pose_metrics(config, character, pose, truth, handles[cond], chains)
+            pose, timing = solve_items(args, fn, params, curves, truth)
+            ik_windows[name][cond] = window_pose_metrics(config, character, pose, truth, items.metric_handles[cond], chains, windows=k)
             summary = summarize_windows(ik_windows[name][cond])
-            ik_results[name][cond] = {**summary, "ik_ms_per_window": timing.ms_per_window}
+            ik_results[name][cond] = {**summary, timing_name: timing.ms_per_window}
             ik_results[name].setdefault("compile_s", timing.compile_s)  # the OOD run reuses the compilation
+            if k > 1:
+                after_ik[name][cond] = jumps_at_keys(targets_from_pose(character, pose).position, k)
             print(f"{cond} {name}: {ik_results[name][cond]} (compile {timing.compile_s:.1f} s)", flush=True)
 
     results = {
-        "windows": n,
+        "windows": n * k,
         "corpus": args.corpus,
         "source": args.bvh_dir or f"{args.corpus} validation",
         "settings": {
             "bmm": str(model_path(args, "bmm")), "ik_model": str(model_path(args, "ik_model")), "joint_limits": limited,
             "handle_frames": args.handle_frames, "steps": args.steps, "key_blend_frames": args.key_blend,
-            "chunk": args.chunk, "seed": args.seed, "sample_seed": args.sample_seed, "segments": 1,
+            "chunk": args.chunk, "seed": args.seed, "sample_seed": args.sample_seed, "segments": k,
             "exact": exact_settings(args),
-            "rows": [int(r) for r in eval_set.rows],
+            "rows": np.asarray(items.rows).tolist(),
         },  # fmt: skip
         "ik": {name: {"compile_s": r.pop("compile_s"), **r} for name, r in ik_results.items()},
         "curves": {kind: {cond: summarize_windows(w) for cond, w in conds.items()} for kind, conds in curve_windows.items()},
         "mocap": summarize_windows(mocap),
-        "labels": {},
     }
+    if k > 1:
+        mocap_jumps = chain_velocity_jumps(true_targets.position, k)
+        results["segments"] = {
+            "k": k, "chains": n, "frames_per_chain": int(truth.root_pos.shape[1]),
+            "key_frames": list(range(0, int(truth.root_pos.shape[1]), dataset.layout.num_frames - 1)),
+            "boundary_velocity_jump_cm_per_frame": {
+                "where": "‖(p[b+1] − p[b]) − (p[b] − p[b−1])‖ of the six joints: the curves before IK (in distribution) "
+                "and the IK'd chains at the K − 1 shared keys; mocap: every inner frame of the same chains",
+                "coupled": jumps["id"]["coupled"], "independent": jumps["id"]["independent"],
+                "mocap": distribution_summary(mocap_jumps.all_frames),
+                "mocap_at_shared_keys": distribution_summary(mocap_jumps.at_shared_keys),
+                "ood": jumps["ood"], "after_ik": after_ik,
+            },
+            "metrics": CHAIN_METRICS, "not_computed": CHAIN_NOT_COMPUTED,
+        }  # fmt: skip
+    results["labels"] = {}
     if len(iks) == 1:
         only = next(iter(results["ik"].values()))
         results["id"], results["ood"] = only["id"], only["ood"]
     for label in sorted(set(labels)):
         mask = labels == label
         results["labels"][label] = {
-            "windows": int(mask.sum()),
+            "windows": int(mask.sum()) * k,
+            **({"chains": int(mask.sum())} if k > 1 else {}),
             "ik": {name: {cond: summarize_windows(ik_windows[name][cond], mask) for cond in CONDITIONS} for name in iks},
             "curves": {kind: {cond: summarize_windows(w, mask) for cond, w in conds.items()} for kind, conds in curve_windows.items()},
             "mocap": summarize_windows(mocap, mask),
@@ -303,13 +479,33 @@ def main(argv: list[str] | None = None) -> dict:
 def format_report(r: dict) -> str:
     s = r["settings"]
     m = r["mocap"]
+    seg = r.get("segments")
+    per, items = ("window", f"{r['windows']} windows") if seg is None else ("chain", f"{seg['chains']} chains of {seg['k']} windows")
     lines = [
-        f"Pipeline on {r['source']}: {r['windows']} windows, handles on {s['handle_frames']} frames, {s['steps']} DDIM steps, "
+        f"Pipeline on {r['source']}: {items}, handles on {s['handle_frames']} frames, {s['steps']} DDIM steps, "
         f"key blend {s['key_blend_frames']} frames; the curves sampled once, every IK on the same curves ({r['seconds']:.0f} s).",
         f"Mocap: foot skating {m['foot_skating_ratio']:.4f}, key pop {m['key_pop_deg']:.2f}°, "
         f"largest per-frame change {m['max_rotation_change_deg']:.2f}°.",
+    ]
+    if seg is not None:
+        jump = seg["boundary_velocity_jump_cm_per_frame"]
+        row = lambda label, x: f"| {label} | {x['mean']:.3f} | {x['p95']:.3f} | {x['max']:.3f} | {x['count']} |"  # noqa: E731
+        lines += [
+            "",
+            f"Chains of {seg['k']} windows ({seg['frames_per_chain']} frames, keys at {seg['key_frames']}); every figure below "
+            "over the chains' frames. Velocity jump of the six joints (cm/frame), in distribution:",
+            "",
+            "| where | mean | p95 | max | values |",
+            "|---|---|---|---|---|",
+            row("coupled curves, at shared keys", jump["coupled"]),
+            row("independent curves (D.1), at shared keys", jump["independent"]),
+            *(row(f"after IK ({name}), at shared keys", x["id"]) for name, x in jump["after_ik"].items()),
+            row("mocap, all frames", jump["mocap"]),
+            row("mocap, at the shared keys", jump["mocap_at_shared_keys"]),
+        ]
+    lines += [
         "",
-        "| IK | handles ID (cm) | OOD (cm) | max ID / OOD (cm) | unreachable ID / OOD | MPJPE ID (cm) | skating ID | key pop ID / OOD (°) | IK ms/window | compile (s) |",
+        f"| IK | handles ID (cm) | OOD (cm) | max ID / OOD (cm) | unreachable ID / OOD | MPJPE ID (cm) | skating ID | key pop ID / OOD (°) | IK ms/{per} | compile (s) |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, x in r["ik"].items():
@@ -317,7 +513,7 @@ def format_report(r: dict) -> str:
         lines.append(
             f"| {name} | {i['handles_error_cm']:.4f} | {o['handles_error_cm']:.4f} | {i['handles_error_max_cm']:.2f} / {o['handles_error_max_cm']:.2f} | "
             f"{i['unreachable_fraction']:.3f} / {o['unreachable_fraction']:.3f} | {i['mpjpe_cm']:.3f} | {i['foot_skating_ratio']:.4f} | "
-            f"{i['key_pop_deg']:.2f} / {o['key_pop_deg']:.2f} | {i['ik_ms_per_window']:.1f} | {x['compile_s']:.1f} |"
+            f"{i['key_pop_deg']:.2f} / {o['key_pop_deg']:.2f} | {i[f'ik_ms_per_{per}']:.1f} | {x['compile_s']:.1f} |"
         )
     lines += [
         "",

@@ -74,6 +74,7 @@ def make_eval_set(
     ood_noise: float = OOD_NOISE_CM,
     handle_frames: str = "grid",
     per_window: bool = False,
+    rows: np.ndarray | None = None,
 ) -> EvalSet:
     """Draw the evaluation conditions (deterministic given ``key``).
 
@@ -93,6 +94,14 @@ def make_eval_set(
         depend on the window alone, never on ``num_windows``, and the first ``n`` windows
         of a larger set are exactly an ``n``-window set. ``False`` (the default) keeps the
         original draws (sorted subset, one batch of draws), so earlier results reproduce.
+      rows: evaluate exactly these dataset windows, in this order (repeats allowed), with
+        ``per_window`` draws: each window's handles and noise are those it gets in any
+        ``per_window`` set of the same ``key`` (e.g. the windows of chained segments).
+        Needs ``per_window=True`` and no ``num_windows``.
+
+    Raises:
+      ValueError: ``max_handles`` or ``handle_frames`` out of range, or ``rows`` without
+        ``per_window``, beside ``num_windows`` or outside the dataset.
     """
     n_total, k, j = dataset.ctrl_pos.shape[:3]
     if max_handles < 1 or max_handles > (k - 2) * j:
@@ -100,7 +109,13 @@ def make_eval_set(
     if handle_frames not in HANDLE_FRAMES:
         raise ValueError(f"handle_frames must be one of {HANDLE_FRAMES}, got {handle_frames!r}")
     subset_key, slot_key, noise_key = jax.random.split(key, 3)
-    if per_window:
+    if rows is not None:
+        if not per_window or num_windows is not None:
+            raise ValueError(f"rows= needs per_window=True and num_windows=None, got per_window={per_window}, num_windows={num_windows}")
+        rows = np.asarray(rows)
+        if rows.ndim != 1 or not np.issubdtype(rows.dtype, np.integer) or ((rows < 0) | (rows >= n_total)).any():
+            raise ValueError(f"rows must be dataset windows 0 … {n_total - 1}, got {rows.tolist()}")
+    elif per_window:
         rows = np.asarray(jax.random.permutation(subset_key, n_total))[:num_windows]
     elif num_windows is not None and num_windows < n_total:
         rows = np.sort(np.asarray(jax.random.choice(subset_key, n_total, (num_windows,), replace=False)))

@@ -34,7 +34,9 @@ from bezmotion.pipeline.inbetweening import (
     inbetween_chain_traced,
     inbetween_traced,
     join_windows,
+    pose_from_chain_curves,
     pose_from_curves,
+    split_windows,
     window_curves_traced,
 )
 from bezmotion.pipeline.transfer import (
@@ -72,11 +74,13 @@ __all__ = [
     "mean_rotation",
     "mpjpe",
     "orientations_to_source_space",
+    "pose_from_chain_curves",
     "pose_from_curves",
     "pose_metrics",
     "pose_to_bvh",
     "read_glb",
     "run_pipeline",
+    "split_windows",
     "to_source_space",
     "validate_glb",
     "window_curves_traced",

@@ -10,7 +10,11 @@ Two ways to run it: :func:`evaluate_pipeline` in-betweens each window end to end
 :func:`solve_window_curves` runs any number of IKs on those same curves (timed), with
 per-window figures (:func:`window_pose_metrics`, :func:`window_curve_metrics`,
 :func:`window_mocap_metrics`) that :func:`summarize_windows` aggregates over all windows
-or any subset (e.g. one action label) — ``experiments/pipeline_eval.py``.
+or any subset (e.g. one action label) — ``experiments/pipeline_eval.py``. Chained segments
+the same way: :func:`chain_rows` finds runs of windows 30 frames apart,
+:func:`sample_chain_curves` samples each chain's windows together (coupled C¹ at the shared
+keys, or independent) and :func:`solve_chain_curves` runs an IK over each chain's joined
+frames; the ``window_*_metrics`` then take the chains' frames (``windows=`` for the key pop).
 """
 
 from __future__ import annotations
@@ -26,14 +30,23 @@ import jax.numpy as jnp
 import numpy as np
 
 from bezmotion.bmm.evaluation import EvalSet, map_in_chunks
-from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, FEET
+from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, FEET, HIPS
 from bezmotion.data.corpus import MotionClips
 from bezmotion.data.curves import CurveDataset
 from bezmotion.geometry.rotations import quat_conjugate, quat_from_rot6d, quat_mul
 from bezmotion.ik.protocol import Character, IKFn, Pose, pose_fk, pose_from_motion, targets_from_pose
 from bezmotion.ik.rig import Rig
 from bezmotion.metrics import foot_skating_ratio, key_pop_deg, mean_position_error, rotation_change_deg
-from bezmotion.pipeline.inbetweening import KEY_BLEND_FRAMES, WindowCurves, inbetween_traced, pose_from_curves, window_curves_traced
+from bezmotion.pipeline.inbetweening import (
+    KEY_BLEND_FRAMES,
+    WindowCurves,
+    chain_curves_traced,
+    inbetween_traced,
+    pose_from_chain_curves,
+    pose_from_curves,
+    split_windows,
+    window_curves_traced,
+)
 from bezmotion.pipeline.transfer import Transfer
 from bezmotion.metrics import handles_error
 from jaxtyping import Array, Float
@@ -56,15 +69,27 @@ def mpjpe(character: Character, pose: Pose, true: Pose) -> Float[Array, ""]:
     return mean_position_error(pose_fk(character, pose)[1], pose_fk(character, true)[1])
 
 
-def window_poses(character: Character, clips: MotionClips, dataset: CurveDataset, rows: np.ndarray) -> Pose:
+def window_poses(
+    character: Character, clips: MotionClips, dataset: CurveDataset, rows: np.ndarray, frames: int | None = None
+) -> Pose:
     """Ground-truth poses ``(windows, frames, …)`` of dataset windows ``rows``, aligned like
     the dataset (the start hips at the origin in XZ).
 
     Args:
       clips: the clips ``dataset`` was built from (e.g. :func:`~bezmotion.data.corpus.motion_clips`).
+      frames: frames from each window's start (default the window's own; a chain starting
+        there, :func:`chain_rows`, ``windows·30 + 1``); they must lie in the window's clip.
     """
-    frames = dataset.layout.num_frames
-    first = clips.starts[dataset.clip_index[rows]] + dataset.start_frame[rows]
+    frames = dataset.layout.num_frames if frames is None else frames
+    clip = dataset.clip_index[rows]
+    first = clips.starts[clip] + dataset.start_frame[rows]
+    past = first + frames > clips.starts[clip + 1]
+    if past.any():
+        r = int(np.asarray(rows)[past][0])
+        raise ValueError(
+            f"window {r} (clip {dataset.clip_index[r]}, frame {dataset.start_frame[r]}): {frames} frames from its start "
+            f"run past its clip's {clips.starts[dataset.clip_index[r] + 1] - clips.starts[dataset.clip_index[r]]} frames"
+        )
     index = first[:, None] + np.arange(frames)
     pose = pose_from_motion(
         character, jnp.asarray(clips.quat_local[index], jnp.float32), jnp.asarray(clips.pos_local[index], jnp.float32)
@@ -298,15 +323,156 @@ def solve_window_curves(
     first = jax.tree.map(lambda x: x[:, 0], truth)
     last = jax.tree.map(lambda x: x[:, -1], truth)
     inputs = (curves.positions, curves.rot6d, first, last)
-    n = curves.positions.shape[0]
+    return _timed(functools.partial(_ik_chunk, ik_params, ik_fn=ik_fn, key_blend_frames=key_blend_frames), inputs, chunk)
+
+
+def _timed(run, inputs: Any, chunk: int) -> tuple[Pose, IKTiming]:
+    """``run`` over ``inputs`` in chunks (:func:`_chunked`) after one untimed warm-up call."""
+    n = jax.tree.leaves(inputs)[0].shape[0]
     chunk = min(chunk, n)
-    run = functools.partial(_ik_chunk, ik_params, ik_fn=ik_fn, key_blend_frames=key_blend_frames)
     example = jax.tree.map(lambda a: a[np.arange(chunk)], inputs)
     t0 = time.perf_counter()
     jax.block_until_ready(run(example))  # warm-up: compiles (unless compiled before) and runs once, untimed below
     compile_s = time.perf_counter() - t0
     pose, seconds, windows_run = _chunked(run, inputs, chunk)
     return pose, IKTiming(compile_s, float(sum(seconds)), windows_run)
+
+
+# ------------------------------------------------------------------------------ chained segments
+
+
+def chain_rows(dataset: CurveDataset, windows: int) -> np.ndarray:
+    """Every chain of ``windows`` dataset windows: runs of windows of one clip, each
+    starting ``num_frames − 1`` (30) frames after the previous, so window ``i``'s last frame
+    is window ``i + 1``'s first (a shared key) and the chain covers ``windows·30 + 1``
+    frames. Chains overlap like the windows do (one per window start).
+
+    Returns:
+      ``(chains, windows)`` dataset rows, in the order of their first windows.
+    Raises:
+      ValueError: ``windows < 1``, or no clip long enough for one chain (names the longest).
+    """
+    if windows < 1:
+        raise ValueError(f"a chain has at least 1 window, got {windows}")
+    gap = dataset.layout.num_frames - 1
+    row_of = {(int(c), int(f)): r for r, (c, f) in enumerate(zip(dataset.clip_index, dataset.start_frame))}
+    chains = [
+        [row_of.get((int(c), int(f) + i * gap), -1) for i in range(windows)]
+        for c, f in zip(dataset.clip_index, dataset.start_frame)
+    ]  # fmt: skip
+    chains = np.asarray([c for c in chains if min(c) >= 0], np.int64).reshape(-1, windows)
+    if len(chains) == 0:
+        covered = int((dataset.start_frame + dataset.layout.num_frames).max(initial=0))
+        raise ValueError(
+            f"no chain of {windows} windows: it needs {windows * gap + 1} frames of one clip, and the longest "
+            f"clip's windows cover {covered}"
+        )
+    return chains
+
+
+def window_shifts(character: Character, truth: Pose, windows: int) -> Float[Array, "chains windows 3"]:
+    """Where each window of a chain starts, as the dataset aligns it: the chain's hips (X, Z)
+    at each window's first frame (cm; height 0), ``truth`` ``(chains, frames, …)`` aligned
+    like :func:`window_poses`. Add it to a window's aligned positions (its handles, curves)
+    to put them in the chain's frame."""
+    hips = targets_from_pose(character, truth).position[..., :-1, HIPS, :]  # (chains, frames − 1, 3)
+    starts = hips[:, :: (hips.shape[1] // windows)]
+    return starts * jnp.asarray([1.0, 0.0, 1.0], starts.dtype)
+
+
+def chain_frame_handles(handles: Handles, window_frames: int) -> Handles:
+    """Handles of each window, ``(*batch, windows, handles)`` at window frames, → the chain's
+    ``(*batch, windows·handles)`` at chain frames (window ``i``'s frame ``f`` is
+    ``i·(window_frames − 1) + f``); positions as given."""
+    *batch, windows, slots = handles.frame.shape
+    frame = handles.frame + (window_frames - 1) * jnp.arange(windows, dtype=handles.frame.dtype)[:, None]
+    flat = lambda a: a.reshape(*batch, windows * slots, *a.shape[len(batch) + 2 :])  # noqa: E731
+    return Handles(flat(handles.joint), flat(frame), flat(handles.position), flat(handles.valid))
+
+
+@functools.partial(jax.jit, static_argnames=("steps", "foot_lock", "coupled", "key_orientations"))
+def _chain_curves_chunk(bmm, character, transfer, inputs, *, steps, foot_lock, coupled, key_orientations) -> WindowCurves:
+    keys, handles, rng = inputs
+    one = functools.partial(
+        chain_curves_traced, steps=steps, guidance=1.0, foot_lock=foot_lock, coupled=coupled, key_orientations=key_orientations
+    )
+    return jax.vmap(lambda k, h, r: one(bmm, character, k, h, transfer, r))(keys, handles, rng)
+
+
+def chain_keys(truth: Pose, windows: int) -> Pose:
+    """The key poses of chains ``(chains, frames, …)``: ``(chains, windows + 1, …)``, every
+    ``(frames − 1) / windows`` frames from the first to the last."""
+    step = (truth.root_pos.shape[1] - 1) // windows
+    return jax.tree.map(lambda a: a[:, ::step], truth)
+
+
+def sample_chain_curves(
+    bmm: BezierMotionModel,
+    character: Character,
+    truth: Pose,
+    handles: Handles,
+    keys: jax.Array,
+    *,
+    coupled: bool = True,
+    transfer: Transfer | None = None,
+    steps: int = 10,
+    foot_lock: bool = False,
+    key_orientations: bool = True,
+    chunk: int = 128,
+) -> WindowCurves:
+    """:func:`sample_window_curves` for chains: the curves stage of every chain
+    (:func:`~bezmotion.pipeline.inbetweening.chain_curves_traced`, its windows sampled in
+    one :func:`~bezmotion.bmm.sampling.sample_chained_curves` call), ``chunk`` chains per
+    compiled call.
+
+    Args:
+      truth: ``(chains, windows·30 + 1, …)`` poses; the keys are every 30th frame.
+      handles: ``(chains, windows, handles)`` at window frames (1 … 29), positions in the
+        chain's frame (:func:`window_shifts`).
+      keys: one sampling key per chain (e.g. :func:`window_keys` of the first windows).
+      coupled: join the windows C¹ at the shared keys, or sample them independently (BMM
+        Appendix D.1); with the same ``keys`` both start from the same noise.
+    Returns:
+      :class:`~bezmotion.pipeline.inbetweening.WindowCurves` batched ``(chains, windows, …)``
+      (per window; :func:`~bezmotion.pipeline.inbetweening.join_windows` joins a chain).
+    """
+    transfer = Transfer.identity() if transfer is None else transfer
+    run = functools.partial(
+        _chain_curves_chunk, bmm, character, transfer, steps=steps, foot_lock=foot_lock, coupled=coupled,
+        key_orientations=key_orientations,
+    )  # fmt: skip
+    return _chunked(run, (chain_keys(truth, handles.frame.shape[1]), handles, keys), chunk)[0]
+
+
+@functools.partial(jax.jit, static_argnames=("ik_fn", "key_blend_frames"))
+def _chain_ik_chunk(ik_params, inputs, *, ik_fn, key_blend_frames) -> Pose:
+    positions, rot6d, keys = inputs
+
+    def one(p, r, k):
+        windows = WindowCurves(None, p, r)  # pose_from_chain_curves reads the dense trajectories only
+        return pose_from_chain_curves(ik_fn, ik_params, windows, k, keep_keyframes=True, key_blend_frames=key_blend_frames)
+
+    return jax.vmap(one)(positions, rot6d, keys)
+
+
+def solve_chain_curves(
+    ik_fn: IKFn,
+    ik_params: Any,
+    curves: WindowCurves,
+    truth: Pose,
+    *,
+    key_blend_frames: int = KEY_BLEND_FRAMES,
+    chunk: int = 128,
+) -> tuple[Pose, IKTiming]:
+    """:func:`solve_window_curves` for chains: one IK over each chain's joined frames
+    (curves ``(chains, windows, …)`` of :func:`sample_chain_curves`), each window blended to
+    its two keys from ``truth``; ``(poses (chains, frames, …), timing)``, the timing per
+    chain (``windows_run`` counts chains)."""
+    inputs = (curves.positions, curves.rot6d, chain_keys(truth, curves.positions.shape[1]))
+    return _timed(functools.partial(_chain_ik_chunk, ik_params, ik_fn=ik_fn, key_blend_frames=key_blend_frames), inputs, chunk)
+
+
+# ------------------------------------------------------------------------------ handles after IK
 
 
 HANDLE_MISS_CM = 1.0
@@ -354,6 +520,14 @@ def _per_window(fn, x: Array) -> np.ndarray:
     return np.asarray(jax.vmap(fn)(x))
 
 
+def _key_pop(quat_local: Array, windows: int) -> np.ndarray:
+    """Key pop of each item ``(items, frames, joints, 4)``; a chain of ``windows`` windows pops
+    at each of its windows' first and last frame pairs (both sides of every shared key)."""
+    if windows == 1:
+        return _per_window(key_pop_deg, quat_local)
+    return _per_window(lambda q: key_pop_deg(split_windows(q, windows)), quat_local)
+
+
 def window_pose_metrics(
     config: PipelineMetricsConfig,
     character: Character,
@@ -361,6 +535,7 @@ def window_pose_metrics(
     truth: Pose,
     handles: Handles,
     chains: ReachChains | None = None,
+    windows: int = 1,
 ) -> dict[str, np.ndarray]:
     """Per-window figures of poses ``(windows, frames, …)`` after IK, for :func:`summarize_windows`:
     each handle's distance from the IK'd skeleton's joint (``handle_error``, ``handle_valid``),
@@ -371,7 +546,12 @@ def window_pose_metrics(
     :data:`HANDLE_MISS_CM`, so unreachable handles are a subset of the missed ones: the
     rest are misses the limb itself could have avoided. (The tolerance keeps handles at
     full extension, an arm hanging straight, from counting: the mocap's own come within a
-    few millimetres of the chain's length.)"""
+    few millimetres of the chain's length.)
+
+    Chained segments: ``pose`` and ``truth`` ``(chains, frames, …)`` over the chains' joined
+    frames, ``handles`` ``(chains, handles)`` at chain frames (:func:`chain_frame_handles`)
+    and ``windows`` the windows per chain, whose key pop is the largest over every window's
+    first and last frame pair (every key, from both sides)."""
     _, pos = pose_fk(character, pose)
     _, true_pos = pose_fk(character, truth)
     six = pos[..., np.asarray(character.characteristic), :]
@@ -381,7 +561,7 @@ def window_pose_metrics(
         "handle_valid": np.asarray(handles.valid),
         "mpjpe": np.asarray(jnp.mean(jnp.linalg.norm(pos - true_pos, axis=-1), axis=(-2, -1))),
         "skating": _per_window(lambda f: foot_skating_ratio(f, config.fps, floor_height=config.floor_height), feet),
-        "key_pop": _per_window(key_pop_deg, pose.quat_local),
+        "key_pop": _key_pop(pose.quat_local, windows),
     }
     if chains is not None:
         root = jnp.asarray(chains.root)[handles.joint]
@@ -421,14 +601,18 @@ def window_curve_metrics(
     return out
 
 
-def window_mocap_metrics(config: PipelineMetricsConfig, character: Character, truth: Pose) -> dict[str, np.ndarray]:
+def window_mocap_metrics(
+    config: PipelineMetricsConfig, character: Character, truth: Pose, windows: int = 1
+) -> dict[str, np.ndarray]:
     """Per-window figures of the mocap itself: foot skating, key pop and largest per-frame
-    rotation change (the yardsticks of :func:`ground_truth_pose_metrics`)."""
+    rotation change (the yardsticks of :func:`ground_truth_pose_metrics`). For chains,
+    ``truth`` ``(chains, frames, …)`` and ``windows`` per chain (key pop at every key, as in
+    :func:`window_pose_metrics`)."""
     _, pos = pose_fk(character, truth)
     feet = pos[..., np.asarray(character.characteristic[4:6]), :]
     return {
         "skating": _per_window(lambda f: foot_skating_ratio(f, config.fps, floor_height=config.floor_height), feet),
-        "key_pop": _per_window(key_pop_deg, truth.quat_local),
+        "key_pop": _key_pop(truth.quat_local, windows),
         "max_rotation_change": np.asarray(jnp.max(rotation_change_deg(truth.quat_local), axis=(-2, -1))),
     }
 

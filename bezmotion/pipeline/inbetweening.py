@@ -312,6 +312,23 @@ def join_windows(x: Float[Array, "windows window_frames ..."]) -> Float[Array, "
     return jnp.concatenate([x[:, :-1].reshape(-1, *x.shape[2:]), x[-1, -1:]])
 
 
+def split_windows(x: Float[Array, "frames ..."], windows: int) -> Float[Array, "windows window_frames ..."]:
+    """A chain's frames → its windows' frames, the inverse of :func:`join_windows`: each
+    shared key twice (window ``i``'s last frame and window ``i + 1``'s first).
+
+    Args:
+      x: ``(frames, …)`` with ``frames = windows·(window_frames − 1) + 1``.
+      windows: how many windows the chain has (``≥ 1``).
+    Raises:
+      ValueError: ``windows < 1``, or ``frames`` not a chain of that many equal windows.
+    """
+    frames = x.shape[0]
+    if windows < 1 or (frames - 1) % windows or frames < 2:
+        raise ValueError(f"{frames} frames are not a chain of {windows} windows ((window frames − 1)·windows + 1)")
+    length = (frames - 1) // windows + 1
+    return x[np.arange(windows)[:, None] * (length - 1) + np.arange(length)]
+
+
 def chain_curves_traced(
     bmm: BezierMotionModel,
     character: Character,
@@ -348,6 +365,40 @@ def chain_curves_traced(
     return jax.vmap(finish)(curves, first, last, handles, shared)
 
 
+def pose_from_chain_curves(
+    ik_fn: IKFn,
+    ik_params: Any,
+    windows: WindowCurves,
+    keys: Pose,
+    *,
+    keep_keyframes: bool,
+    key_blend_frames: int = 0,
+) -> Pose:
+    """:func:`pose_from_curves` for a chain: one IK over the chain's joined frames, then
+    (``keep_keyframes``) each window's frames blended to its two keys.
+
+    Args:
+      windows: the chain's curves stage (:func:`chain_curves_traced`), batched
+        ``(keys − 1, …)``; only its dense ``positions`` and ``rot6d`` are read.
+      keys: :class:`~bezmotion.ik.protocol.Pose` of every key, batched ``(keys, …)``.
+    Returns:
+      ``((keys − 1)·(window_frames − 1) + 1, …)`` poses, the given keys exactly at the key
+      frames with ``keep_keyframes``.
+    """
+    positions, rot6d = join_windows(windows.positions), join_windows(windows.rot6d)
+    # One IK over the whole chain (an IK that smooths over time sees across the keys).
+    pose = solve_frames(ik_fn, ik_params, IKTargets(positions, rot6d))
+    if keep_keyframes:
+        # Each window's frames blended to its two keys: the fades of neighbouring windows
+        # meet only at their shared key, where both put that key exactly.
+        num_windows = windows.positions.shape[0]
+        blend = functools.partial(blend_to_keys, frames=key_blend_frames)
+        starts, ends = (jax.tree.map(lambda a, s=s: a[s], keys) for s in (slice(None, -1), slice(1, None)))
+        per_window = jax.vmap(blend)(jax.tree.map(lambda a: split_windows(a, num_windows), pose), starts, ends)
+        pose = jax.tree.map(join_windows, per_window)
+    return pose
+
+
 def inbetween_chain_traced(
     bmm: BezierMotionModel,
     ik_params: Any,
@@ -371,19 +422,10 @@ def inbetween_chain_traced(
         bmm, character, keys, handles, transfer, key,
         steps=steps, guidance=guidance, foot_lock=foot_lock, coupled=coupled, key_orientations=key_orientations,
     )  # fmt: skip
-    positions, rot6d = join_windows(windows.positions), join_windows(windows.rot6d)
-    # One IK over the whole chain (an IK that smooths over time sees across the keys).
-    pose = solve_frames(ik_fn, ik_params, IKTargets(positions, rot6d))
-    if keep_keyframes:
-        # Each window's frames blended to its two keys: the fades of neighbouring windows
-        # meet only at their shared key, where both put that key exactly.
-        num_windows, length = windows.positions.shape[:2]
-        window_frames = np.arange(num_windows)[:, None] * (length - 1) + np.arange(length)  # (windows, length)
-        blend = functools.partial(blend_to_keys, frames=key_blend_frames)
-        starts, ends = (jax.tree.map(lambda a, s=s: a[s], keys) for s in (slice(None, -1), slice(1, None)))
-        per_window = jax.vmap(blend)(jax.tree.map(lambda a: a[window_frames], pose), starts, ends)
-        pose = jax.tree.map(join_windows, per_window)
-    return ChainResult(pose, windows.curves, positions, rot6d)
+    pose = pose_from_chain_curves(
+        ik_fn, ik_params, windows, keys, keep_keyframes=keep_keyframes, key_blend_frames=key_blend_frames
+    )
+    return ChainResult(pose, windows.curves, join_windows(windows.positions), join_windows(windows.rot6d))
 
 
 @functools.cache

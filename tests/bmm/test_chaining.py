@@ -18,7 +18,7 @@ from bmm.common import J, K, TINY
 
 from bezmotion.bezier import BezierLayout, evaluate
 from bezmotion.bmm.sampling import Handles, sample_chained_curves, sample_curves, share_boundaries, shared_key_mask
-from bezmotion.metrics import boundary_velocity_jump
+from bezmotion.metrics import boundary_velocity_jump, chain_velocity_jumps, distribution_summary
 
 LAYOUT = BezierLayout.from_controls(K, TINY.stride)
 KEYS = 4  # three windows
@@ -188,3 +188,21 @@ def test_boundary_velocity_jump():
             boundary_velocity_jump(jnp.asarray(pos), np.asarray(bad))
     with pytest.raises((ValueError, TypeError), match="boundary"):  # the session's type checks may come first
         boundary_velocity_jump(jnp.asarray(pos), np.asarray([2.5]))
+
+
+def test_chain_velocity_jumps_split_the_inner_frames_at_the_shared_keys():
+    pos = jnp.asarray(np.random.default_rng(0).normal(size=(2, 13, 3, 3)), jnp.float32)  # 3 windows of 5 frames
+    jumps = chain_velocity_jumps(pos, 3)
+    np.testing.assert_array_equal(jumps.all_frames, boundary_velocity_jump(pos, np.arange(1, 12)))
+    np.testing.assert_array_equal(jumps.at_shared_keys, boundary_velocity_jump(pos, [4, 8]))
+    np.testing.assert_array_equal(jumps.other_frames, boundary_velocity_jump(pos, [1, 2, 3, 5, 6, 7, 9, 10, 11]))
+    assert chain_velocity_jumps(pos, 1).at_shared_keys.shape == (2, 0, 3)
+    for windows in (0, 5):
+        with pytest.raises(ValueError, match=rf"13 frames are not a chain of {windows} windows"):
+            chain_velocity_jumps(pos, windows)
+
+
+def test_distribution_summary():
+    assert distribution_summary(np.arange(101.0).reshape(1, 101)) == {"mean": 50.0, "p95": 95.0, "max": 100.0, "count": 101}
+    with pytest.raises(ValueError, match="no values to summarise"):
+        distribution_summary(np.zeros((2, 0, 6)))

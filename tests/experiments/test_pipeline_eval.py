@@ -1,11 +1,13 @@
 """experiments/pipeline_eval.py: one evaluation of the whole pipeline, every IK on the same curves.
 
 Runs on a folder holding copies of the bundled Bandai-Namco clip (``--bvh-dir``) with the
-bundled models, so it needs no shared data.
+bundled models, so it needs no shared data; chained segments (``--segments``) on copies of
+that clip played forward then back (79 frames: room for chains of two windows).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import json
 import shutil
@@ -16,6 +18,7 @@ import pytest
 
 from bezmotion.assets import DEMO_CLIP
 from bezmotion.bmm.evaluation import make_eval_set
+from bezmotion.data.bvh import read_bvh, write_bvh
 from helpers import REPO_ROOT, assert_trees_identical
 
 METRICS = {"handles_error_cm", "handles_error_max_cm", "unreachable_fraction", "mpjpe_cm", "foot_skating_ratio", "key_pop_deg"}
@@ -37,6 +40,18 @@ def clips(tmp_path_factory):
     folder = tmp_path_factory.mktemp("my_clips")
     for i in range(3):
         shutil.copy(DEMO_CLIP, folder / f"walk_{i + 1}.bvh")
+    return folder
+
+
+@pytest.fixture(scope="module")
+def long_clips(tmp_path_factory):
+    """Two copies of the bundled clip played forward then back: 79 frames, four chains of two windows each."""
+    folder = tmp_path_factory.mktemp("long_clips")
+    motion = read_bvh(DEMO_CLIP)
+    there_and_back = np.r_[np.arange(40), np.arange(38, -1, -1)]
+    motion = dataclasses.replace(motion, quat_local=motion.quat_local[there_and_back], pos_local=motion.pos_local[there_and_back])
+    for i in range(2):
+        write_bvh(folder / f"walk_{i + 1}.bvh", motion)
     return folder
 
 
@@ -112,6 +127,14 @@ def test_per_window_draws_do_not_depend_on_the_number_of_windows(experiment, cli
     every, four = draw(None), draw(4)
     assert sorted(every.rows) == list(range(6))
     assert_trees_identical(jax.tree.map(lambda a: np.asarray(a)[:4], every), four)
+    # Explicit windows (those of chains) get the very draws they get in any per-window set.
+    rows = np.asarray([every.rows[3], every.rows[0], every.rows[3]])
+    chosen = make_eval_set(dataset, key=jax.random.key(3), handle_frames="any", per_window=True, rows=rows)
+    assert_trees_identical(jax.tree.map(lambda a: np.asarray(a)[[3, 0, 3]], every), chosen)
+    with pytest.raises(ValueError, match="rows= needs per_window=True"):
+        make_eval_set(dataset, key=jax.random.key(3), rows=rows)
+    with pytest.raises(ValueError, match=r"rows must be dataset windows 0 … 5, got \[6\]"):
+        make_eval_set(dataset, key=jax.random.key(3), per_window=True, rows=np.asarray([6]))
 
 
 def test_lafan1_needs_its_models(experiment, capsys):
@@ -133,3 +156,49 @@ def test_exact_settings_are_checked(experiment, capsys, setting, message):
 def test_exact_settings_reach_the_exact_ik(experiment):
     args = experiment.parse_options(experiment.Options, ["--out", "x.json", "--exact", "iterations=3", "--exact", "rotation_weight=2.5"])
     assert experiment.exact_settings(args) == {"iterations": 3, "rotation_weight": 2.5}
+
+
+def test_segments_evaluate_chains_of_windows(experiment, long_clips, monkeypatch, tmp_path):
+    monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path / "cache"))
+    out = tmp_path / "chains.json"
+    common = ["--bvh-dir", str(long_clips), "--steps", "2", "--chunk", "4", "--ik", "rig"]
+    r = experiment.main(["--out", str(out), "--windows", "3", "--segments", "2", *common])
+    assert json.loads(out.read_text()) == r and "chains of 2 windows" in out.with_suffix(".md").read_text()
+    seg = r["segments"]
+    assert (seg["k"], seg["chains"], seg["frames_per_chain"], seg["key_frames"]) == (2, 3, 61, [0, 30, 60])
+    assert r["windows"] == 6 and r["settings"]["segments"] == 2
+    # Each chain: two windows of one clip, the second starting 30 frames after the first.
+    rows = np.asarray(r["settings"]["rows"])
+    _, dataset = experiment.open_windows(experiment.parse_options(experiment.Options, ["--out", "x.json", "--bvh-dir", str(long_clips)]))
+    assert rows.shape == (3, 2) and (dataset.clip_index[rows[:, 0]] == dataset.clip_index[rows[:, 1]]).all()
+    np.testing.assert_array_equal(dataset.start_frame[rows[:, 1]] - dataset.start_frame[rows[:, 0]], 30)
+    # The velocity jump at the one shared key of each chain: coupled, independent, the mocap's own.
+    jump = seg["boundary_velocity_jump_cm_per_frame"]
+    for variant in (jump["coupled"], jump["independent"], jump["mocap"], jump["ood"]["coupled"], jump["after_ik"]["rig"]["id"]):
+        assert all(np.isfinite(variant[stat]) and variant[stat] >= 0.0 for stat in ("mean", "p95", "max"))
+        assert variant["mean"] <= variant["p95"] <= variant["max"]
+    assert jump["coupled"]["count"] == jump["independent"]["count"] == 3 * 1 * 6  # chains × shared keys × joints
+    assert jump["mocap"]["count"] == 3 * 59 * 6  # every inner frame of the same chains
+    # The other metrics over the chains' frames; the handles moved into each chain's frame.
+    for cond in ("id", "ood"):
+        after = r["ik"]["rig"][cond]
+        assert METRICS <= set(after) and all(np.isfinite(after[m]) for m in METRICS)
+        assert after["ik_ms_per_chain"] > 0.0 and "ik_ms_per_window" not in after
+        for kind in ("bmm", "bmm_independent", "reference"):
+            assert r["curves"][kind][cond]["handles_error_cm"] < 1e-3
+            assert np.isfinite(r["curves"][kind][cond]["dense_error_cm"])
+    assert "ik_ms_per_window" in seg["not_computed"] and "key_pop_deg" in seg["metrics"]
+    assert {"foot_skating_ratio", "key_pop_deg", "max_rotation_change_deg"} <= set(r["mocap"])
+    assert r["labels"]["walk"]["chains"] == 3 and r["labels"]["walk"]["windows"] == 6
+
+
+def test_segments_must_be_positive(experiment, capsys):
+    with pytest.raises(SystemExit):
+        experiment.main(["--out", "x.json", "--segments", "0"])
+    assert "--segments 0: must be ≥ 1" in capsys.readouterr().err
+
+
+def test_segments_longer_than_every_clip(experiment, clips, monkeypatch, tmp_path):
+    monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path / "cache"))
+    with pytest.raises(ValueError, match="no chain of 2 windows: it needs 61 frames of one clip, and the longest clip's windows cover 36"):
+        experiment.main(["--out", str(tmp_path / "x.json"), "--bvh-dir", str(clips), "--segments", "2", "--ik", "rig"])

@@ -20,7 +20,7 @@ from bezmotion.bmm.sampling import Handles
 from bezmotion.data.characteristic import HIPS
 from bezmotion.ik.protocol import Pose
 from bezmotion.metrics import boundary_velocity_jump
-from bezmotion.pipeline import Transfer, inbetween_chain, join_windows
+from bezmotion.pipeline import Transfer, inbetween_chain, join_windows, split_windows
 
 KEY_FRAMES = [0, 30, 39]  # clip frames of the three keys (the clip has 40)
 WINDOWS = len(KEY_FRAMES) - 1
@@ -108,6 +108,15 @@ def test_chain_with_a_transfer_keeps_the_shared_tangent_and_the_keys(chain):
 def test_join_windows():
     x = jnp.arange(2 * 4 * 3, dtype=jnp.float32).reshape(2, 4, 3)
     np.testing.assert_array_equal(join_windows(x), np.concatenate([np.asarray(x[0, :3]), np.asarray(x[1])]))
+
+
+def test_split_windows_undoes_join_windows():
+    x = jnp.arange(3 * 5 * 2, dtype=jnp.float32).reshape(3, 5, 2)
+    x = x.at[1:, 0].set(x[:-1, -1])  # each shared key the same on both sides, as in a chain
+    np.testing.assert_array_equal(split_windows(join_windows(x), 3), x)
+    for frames, windows in ((13, 0), (13, 5), (1, 1)):
+        with pytest.raises(ValueError, match=rf"{frames} frames are not a chain of {windows} windows"):
+            split_windows(jnp.zeros((frames, 2)), windows)
 
 
 def test_chain_input_errors(chain):
