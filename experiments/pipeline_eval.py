@@ -162,12 +162,12 @@ class Options:
         help="an ExactIKParams setting of the exact IKs (e.g. iterations=12, rotation_weight=5); may repeat",
     )  # fmt: skip
     ik: tuple[str, ...] = option(("learned", "refined", "rig", "exact"), choices=IKS, help="IKs to run on the same curves")
-    windows: int = option(100, help="windows (0 = all)")
+    windows: int = option(100, help="windows, or with --segments K > 1 chains (0 = all)")
     handle_frames: str = option("grid", choices=HANDLE_FRAMES, help="handles on control frames, between them, or any frame")
     segments: int = option(1, help="windows per evaluated chain, keys 30 frames apart (1: single windows)")
     steps: int = option(10, help="DDIM steps")
     key_blend: int = option(KEY_BLEND_FRAMES, help="frames over which the start / end poses are blended in (0: replace the two frames)")
-    chunk: int = option(10, help="windows per compiled call (large chunks of the exact IK have hung XLA)")
+    chunk: int = option(10, help="windows per compiled call, chains: chunk // K (large chunks of the exact IK have hung XLA)")
     seed: int = option(1234, help="key of the windows, handles and OOD noise")
     sample_seed: int = option(7, help="key of the BMM sampler (folded with each window's row)")
 

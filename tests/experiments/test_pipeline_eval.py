@@ -162,23 +162,23 @@ def test_segments_evaluate_chains_of_windows(experiment, long_clips, monkeypatch
     monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path / "cache"))
     out = tmp_path / "chains.json"
     common = ["--bvh-dir", str(long_clips), "--steps", "2", "--chunk", "4", "--ik", "rig"]
-    r = experiment.main(["--out", str(out), "--windows", "3", "--segments", "2", *common])
+    r = experiment.main(["--out", str(out), "--windows", "2", "--segments", "2", *common])
     assert json.loads(out.read_text()) == r and "chains of 2 windows" in out.with_suffix(".md").read_text()
     seg = r["segments"]
-    assert (seg["k"], seg["chains"], seg["frames_per_chain"], seg["key_frames"]) == (2, 3, 61, [0, 30, 60])
-    assert r["windows"] == 6 and r["settings"]["segments"] == 2
+    assert (seg["k"], seg["chains"], seg["frames_per_chain"], seg["key_frames"]) == (2, 2, 61, [0, 30, 60])
+    assert r["windows"] == 4 and r["settings"]["segments"] == 2
     # Each chain: two windows of one clip, the second starting 30 frames after the first.
     rows = np.asarray(r["settings"]["rows"])
     _, dataset = experiment.open_windows(experiment.parse_options(experiment.Options, ["--out", "x.json", "--bvh-dir", str(long_clips)]))
-    assert rows.shape == (3, 2) and (dataset.clip_index[rows[:, 0]] == dataset.clip_index[rows[:, 1]]).all()
+    assert rows.shape == (2, 2) and (dataset.clip_index[rows[:, 0]] == dataset.clip_index[rows[:, 1]]).all()
     np.testing.assert_array_equal(dataset.start_frame[rows[:, 1]] - dataset.start_frame[rows[:, 0]], 30)
     # The velocity jump at the one shared key of each chain: coupled, independent, the mocap's own.
     jump = seg["boundary_velocity_jump_cm_per_frame"]
     for variant in (jump["coupled"], jump["independent"], jump["mocap"], jump["ood"]["coupled"], jump["after_ik"]["rig"]["id"]):
         assert all(np.isfinite(variant[stat]) and variant[stat] >= 0.0 for stat in ("mean", "p95", "max"))
         assert variant["mean"] <= variant["p95"] <= variant["max"]
-    assert jump["coupled"]["count"] == jump["independent"]["count"] == 3 * 1 * 6  # chains × shared keys × joints
-    assert jump["mocap"]["count"] == 3 * 59 * 6  # every inner frame of the same chains
+    assert jump["coupled"]["count"] == jump["independent"]["count"] == 2 * 1 * 6  # chains × shared keys × joints
+    assert jump["mocap"]["count"] == 2 * 59 * 6  # every inner frame of the same chains
     # The other metrics over the chains' frames; the handles moved into each chain's frame.
     for cond in ("id", "ood"):
         after = r["ik"]["rig"][cond]
@@ -189,7 +189,7 @@ def test_segments_evaluate_chains_of_windows(experiment, long_clips, monkeypatch
             assert np.isfinite(r["curves"][kind][cond]["dense_error_cm"])
     assert "ik_ms_per_window" in seg["not_computed"] and "key_pop_deg" in seg["metrics"]
     assert {"foot_skating_ratio", "key_pop_deg", "max_rotation_change_deg"} <= set(r["mocap"])
-    assert r["labels"]["walk"]["chains"] == 3 and r["labels"]["walk"]["windows"] == 6
+    assert r["labels"]["walk"]["chains"] == 2 and r["labels"]["walk"]["windows"] == 4
 
 
 def test_segments_must_be_positive(experiment, capsys):

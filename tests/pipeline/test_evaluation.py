@@ -20,6 +20,8 @@ from bezmotion.ik.protocol import IKTargets, Pose
 from bezmotion.pipeline import mpjpe
 from bezmotion.pipeline.evaluation import (
     PipelineMetricsConfig,
+    chain_frame_handles,
+    chain_rows,
     evaluate_pipeline,
     ground_truth_pose_metrics,
     pose_metrics,
@@ -88,6 +90,28 @@ def test_window_poses_reproduce_the_curve_dataset(clip, curves):
     # Rows pick windows, in the order given.
     swapped = window_poses(c, curves.clips, ds, np.array([1, 0]))
     np.testing.assert_array_equal(swapped.root_pos, np.asarray(truth.root_pos)[::-1])
+    # Longer spans from the same starts (chains), within the 40-frame clip only.
+    longer = window_poses(c, curves.clips, ds, np.arange(2), frames=35)
+    np.testing.assert_array_equal(np.asarray(longer.root_pos)[:, :FRAMES], truth.root_pos)
+    with pytest.raises(ValueError, match="window 1 .*36 frames from its start run past its clip's 40 frames"):
+        window_poses(c, curves.clips, ds, np.arange(2), frames=36)
+
+
+def test_chain_rows_and_chain_frame_handles(curves):
+    ds = curves.dataset  # two windows of the 40-frame clip, at frames 0 and 5
+    np.testing.assert_array_equal(chain_rows(ds, 1), [[0], [1]])
+    with pytest.raises(ValueError, match="no chain of 2 windows: it needs 61 frames of one clip, and the longest clip's windows cover 36"):
+        chain_rows(ds, 2)
+    with pytest.raises(ValueError, match="a chain has at least 1 window, got 0"):
+        chain_rows(ds, 0)
+    handles = Handles(
+        jnp.asarray([[[0, 1], [2, 3]]]), jnp.asarray([[[6, 29], [1, 12]]]), jnp.zeros((1, 2, 2, 3)), jnp.asarray([[[True, False], [True, True]]])
+    )  # (chains, windows, handles)
+    at = chain_frame_handles(handles, FRAMES)
+    np.testing.assert_array_equal(at.frame, [[6, 29, 31, 42]])
+    np.testing.assert_array_equal(at.joint, [[0, 1, 2, 3]])
+    np.testing.assert_array_equal(at.valid, [[True, False, True, True]])
+    assert at.position.shape == (1, 4, 3)
 
 
 @pytest.fixture(scope="module")
