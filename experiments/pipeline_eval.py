@@ -101,7 +101,6 @@ beside the JSON.
 from __future__ import annotations
 
 import dataclasses
-import re
 import time
 from pathlib import Path
 from typing import NamedTuple
@@ -141,6 +140,7 @@ from bezmotion.pipeline.evaluation import (
     window_shifts,
 )
 from bezmotion.pipeline.inbetweening import KEY_BLEND_FRAMES, WindowCurves, join_windows
+from _common import window_labels
 
 CORPORA = ("bandai_namco", "lafan1")
 IKS = ("learned", "refined", "rig", "exact", "exact_refined")
@@ -217,19 +217,6 @@ def open_windows(args: Options) -> tuple[Corpus, CurveDataset]:
     else:  # every file validates
         corpus = load_corpus(args.bvh_dir, characteristic=args.corpus, validation_every=1, progress=False)
     return corpus, curve_dataset(corpus, "validation", progress=False)
-
-
-def label_of(labels: dict) -> str:
-    """A clip's content / action: Bandai-Namco's ``content``, LaFAN1's sequence or a file stem without its number."""
-    if "content" in labels:
-        return str(labels["content"])
-    name = str(labels.get("sequence", labels.get("file", "?")))
-    return re.sub(r"[\d_\-\s]+$", "", name) or name
-
-
-def window_labels(corpus: Corpus, dataset: CurveDataset, rows: np.ndarray) -> np.ndarray:
-    clips = corpus.split("validation")
-    return np.asarray([label_of(corpus.labels(int(clips[dataset.clip_index[r]]))) for r in rows])
 
 
 def build_iks(args: Options, ik_model, rig) -> tuple[dict[str, tuple], bool]:
@@ -383,7 +370,7 @@ def main(argv: list[str] | None = None) -> dict:
     items = draw_items(args, dataset, clips, character)
     k, truth = args.segments, items.truth
     first_rows = items.rows if k == 1 else items.rows[:, 0]
-    labels = window_labels(corpus, dataset, first_rows)
+    labels = window_labels(corpus, dataset, "validation", first_rows)
     n = int(truth.root_pos.shape[0])
     config = PipelineMetricsConfig(dataset.layout.stride, dataset.fps, floor_height_from(dataset))
     # The joints the rig does not solve (clavicles, toes) keep one real pose's rotations.
