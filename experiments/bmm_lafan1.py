@@ -48,7 +48,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bezmotion.io import write_results
-from bezmotion.assets import BUNDLED_BMM
+from bezmotion.assets import BUNDLED_BMM, PROFILES_DIR
 from bezmotion.bmm.evaluation import (
     HANDLE_FRAMES,
     CurveMetricsConfig,
@@ -69,6 +69,7 @@ from bezmotion.bmm.sampling import BezierMotionModel, load_model, sample_curves,
 from bezmotion.bmm.augmentation import rest_reflections
 from bezmotion.bmm.train import LR_SCHEDULES, CurveArrays, BMMTrainConfig, init_bmm_train_states, make_bmm_train_step
 from bezmotion.data.characteristic import SKELETON_MAPS
+from bezmotion.pipeline.transfer import CharacterProfile, Transfer, transfer_curve_dataset
 from bezmotion.options import option, options, parse_options, presets
 from bezmotion.training import StoppingRule, compile_train_step, count_parameters, data_mesh, run_training, train_with_learning_curve
 from bezmotion.training.distributed import DistributedOptions, is_coordinator, leave_group
@@ -87,7 +88,12 @@ class Options(DistributedOptions):
         None,
         help="the corpus archive or folder (default ../shared/data/lafan1/lafan1-subset.zip or ../shared/data/bandai-namco/bandai-namco-2.tar.xz)",
     )
-    bandai_namco: str | None = option(None, help="also train on Bandai-Namco's training clips (archive or folder)")
+    bandai_namco: str | None = option(None, help="also train on Bandai-Namco's training clips (archive or folder), positions as they are")
+    also_corpus: str | None = option(
+        None, choices=DEFAULT_DATA,
+        help="also train on this corpus's training clips in the character-agnostic space: moved into --corpus's character by the two character profiles (hip-height scale, orientation offsets)",
+    )  # fmt: skip
+    also_data: str | None = option(None, help="the --also-corpus archive or folder (default: its default archive)")
     config: str = option("cpu", choices=CONFIGS, help="model size (default cpu; tiny: smoke tests)")
     prediction: str = option(
         "x0", choices=PREDICTIONS, help="decoder output: x0 (the paper) or residual over the reference curves through the conditions (ours)"
@@ -135,6 +141,8 @@ class Options(DistributedOptions):
             raise ValueError(f"--patience {self.patience} needs --eval-every (the curve it watches)")
         if self.eval_every < 0 or self.patience < 0 or self.curve_windows < 1:
             raise ValueError("--eval-every and --patience must be ≥ 0, --curve-windows ≥ 1")
+        if self.also_corpus is not None and (self.also_corpus == self.corpus or self.bandai_namco):
+            raise ValueError(f"--also-corpus {self.also_corpus}: name a corpus other than --corpus {self.corpus}, without --bandai-namco")
         if self.holdout_contents and self.bandai_namco:
             raise ValueError("--holdout-contents holds out contents of --corpus; it cannot be combined with --bandai-namco")
 
@@ -147,6 +155,8 @@ class Options(DistributedOptions):
             parts.append("yaw")
         if self.augment_mirror:
             parts.append(f"mirror{self.augment_mirror:g}")
+        if self.also_corpus:
+            parts.append(f"also-{self.also_corpus}")
         if self.holdout_contents:
             parts.append("holdout-" + "-".join(p.replace("*", "") for p in self.holdout_contents))
         return "".join(f"_{p}" for p in parts)
@@ -373,6 +383,12 @@ def main(argv: list[str] | None = None) -> dict:
             raise ValueError(f"--holdout-contents {' '.join(args.holdout_contents)}: no clip of {args.corpus} has such a content")
         held_set = concat_datasets([train_set.subset(held_train), val_set.subset(held_val)])
         train_set, val_set = train_set.subset(~held_train), val_set.subset(~held_val)
+    if args.also_corpus:
+        # Character-agnostic training (BMM §8): the other corpus's windows as --corpus's character.
+        other = load_corpus(args.also_corpus, source=args.also_data or str(DEFAULT_DATA[args.also_corpus]), progress=not args.no_progress)
+        transfer = Transfer.between(*(CharacterProfile.load(PROFILES_DIR / f"{name}.json") for name in (args.also_corpus, args.corpus)))
+        also_set = transfer_curve_dataset(curve_dataset(other, "train", progress=not args.no_progress), transfer)
+        train_set = concat_datasets([train_set, also_set])
     stats = FeatureStats.from_dataset(train_set)
     mapping = corpus.characteristic_map
     reflections = None
@@ -419,7 +435,7 @@ def main(argv: list[str] | None = None) -> dict:
             "corpus": args.corpus, "steps": 0 if args.model else args.steps, "batch_size": args.batch_size, "learning_rate": args.learning_rate,
             "seeds": ["saved"] if args.model else list(args.seeds), "saved_model": args.model, "fine_tuned_from": args.init,
             "min_snr_gamma": train_config.min_snr_gamma, "off_grid_handles": train_config.off_grid_handles,
-            "train_windows": len(train_set), "bandai_namco": bool(args.bandai_namco), "wall_s_this_run": train_s,
+            "train_windows": len(train_set), "bandai_namco": bool(args.bandai_namco), "also_corpus": args.also_corpus, "wall_s_this_run": train_s,
             "lr_schedule": args.lr_schedule, "warmup_steps": args.warmup_steps, "augment_yaw": args.augment_yaw,
             "augment_mirror": args.augment_mirror, "rest_reflections": reflections, "holdout_contents": list(args.holdout_contents),
             "history": history, "learning_curve": curve,

@@ -48,6 +48,7 @@ from bezmotion.pipeline.transfer import (
     mean_rotation,
     orientations_to_source_space,
     to_source_space,
+    transfer_curve_dataset,
 )
 
 __all__ = [
@@ -82,6 +83,7 @@ __all__ = [
     "run_pipeline",
     "split_windows",
     "to_source_space",
+    "transfer_curve_dataset",
     "validate_glb",
     "window_curves_traced",
     "window_poses",

@@ -20,6 +20,7 @@ from jaxtyping import Array, Float
 
 from bezmotion.bmm.sampling import SampledCurves
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
+from bezmotion.data.curves import CurveDataset
 from bezmotion.geometry.rotations import matrix_from_quat, quat_conjugate, quat_from_matrix, quat_from_rot6d, quat_mul, rot6d_from_quat
 from bezmotion.ik.protocol import Character, Pose, targets_from_pose
 
@@ -152,4 +153,34 @@ def curves_to_target(transfer: Transfer, anchor: Float[Array, "3"], curves: Samp
         curves.ctrl_tangent * transfer.scale,
         rot6d_from_quat(quat),
         curves.contacts,
+    )
+
+
+def transfer_curve_dataset(dataset: CurveDataset, transfer: Transfer) -> CurveDataset:
+    """A curve dataset of one character moved into another's space (training on several corpora).
+
+    The character-agnostic training of BMM §8's future work: a corpus's windows become
+    windows of the target character, so one model trains on both — positions, tangents
+    and dense trajectories scaled by ``transfer.scale`` about the floor below the start hips
+    (the windows are aligned so that this is the origin), global orientations composed with
+    the per-joint offsets (``q ⊗ rot_offset``, as :func:`curves_to_target` does). Contacts,
+    fit errors and provenance (``clip_index``, ``start_frame``) are kept.
+
+    Args:
+      dataset: the source character's curves (aligned: hips start at the origin in XZ).
+      transfer: source → target, e.g. ``Transfer.between(lafan1_profile, bandai_namco_profile)``.
+    Returns:
+      The same windows in the target character's space (float32).
+    """
+    curves = SampledCurves(
+        jnp.asarray(dataset.ctrl_pos), jnp.asarray(dataset.ctrl_tangent), jnp.asarray(dataset.ctrl_rot6d), jnp.asarray(dataset.ctrl_contacts)
+    )
+    moved = curves_to_target(transfer, jnp.zeros(3, jnp.float32), curves)
+    as_numpy = lambda x: np.asarray(x, np.float32)  # noqa: E731
+    return dataclasses.replace(
+        dataset,
+        ctrl_pos=as_numpy(moved.ctrl_pos),
+        ctrl_tangent=as_numpy(moved.ctrl_tangent),
+        ctrl_rot6d=as_numpy(moved.ctrl_rot6d),
+        dense_pos=as_numpy(np.asarray(dataset.dense_pos) * float(transfer.scale)),
     )

@@ -170,3 +170,42 @@ def test_character_profile_load_round_trip_and_malformed_files(tmp_path, profile
         path.write_text(text)
         with pytest.raises(ValueError, match=rf"{name}\.json: not a character profile"):
             CharacterProfile.load(path)
+
+
+def test_transfer_curve_dataset_moves_real_windows_into_the_target_space():
+    """The bundled clip's windows as LaFAN1's character: scaled about the floor below the
+    start hips, orientations offset per joint, the curves still through their own dense
+    trajectories at the control frames; the identity transfer changes nothing."""
+    from bezmotion.assets import DEMO_CLIP, PROFILES_DIR
+    from bezmotion.bezier import BezierLayout, evaluate
+    from bezmotion.data.bvh import read_bvh
+    from bezmotion.data.corpus import MotionClips
+    from bezmotion.data.curves import build_curve_dataset
+    from bezmotion.geometry.rotations import quat_from_rot6d
+    from bezmotion.pipeline import transfer_curve_dataset
+
+    dataset = build_curve_dataset(MotionClips.from_bvh([read_bvh(DEMO_CLIP)]), "bandai_namco", window=31, offset=3, progress=False)
+    same = transfer_curve_dataset(dataset, Transfer.identity())
+    for name in ("ctrl_pos", "ctrl_tangent", "dense_pos"):
+        np.testing.assert_allclose(getattr(same, name), getattr(dataset, name), atol=1e-5)
+    np.testing.assert_allclose(np.abs(same.ctrl_rot6d), np.abs(dataset.ctrl_rot6d), atol=1e-5)
+    source = CharacterProfile.load(PROFILES_DIR / "bandai_namco.json")
+    target = CharacterProfile.load(PROFILES_DIR / "lafan1.json")
+    transfer = Transfer.between(source, target)
+    moved = transfer_curve_dataset(dataset, transfer)
+    scale = target.height / source.height
+    np.testing.assert_allclose(moved.ctrl_pos, dataset.ctrl_pos * scale, rtol=1e-5, atol=1e-4)
+    np.testing.assert_allclose(moved.dense_pos, dataset.dense_pos * scale, rtol=1e-5, atol=1e-4)
+    np.testing.assert_array_equal(moved.ctrl_contacts, dataset.ctrl_contacts)
+    np.testing.assert_array_equal(moved.clip_index, dataset.clip_index)
+    # Orientations: q ⊗ offset, per joint.
+    expected = np_quat_mul(np.asarray(quat_from_rot6d(jnp.asarray(dataset.ctrl_rot6d))), np.asarray(transfer.rot_offset))
+    assert_same_rotation(np.asarray(quat_from_rot6d(jnp.asarray(moved.ctrl_rot6d))), expected, atol=1e-4)
+    # Still a consistent dataset: the moved curves fit the moved trajectories as well as before, scaled.
+    layout = BezierLayout(31, 6)
+
+    def fit_error(d):
+        dense = evaluate(layout, jnp.swapaxes(jnp.asarray(d.ctrl_pos), 1, 2), jnp.swapaxes(jnp.asarray(d.ctrl_tangent), 1, 2))
+        return np.abs(np.asarray(dense) - np.swapaxes(d.dense_pos, 1, 2)).max()
+
+    np.testing.assert_allclose(fit_error(moved), scale * fit_error(dataset), rtol=1e-3, atol=1e-4)
