@@ -5,7 +5,8 @@ six characteristic joints, with handles hit exactly.
 ↔ normalised tokens, conditions), :mod:`~bezmotion.bmm.losses`, :mod:`~bezmotion.bmm.train`
 (its jitted step; the loop is :mod:`bezmotion.training`), :mod:`~bezmotion.bmm.sampling`
 (DDIM with overwrite, save/load), :mod:`~bezmotion.bmm.foot_lock`,
-:mod:`~bezmotion.bmm.evaluation` (curve metrics before IK).
+:mod:`~bezmotion.bmm.evaluation` (curve metrics before IK), :mod:`~bezmotion.bmm.ablations`
+(the paper's BMM⁻ᴮ and BMM⁻ᴵᴷ⁻ᴮ: the same denoiser over dense frames).
 """
 
 from bezmotion.bmm.denoiser import BMMConfig, BMMDenoiser, init_denoiser

@@ -19,6 +19,11 @@ number of conditions, none to all ``K·J``, runs in one compiled shape. The enco
 MDM's: post-LayerNorm layers with GELU feed-forward and dropout. The frame tokens'
 outputs are decoded to x̂₀ (x₀-prediction) and two foot-contact logits per control point.
 
+What a frame token is, is the config's: ``frame_features`` numbers per token, one token
+per ``stride`` frames. :class:`BMMConfig` is the BMM's (a control point of the six
+joints); :class:`~bezmotion.bmm.ablations.DenseBMMConfig` makes a token one frame of 6 or
+of all ``J`` joints (the paper's ablations BMM⁻ᴮ and BMM⁻ᴵᴷ⁻ᴮ) with this same module.
+
 The model is written for one motion; ``jax.vmap`` it over a batch. It is a flax NNX
 module used functionally: :func:`init_denoiser` returns ``(graphdef, params)`` and
 :func:`apply_denoiser` merges them inside whatever ``jax.jit`` calls it.

@@ -183,13 +183,26 @@ def curve_metrics(
 ) -> dict[str, float]:
     """Handles error against ``handles`` plus dense error, skating and contacts."""
     dense = dense_positions(config.layout, curves.ctrl_pos, curves.ctrl_tangent)
+    return trajectory_metrics(config, dense, curves.contacts, eval_set, handles)
+
+
+def trajectory_metrics(
+    config: CurveMetricsConfig, dense: Array, contacts: Array, eval_set: EvalSet, handles: Handles
+) -> dict[str, float]:
+    """The metrics of :func:`curve_metrics` for dense six-joint trajectories of any origin
+    (evaluated curves, or a dense model's frames: :mod:`bezmotion.bmm.ablations`).
+
+    Args:
+      dense: ``(windows, frames, 6, 3)`` positions (cm), :data:`CHARACTERISTIC_JOINTS` order.
+      contacts: ``(windows, controls, 2)`` foot-contact probabilities at the control frames.
+    """
     feet = dense[..., list(FEET), :]
     return {
-        # The curves at each handle's frame (on a control frame: its control position, exactly).
+        # The trajectories at each handle's frame (curves on a control frame: its control position, exactly).
         "handles_error_cm": float(handles_error(dense, handles.frame, handles.joint, handles.position, handles.valid)),
         "dense_error_cm": float(mean_position_error(dense, eval_set.dense_pos)),
         "foot_skating_ratio": float(foot_skating_ratio(feet, config.fps, floor_height=config.floor_height)),
-        "contact_accuracy": float(contact_accuracy(curves.contacts, eval_set.ctrl_contacts)),
+        "contact_accuracy": float(contact_accuracy(contacts, eval_set.ctrl_contacts)),
     }
 
 

@@ -29,29 +29,37 @@ STD_FLOOR = 1e-3  # features that never vary (e.g. a constant) must not divide b
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class FeatureStats:
-    """Per-(joint, feature) normalisation of control-point features.
+    """Per-(joint, feature) normalisation of control-point features (or of any per-joint
+    features whose first three are a position: the dense frames of the ablations).
 
     Attributes:
       mean, std: ``(joints, 12)`` over all training windows and control points, in the
         features' own units (cm for positions and tangents).
     """
 
-    mean: Float[Array, "joints 12"]
-    std: Float[Array, "joints 12"]
+    mean: Float[Array, "joints features"]
+    std: Float[Array, "joints features"]
 
     @classmethod
     def from_dataset(cls, dataset: CurveDataset) -> FeatureStats:
-        feats = np.asarray(control_features(dataset.ctrl_pos, dataset.ctrl_tangent, dataset.ctrl_rot6d), np.float64)
+        return cls.from_features(control_features(dataset.ctrl_pos, dataset.ctrl_tangent, dataset.ctrl_rot6d))
+
+    @classmethod
+    def from_features(cls, features: Float[Array | np.ndarray, "*batch joints features"]) -> FeatureStats:
+        """Mean and floored std per (joint, feature) over every leading axis (float64
+        accumulation), e.g. ``(windows, controls, 6, 12)`` control features or the dense
+        ``(windows, frames, joints, features)`` of :mod:`bezmotion.bmm.ablations`."""
+        feats = np.asarray(features, np.float64)
         flat = feats.reshape(-1, *feats.shape[-2:])
         return cls(
             jnp.asarray(flat.mean(axis=0), jnp.float32),
             jnp.asarray(np.maximum(flat.std(axis=0), STD_FLOOR), jnp.float32),
         )
 
-    def normalize(self, features: Float[Array, "*batch joints 12"]) -> Float[Array, "*batch joints 12"]:
+    def normalize(self, features: Float[Array, "*batch joints features"]) -> Float[Array, "*batch joints features"]:
         return (features - self.mean) / self.std
 
-    def denormalize(self, features: Float[Array, "*batch joints 12"]) -> Float[Array, "*batch joints 12"]:
+    def denormalize(self, features: Float[Array, "*batch joints features"]) -> Float[Array, "*batch joints features"]:
         return features * self.std + self.mean
 
     def normalize_positions(self, pos: Float[Array, "*batch 3"], joint) -> Float[Array, "*batch 3"]:

@@ -35,7 +35,7 @@ from bezmotion.diffusion.ddim import ddim_sample
 from bezmotion.diffusion.projection import project_off_grid
 from bezmotion.bmm.foot_lock import lock_feet
 from bezmotion.diffusion.schedule import cosine_schedule
-from bezmotion.bmm.denoiser import BMMConfig, init_denoiser
+from bezmotion.bmm.denoiser import BMMConfig, Conditions, init_denoiser
 from bezmotion.bmm.features import (
     FeatureStats,
     from_tokens,
@@ -219,6 +219,28 @@ def _shared_keys(chain: _Chain, num_controls: int, num_joints: int) -> Bool[Arra
     return shared_key_mask(chain.size, num_controls, num_joints)[jax.lax.axis_index(chain.axis)]
 
 
+def guided_denoiser(denoiser, conditions: Conditions, guidance: float):
+    """``denoise(x_t, t) -> (x̂₀, contact logits)`` for DDIM: ``denoiser(x_t, t, conditions)``,
+    with classifier-free guidance at scale ``guidance`` (``1.0``: the conditional pass alone).
+
+    Args:
+      denoiser: ``denoiser(x_t, t, conditions) -> (x̂₀, logits)``, e.g. :func:`predict_x0`
+        closed over a model and its statistics.
+      conditions: the normalised condition slots of one motion.
+      guidance: the guidance scale (static).
+    """
+
+    def denoise(x_t, t):
+        if guidance == 1.0:
+            return denoiser(x_t, t, conditions)
+        # Classifier-free guidance: the unconditional pass sees no condition at all.
+        both = jax.tree.map(lambda c, u: jnp.stack([c, u]), conditions, conditions._replace(valid=jnp.zeros_like(conditions.valid)))
+        x0, logits = jax.vmap(lambda c: denoiser(x_t, t, c))(both)
+        return x0[1] + guidance * (x0[0] - x0[1]), logits[0]
+
+    return denoise
+
+
 def _sample_one(
     model: BezierMotionModel,
     start,
@@ -248,13 +270,7 @@ def _sample_one(
     shared = None if chain is None else _shared_keys(chain, cfg.num_controls, cfg.num_joints)
     couple = (lambda x: x) if chain is None else functools.partial(_couple, chain=chain)
 
-    def denoise(x_t, t):
-        if guidance == 1.0:
-            return denoiser(x_t, t, normalized)
-        # Classifier-free guidance: the unconditional pass sees no condition at all.
-        both = jax.tree.map(lambda c, u: jnp.stack([c, u]), normalized, normalized._replace(valid=jnp.zeros_like(normalized.valid)))
-        x0, logits = jax.vmap(lambda c: denoiser(x_t, t, c))(both)
-        return x0[1] + guidance * (x0[0] - x0[1]), logits[0]
+    denoise = guided_denoiser(denoiser, normalized, guidance)
 
     def fix(x0_tokens):
         # Conditions on control frames replace their control positions (BMM's overwrite);
@@ -372,10 +388,10 @@ def _sample_curves(model, start, end, handles, key_rot6d, *, key, steps, guidanc
     if handles.position.shape[:-2] != batch:
         raise ValueError(f"handles must be batched like start {batch}, got {handles.position.shape[:-2]}")
     one = functools.partial(_sample_one, model, steps=steps, guidance=guidance, overwrite=overwrite, foot_lock=foot_lock)
-    return _over_batch(one, batch, key, start, end, handles, key_rot6d)
+    return over_batch(one, batch, key, start, end, handles, key_rot6d)
 
 
-def _over_batch(fn, batch: tuple[int, ...], key: Array, *args):
+def over_batch(fn, batch: tuple[int, ...], key: Array, *args):
     """``fn(*args, key)`` vmapped over the leading ``batch`` axes of every argument, each
     entry with its own key (``key`` itself when unbatched)."""
     n = int(np.prod(batch, dtype=int))
@@ -476,7 +492,7 @@ def _sample_chained_curves(model, key_pos, handles, key_rot6d, *, key, steps, gu
         # One vmap over the windows: its DDIM scans run as one batched loop.
         return jax.vmap(one, axis_name=CHAIN_AXIS)(start, end, handles, pairs, jax.random.split(key, windows))
 
-    return _over_batch(chain, batch, key, start, end, handles, pairs)
+    return over_batch(chain, batch, key, start, end, handles, pairs)
 
 
 STORAGE_DTYPES = ("float32", "float16", "bfloat16")

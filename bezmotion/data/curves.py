@@ -30,12 +30,14 @@ from bezmotion.bezier import DEFAULT_STRIDE, BezierLayout, fit_curves
 from bezmotion.data.cache import cached_arrays
 from bezmotion.data.characteristic import (
     CHARACTERISTIC_JOINTS,
+    HIPS,
     align_to_start,
     characteristic_indices,
     characteristic_trajectories,
     contact_labels,
 )
 from bezmotion.data.corpus import Corpus, MotionClips, check_split, motion_clips
+from bezmotion.geometry.skeleton import forward_kinematics
 
 DEFAULT_WINDOW = 31  # frames; BMM trains on 31-frame windows (§5.2)
 DEFAULT_OFFSET = 5  # frames between consecutive window starts
@@ -148,6 +150,40 @@ def characteristic_windows(
 def _aligned_trajectories(quat_local, pos_local, *, parents, indices):
     pos, rot6d = characteristic_trajectories(parents, indices, quat_local, pos_local)
     return align_to_start(pos)[0], rot6d
+
+
+def skeleton_windows(
+    clips: MotionClips,
+    mapping: str | Mapping[str, str],
+    *,
+    window: int = DEFAULT_WINDOW,
+    offset: int = DEFAULT_OFFSET,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Aligned positions of *every* joint of the skeleton in every window, without fitting
+    (the data of the full-skeleton ablation, :mod:`bezmotion.bmm.ablations`).
+
+    The windows and their alignment are :func:`characteristic_windows`' (the same
+    ``clip_index``/``start_frame`` for the same ``window`` and ``offset``, translated so
+    the characteristic hips start at the origin in XZ), so its six joints are this one's
+    joints ``characteristic_indices(clips.joint_names, mapping)``.
+
+    Returns:
+      ``(positions (windows, window, joints, 3) cm, clip_index (windows,), start_frame
+      (windows,))``, positions float32, joints in the skeleton's order.
+    """
+    hips = characteristic_indices(clips.joint_names, mapping)[HIPS]
+    clip_index, start_frame = clips.window_starts(window, offset)
+    pos = [np.zeros((0, window, len(clips.parents), 3), np.float32)]
+    for chunk in _chunks(clips, clip_index, start_frame, window):
+        pos.append(np.asarray(_aligned_skeleton(*chunk, parents=clips.parents, hips=hips)))
+    return np.concatenate(pos)[: len(clip_index)], clip_index, start_frame
+
+
+@functools.partial(jax.jit, static_argnames=("parents", "hips"))
+def _aligned_skeleton(quat_local, pos_local, *, parents, hips):
+    _, pos = forward_kinematics(parents, quat_local, pos_local)
+    translation = pos[..., 0, hips, :] * jnp.asarray([1.0, 0.0, 1.0], pos.dtype)  # align_to_start's, on the hips' joint
+    return pos - translation[..., None, None, :]
 
 
 def _chunks(
@@ -265,4 +301,5 @@ __all__ = [
     "build_curve_dataset",
     "characteristic_windows",
     "curve_dataset",
+    "skeleton_windows",
 ]
