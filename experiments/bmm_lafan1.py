@@ -145,6 +145,8 @@ class Options(DistributedOptions):
             raise ValueError(f"--also-corpus {self.also_corpus}: name a corpus other than --corpus {self.corpus}, without --bandai-namco")
         if self.holdout_contents and self.bandai_namco:
             raise ValueError("--holdout-contents holds out contents of --corpus; it cannot be combined with --bandai-namco")
+        if self.bandai_namco and self.corpus != "lafan1":
+            raise ValueError("--bandai-namco adds Bandai-Namco to LaFAN1 training; with --corpus bandai_namco it is already the corpus")
 
     def lever_suffix(self) -> str:
         """The run-folder suffix naming the levers that differ from the paper's training."""
@@ -160,8 +162,6 @@ class Options(DistributedOptions):
         if self.holdout_contents:
             parts.append("holdout-" + "-".join(p.replace("*", "") for p in self.holdout_contents))
         return "".join(f"_{p}" for p in parts)
-        if self.bandai_namco and self.corpus != "lafan1":
-            raise ValueError("--bandai-namco adds Bandai-Namco to LaFAN1 training; with --corpus bandai_namco it is already the corpus")
 
 
 def concat_datasets(parts: list[CurveDataset]) -> CurveDataset:
