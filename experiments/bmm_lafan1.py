@@ -186,7 +186,8 @@ def train(
         "model": dataclasses.asdict(model_config),
         "train": {**dataclasses.asdict(train_config), "seeds": list(args.seeds), "num_steps": args.steps},
     }
-    store.check_resumable(config)
+    # A constant learning rate does not depend on the run's length: --steps may grow to go on training.
+    store.check_resumable(config, extendable=("train.num_steps",) if train_config.lr_schedule == "constant" else ())
     started = time.perf_counter()
     data = CurveArrays.from_dataset(train_set)
     kwargs = dict(store=store, checkpoint_every=args.checkpoint_every, config=config, progress=not args.no_progress)

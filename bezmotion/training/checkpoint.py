@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from collections.abc import Collection
 from typing import Any
 
 import jax
@@ -46,6 +47,12 @@ def _flatten(tree: Any, prefix: str = "") -> dict[str, Any]:
     for key, value in tree.items():
         flat.update(_flatten(value, f"{prefix}.{key}" if prefix else str(key)))
     return flat
+
+
+def _grows(old: Any, new: Any) -> bool:
+    """Whether an extendable setting went from ``old`` to a number at least as large."""
+    numbers = (int, float)
+    return isinstance(old, numbers) and isinstance(new, numbers) and not isinstance(old, bool) and new >= old
 
 
 class CheckpointStore:
@@ -122,7 +129,7 @@ class CheckpointStore:
         path = self.directory / CONFIG_FILE
         return json.loads(path.read_text()) if path.exists() else None
 
-    def check_resumable(self, config: dict[str, Any]) -> None:
+    def check_resumable(self, config: dict[str, Any], extendable: Collection[str] = ()) -> None:
         """Refuse to resume checkpoints that were trained with another configuration.
 
         The one resume guard of every trainer: run it before :func:`run_training` restores
@@ -131,6 +138,9 @@ class CheckpointStore:
         Args:
           config: the configuration this run would save (compared as ``save`` writes it,
             so tuples equal lists and non-JSON values compare as their ``str``).
+          extendable: flattened keys (``"train.num_steps"``) that may grow but not shrink:
+            lengthening a run whose updates do not depend on its length (a constant
+            learning rate) continues the same trajectory, so it is a resume, not a new run.
 
         Raises:
           ValueError: naming every differing setting as ``section.key: saved → new``.
@@ -144,6 +154,7 @@ class CheckpointStore:
             f"{key}: {old_flat.get(key, _ABSENT)!r} → {new_flat.get(key, _ABSENT)!r}"
             for key in sorted(old_flat.keys() | new_flat.keys())
             if old_flat.get(key, _ABSENT) != new_flat.get(key, _ABSENT)
+            and not (key in extendable and _grows(old_flat.get(key), new_flat.get(key)))
         ]
         if differ:
             raise ValueError(

@@ -102,3 +102,18 @@ def test_the_resume_guard_names_every_differing_setting(tmp_path):
     assert "train.learning_rate: 0.001 → 0.002" in message and "train.warmup: (absent) → 5" in message
     assert "model" not in message.split("(", 1)[1]  # unchanged sections are not reported
     store.close()
+
+
+def test_an_extendable_setting_may_grow_but_not_shrink(tmp_path):
+    store = CheckpointStore(tmp_path / "run")
+    config = {"train": {"learning_rate": 0.001, "num_steps": 600}}
+    store.save(3, toy_state(0), config)
+    longer = {"train": {"learning_rate": 0.001, "num_steps": 2400}}
+    store.check_resumable(longer, extendable=("train.num_steps",))  # going on training
+    with pytest.raises(ValueError, match=r"train.num_steps: 600 → 2400"):
+        store.check_resumable(longer)  # not extendable unless the trainer says so
+    with pytest.raises(ValueError, match=r"train.num_steps: 600 → 300"):
+        store.check_resumable({"train": {"learning_rate": 0.001, "num_steps": 300}}, extendable=("train.num_steps",))
+    with pytest.raises(ValueError, match=r"train.learning_rate"):
+        store.check_resumable({"train": {"learning_rate": 0.002, "num_steps": 2400}}, extendable=("train.num_steps",))
+    store.close()
