@@ -120,6 +120,9 @@ class Options(DistributedOptions):
     warmup_steps: int = option(0, help="linear warm-up steps of the cosine schedule")
     augment_yaw: bool = option(False, help="turn every training window by a random angle about the vertical (ours)")
     augment_mirror: float = option(0.0, help="probability of mirroring a training window left/right (ours)")
+    ema_decay: float = option(
+        BMMTrainConfig.ema_decay, help="decay of the evaluated and saved parameters' moving average (paper: 0.999; its ~1/(1-decay)-step memory lags a short run)"
+    )
     holdout_contents: tuple[str, ...] = option(
         (), help="held-out contents: train without the clips whose content/action matches these patterns (e.g. 'wave-*' run), evaluate on all their windows too"
     )
@@ -157,6 +160,8 @@ class Options(DistributedOptions):
             parts.append("yaw")
         if self.augment_mirror:
             parts.append(f"mirror{self.augment_mirror:g}")
+        if self.ema_decay != BMMTrainConfig.ema_decay:
+            parts.append(f"ema{self.ema_decay:g}")
         if self.also_corpus:
             parts.append(f"also-{self.also_corpus}")
         if self.holdout_contents:
@@ -399,7 +404,7 @@ def main(argv: list[str] | None = None) -> dict:
         batch_size=args.batch_size, learning_rate=args.learning_rate, min_snr_gamma=args.min_snr_gamma or None,
         off_grid_handles=args.off_grid_handles, lr_schedule=args.lr_schedule, warmup_steps=args.warmup_steps,
         total_steps=args.steps if args.lr_schedule != "constant" else None, yaw_augmentation=args.augment_yaw,
-        mirror_augmentation=args.augment_mirror, rest_reflections=reflections,
+        mirror_augmentation=args.augment_mirror, rest_reflections=reflections, ema_decay=args.ema_decay,
     )  # fmt: skip
     metrics_config = None
     curve = None
@@ -439,7 +444,7 @@ def main(argv: list[str] | None = None) -> dict:
             "train_windows": len(train_set), "bandai_namco": bool(args.bandai_namco), "also_corpus": args.also_corpus, "wall_s_this_run": train_s,
             "lr_schedule": args.lr_schedule, "warmup_steps": args.warmup_steps, "augment_yaw": args.augment_yaw,
             "augment_mirror": args.augment_mirror, "rest_reflections": reflections, "holdout_contents": list(args.holdout_contents),
-            "history": history, "learning_curve": curve,
+            "ema_decay": args.ema_decay, "history": history, "learning_curve": curve,
         },
         "eval": {"n_windows": int(eval_set.start.shape[0]), "floor_height_cm": metrics_config.floor_height, "fps": val_set.fps},
         "ground_truth": ground_truth_metrics(metrics_config, eval_set),
