@@ -5,6 +5,7 @@ the LaFAN1 experiment end to end.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 
 import jax
@@ -208,15 +209,19 @@ def test_sample_in_chunks(eval_set):
     assert calls == [10]
 
 
-@requires_shared
-def test_bmm_lafan1_experiment_smoke(tmp_path, monkeypatch):
-    """The experiment end to end on the real LaFAN1 subset: tiny model, a few steps, a few windows."""
-    import importlib.util
-
+@pytest.fixture
+def experiment(monkeypatch):
+    """``experiments/bmm_lafan1.py`` loaded as a module, ``experiments/`` on ``sys.path`` for the test."""
     monkeypatch.syspath_prepend(str(REPO_ROOT / "experiments"))
     spec = importlib.util.spec_from_file_location("bmm_lafan1", REPO_ROOT / "experiments" / "bmm_lafan1.py")
-    experiment = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(experiment)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@requires_shared
+def test_bmm_lafan1_experiment_smoke(tmp_path, experiment):
+    """The experiment end to end on the real LaFAN1 subset: tiny model, a few steps, a few windows."""
     out = tmp_path / "bmm.json"
     args = ["--out", str(out), "--data", str(SHARED_DATA / "lafan1" / "lafan1-subset.zip"), "--config", "tiny",
             "--steps", "4", "--checkpoint-every", "2", "--eval-windows", "8", "--table6-steps", "5",
@@ -242,16 +247,10 @@ def test_bmm_lafan1_experiment_smoke(tmp_path, monkeypatch):
 
 
 @requires_shared
-def test_bmm_lafan1_levers_held_out_contents_and_learning_curve(tmp_path, monkeypatch):
+def test_bmm_lafan1_levers_held_out_contents_and_learning_curve(tmp_path, experiment):
     """Issue 12's protocol end to end on the real LaFAN1 subset: the push sequences held out,
     warm-up + cosine, yaw and mirror augmentation, a learning curve every 2 steps with the
     stopping rule; then the same command resumes with nothing to train and keeps the curve."""
-    import importlib.util
-
-    monkeypatch.syspath_prepend(str(REPO_ROOT / "experiments"))
-    spec = importlib.util.spec_from_file_location("bmm_lafan1", REPO_ROOT / "experiments" / "bmm_lafan1.py")
-    experiment = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(experiment)
     out = tmp_path / "levers.json"
     args = ["--out", str(out), "--data", str(SHARED_DATA / "lafan1" / "lafan1-subset.zip"), "--config", "tiny",
             "--steps", "4", "--checkpoint-every", "2", "--eval-windows", "6", "--table6-steps", "5",
