@@ -84,6 +84,10 @@ class Options:
     config: str = option("cpu", choices=presets(BMMConfig), help="model size, the BMM's presets (default cpu; tiny: smoke tests)")
     no_orientation: bool = option(False, help="minus_b: positions only (default: positions and ortho6D orientations, what the IK reads)")
     steps: int = option(6000, help="training steps (default 6000, as bmm_lafan1.py)")
+    stop_at: int | None = option(
+        None, help="train only up to this step of the --steps run (or take its checkpoint there, if kept) and evaluate it; "
+        "the same command without it (or with a later one) goes on training"
+    )  # fmt: skip
     batch_size: int = BMMTrainConfig.batch_size
     learning_rate: float = BMMTrainConfig.learning_rate
     min_snr_gamma: float = option(BMMTrainConfig.min_snr_gamma, help="Min-SNR-γ loss weighting (paper: 5; 0 = off)")
@@ -110,6 +114,8 @@ class Options:
                 raise ValueError(f"--{name.replace('_', '-')} must be ≥ 1, got {getattr(self, name)}")
         if self.eval_windows < 0:
             raise ValueError(f"--eval-windows must be ≥ 0, got {self.eval_windows}")
+        if self.stop_at is not None and not 1 <= self.stop_at <= self.steps:
+            raise ValueError(f"--stop-at must be in 1 … --steps ({self.steps}), got {self.stop_at}")
         if self.run_dir is None:
             suffix = "_positions" if self.no_orientation else ""
             object.__setattr__(self, "run_dir", str(runs_dir(f"ablation_{self.ablation}_{self.corpus}_{self.config}{suffix}")))
@@ -126,10 +132,19 @@ def train(args, config: DenseBMMConfig, train_config: BMMTrainConfig, arrays: De
     }
     store.check_resumable(saved)
     started = time.perf_counter()
-    data = DenseArrays(*(jnp.asarray(a) for a in arrays))  # on the device once, not per step
-    state, history = run_training(
-        step, state, data, num_steps=args.steps, store=store, checkpoint_every=args.checkpoint_every, config=saved, progress=not args.no_progress
-    )
+    stop = args.steps if args.stop_at is None else args.stop_at
+    latest = store.latest_step()
+    if latest is not None and latest > stop:  # an earlier point of a longer run: its checkpoint there
+        kept = sorted(int(d.name) for d in store.directory.iterdir() if d.name.isdigit())
+        if stop not in kept:
+            raise ValueError(f"--stop-at {stop}: {args.run_dir} is at step {latest} and keeps checkpoints {kept} only")
+        state = store.restore(state, step=stop)
+        history: list = []
+    else:
+        data = DenseArrays(*(jnp.asarray(a) for a in arrays))  # on the device once, not per step
+        state, history = run_training(
+            step, state, data, num_steps=stop, store=store, checkpoint_every=args.checkpoint_every, config=saved, progress=not args.no_progress
+        )
     store.close()
     return graphdef, state, history, time.perf_counter() - started
 
@@ -225,7 +240,7 @@ def main(argv: list[str] | None = None) -> dict:
         "ablation": args.ablation,
         "model": {"preset": args.config, **dataclasses.asdict(config), "params": count_parameters(model.params)},
         "training": {
-            "corpus": args.corpus, "steps": args.steps, "batch_size": args.batch_size, "learning_rate": args.learning_rate,
+            "corpus": args.corpus, "steps": args.steps if args.stop_at is None else args.stop_at, "schedule_steps": args.steps, "batch_size": args.batch_size, "learning_rate": args.learning_rate,
             "min_snr_gamma": train_config.min_snr_gamma, "ema_decay": args.ema_decay, "lr_schedule": args.lr_schedule, "warmup_steps": args.warmup_steps,
             "handle_frames": args.handle_frames, "seed": args.seed, "train_windows": num_train, "wall_s_this_run": train_s,
             "run_dir": args.run_dir, "history": history,

@@ -171,7 +171,7 @@ def test_presets_are_the_configs_classmethods_by_name():
 # ---------------------------------------------------------------- the real scripts
 
 EXPERIMENTS = ("ablations", "bezier_stride", "bmm_lafan1", "chained_segments", "character_profiles", "cross_skeleton", "delta_anidance",
-               "delta_lafan1", "ik_subsets", "lafan1_baselines", "motion_features", "train_ik")  # fmt: skip
+               "delta_lafan1", "ik_subsets", "lafan1_baselines", "motion_features", "table1", "train_ik")  # fmt: skip
 BENCHMARKS = ("bezier_fit", "bmm_inference", "bvh_parse", "delta_inference", "fk")
 _SIBLINGS = ("_common", "_delta", "_timing")  # the helper modules beside the scripts
 
