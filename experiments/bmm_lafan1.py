@@ -123,6 +123,9 @@ class Options(DistributedOptions):
     ema_decay: float = option(
         BMMTrainConfig.ema_decay, help="decay of the evaluated and saved parameters' moving average (paper: 0.999; its ~1/(1-decay)-step memory lags a short run)"
     )
+    parameters: str = option(
+        "ema", choices=("ema", "raw"), help="which trained parameters are evaluated and saved: the moving average (the paper; <run-dir>/model) or the raw ones (<run-dir>/model_raw)"
+    )
     holdout_contents: tuple[str, ...] = option(
         (), help="held-out contents: train without the clips whose content/action matches these patterns (e.g. 'wave-*' run), evaluate on all their windows too"
     )
@@ -444,7 +447,7 @@ def main(argv: list[str] | None = None) -> dict:
             "train_windows": len(train_set), "bandai_namco": bool(args.bandai_namco), "also_corpus": args.also_corpus, "wall_s_this_run": train_s,
             "lr_schedule": args.lr_schedule, "warmup_steps": args.warmup_steps, "augment_yaw": args.augment_yaw,
             "augment_mirror": args.augment_mirror, "rest_reflections": reflections, "holdout_contents": list(args.holdout_contents),
-            "ema_decay": args.ema_decay, "history": history, "learning_curve": curve,
+            "ema_decay": args.ema_decay, "evaluated_parameters": args.parameters, "history": history, "learning_curve": curve,
         },
         "eval": {"n_windows": int(eval_set.start.shape[0]), "floor_height_cm": metrics_config.floor_height, "fps": val_set.fps},
         "ground_truth": ground_truth_metrics(metrics_config, eval_set),
@@ -457,8 +460,9 @@ def main(argv: list[str] | None = None) -> dict:
     if args.model:
         models = {"saved": saved}
     else:
-        models = {str(seed): BezierMotionModel(jax.tree.map(lambda x: x[i], state.ema), stats, graphdef, model_config) for i, seed in enumerate(args.seeds)}
-        save_model(Path(args.run_dir) / "model", models[str(args.seeds[0])])
+        trained = state.ema if args.parameters == "ema" else state.params
+        models = {str(seed): BezierMotionModel(jax.tree.map(lambda x: x[i], trained), stats, graphdef, model_config) for i, seed in enumerate(args.seeds)}
+        save_model(Path(args.run_dir) / ("model" if args.parameters == "ema" else "model_raw"), models[str(args.seeds[0])])
     seed_keys = {name: jax.random.key((0 if args.model else int(name)) + 99) for name in models}
     for name, model in models.items():
         results["model"]["params"] = count_parameters(model.params)

@@ -244,6 +244,13 @@ def test_bmm_lafan1_experiment_smoke(tmp_path, experiment):
     assert section["bmm"]["0"]["id"]["handles_error_cm"] < 1e-3 and section["bmm"]["0"]["ood"]["handles_error_cm"] < 1e-3
     assert section["reference"]["id"]["handles_error_cm"] < 1e-3
     assert "off the control grid" in out2.with_suffix(".md").read_text()
+    # A larger --steps goes on training the same run (constant learning rate) from step 4;
+    # --parameters raw evaluates and saves the raw parameters instead of their average.
+    out3 = tmp_path / "longer.json"
+    longer_args = [str(out3) if a == str(out) else "6" if a == "4" else a for a in args]
+    longer = experiment.main([*longer_args, "--parameters", "raw"])
+    assert [h["step"] for h in longer["training"]["history"]][-1] == 6 and longer["training"]["evaluated_parameters"] == "raw"
+    assert (tmp_path / "run" / "model_raw" / "config.json").exists()
 
 
 @requires_shared
