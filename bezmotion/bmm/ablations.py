@@ -79,7 +79,7 @@ from bezmotion.data.corpus import MotionClips
 from bezmotion.data.curves import DEFAULT_OFFSET, DEFAULT_WINDOW, characteristic_windows, skeleton_windows
 from bezmotion.diffusion.ddim import ddim_sample
 from bezmotion.diffusion.schedule import DiffusionSchedule, cosine_schedule
-from bezmotion.training.checkpoint import CheckpointStore
+from bezmotion.training.checkpoint import CheckpointStore, save_model_folder
 from bezmotion.training.loop import shard_batch
 from bezmotion.training.state import TrainState, fresh_train_state
 from bezmotion.training.step import apply_gradients
@@ -509,9 +509,7 @@ _FORMAT = "bezmotion-dense-bmm-1"
 
 def save_dense_model(directory: str | os.PathLike, model: DenseMotionModel) -> None:
     """Write a trained ablation (parameters, statistics, config) to ``directory``, atomically."""
-    store = CheckpointStore(directory, max_to_keep=1)
-    store.save(0, {"params": model.params, "stats": model.stats}, {"format": _FORMAT, "model": dataclasses.asdict(model.config)})
-    store.close()
+    save_model_folder(directory, {"params": model.params, "stats": model.stats}, {"format": _FORMAT, "model": dataclasses.asdict(model.config)})
 
 
 def load_dense_model(directory: str | os.PathLike) -> DenseMotionModel:

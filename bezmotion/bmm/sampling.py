@@ -28,7 +28,7 @@ from flax import nnx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from bezmotion.xla_options import call_with_inference_options
-from bezmotion.training.checkpoint import CheckpointStore
+from bezmotion.training.checkpoint import CheckpointStore, save_model_folder
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.bezier import BezierLayout
 from bezmotion.diffusion.ddim import ddim_sample
@@ -511,10 +511,8 @@ def save_model(directory: str | os.PathLike, model: BezierMotionModel, *, storag
     """
     if storage_dtype not in STORAGE_DTYPES:
         raise ValueError(f"storage_dtype must be one of {STORAGE_DTYPES}, got {storage_dtype!r}")
-    store = CheckpointStore(directory, max_to_keep=1)
     params = cast_floating(model.params, jnp.dtype(storage_dtype))
-    store.save(0, {"params": params, "stats": model.stats}, {"model": dataclasses.asdict(model.config), "storage_dtype": storage_dtype})
-    store.close()
+    save_model_folder(directory, {"params": params, "stats": model.stats}, {"model": dataclasses.asdict(model.config), "storage_dtype": storage_dtype})
 
 
 def load_model(directory: str | os.PathLike) -> BezierMotionModel:

@@ -56,7 +56,7 @@ from jaxtyping import Array, ArrayLike, Float
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.geometry.rotations import quat_conjugate, quat_rotate
 from bezmotion.pipeline.transfer import facing_yaw
-from bezmotion.training import CheckpointStore, TrainState, apply_gradients, fresh_train_state, warmup_then_decay
+from bezmotion.training import CheckpointStore, TrainState, apply_gradients, fresh_train_state, save_model_folder, warmup_then_decay
 
 NUM_JOINTS = len(CHARACTERISTIC_JOINTS)
 _FORMAT = "bezmotion-motion-features-1"
@@ -380,10 +380,8 @@ def make_motion_feature_train_step(graphdef: nnx.GraphDef, stats: WindowStats, t
 
 def save_motion_features(directory: str | os.PathLike, extractor: MotionFeatureExtractor, **info) -> None:
     """Write a trained extractor (parameters and statistics; config and ``info`` as JSON) to ``directory``."""
-    store = CheckpointStore(directory, max_to_keep=1)
     config = {"format": _FORMAT, "model": dataclasses.asdict(extractor.config), **info}
-    store.save(0, {"params": extractor.params, "stats": extractor.stats}, config)
-    store.close()
+    save_model_folder(directory, {"params": extractor.params, "stats": extractor.stats}, config)
 
 
 def load_motion_features(directory: str | os.PathLike) -> MotionFeatureExtractor:

@@ -66,7 +66,7 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
-from bezmotion.training.checkpoint import CheckpointStore
+from bezmotion.training.checkpoint import CheckpointStore, save_model_folder
 from bezmotion.training.step import count_parameters  # its old home, re-exported (__all__)
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.geometry.rotations import matrix_from_rot6d, quat_from_matrix, rot6d_from_matrix, safe_norm
@@ -515,10 +515,8 @@ def character_from_json(data: dict[str, Any]) -> Character:
 
 def save_ik_model(directory: str | os.PathLike, model: ProtoResModel) -> None:
     """Write a trained learned IK (parameters; config and character as JSON) to ``directory``, atomically."""
-    store = CheckpointStore(directory, max_to_keep=1)
     config = {"format": _FORMAT, "model": dataclasses.asdict(model.config), "character": character_to_json(model.character)}
-    store.save(0, {"params": model.params}, config)
-    store.close()
+    save_model_folder(directory, {"params": model.params}, config)
 
 
 def load_ik_model(directory: str | os.PathLike) -> ProtoResModel:

@@ -6,7 +6,7 @@ build a ``step(state, data) -> (state, metrics)`` and hand it to :func:`run_trai
 (or :func:`train_with_learning_curve`, which evaluates every N steps and stops early).
 """
 
-from bezmotion.training.checkpoint import CONFIG_FILE, CheckpointStore
+from bezmotion.training.checkpoint import CONFIG_FILE, CheckpointStore, save_model_folder
 from bezmotion.training.learning_curve import StoppingRule, load_curve, train_with_learning_curve
 from bezmotion.training.loop import compile_train_step, data_mesh, run_training, shard_batch
 from bezmotion.training.optim import adamw_amsgrad_torch, scale_by_amsgrad_torch, warmup_then_decay
@@ -26,6 +26,7 @@ __all__ = [
     "fresh_train_state",
     "load_curve",
     "run_training",
+    "save_model_folder",
     "scale_by_amsgrad_torch",
     "shard_batch",
     "stack_seeds",

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 from pathlib import Path
 from collections.abc import Collection
 from typing import Any
@@ -22,7 +23,7 @@ import numpy as np
 import orbax.checkpoint as ocp
 
 from bezmotion.io import atomic_write_text
-from bezmotion.training.distributed import checkpoint_processes
+from bezmotion.training.distributed import checkpoint_processes, in_group
 
 CONFIG_FILE = "config.json"
 
@@ -164,3 +165,34 @@ class CheckpointStore:
 
     def close(self) -> None:
         self._manager.close()
+
+
+def save_model_folder(directory: str | os.PathLike, state: Any, config: dict[str, Any]) -> None:
+    """Write a finished model (``state`` as checkpoint 0, ``config`` as JSON) to ``directory``,
+    replacing any model saved there before.
+
+    A :class:`CheckpointStore` skips a step it already holds (a periodic save, then the final
+    one), so saving a retrained model over an old folder that way would keep the old
+    parameters beside the new config. Here the model is written to a sibling folder first
+    and swapped in, so a re-save replaces everything and an interrupted one leaves the old
+    model whole. One process writes: a single process, or one that has left its training
+    group (:func:`~bezmotion.training.distributed.leave_group`).
+
+    Raises:
+      RuntimeError: called while several processes train together.
+    """
+    if in_group():
+        raise RuntimeError(f"saving a model to {directory}: leave the training group first (one process writes a finished model)")
+    target = Path(directory).expanduser().absolute()
+    staging = target.with_name(f".{target.name}.saving-{os.getpid()}")
+    previous = target.with_name(f".{target.name}.replaced-{os.getpid()}")
+    for leftover in (staging, previous):
+        shutil.rmtree(leftover, ignore_errors=True)
+    store = CheckpointStore(staging, max_to_keep=1)
+    store.save(0, state, config)
+    store.close()
+    if target.exists():
+        target.rename(previous)
+    staging.rename(target)
+    shutil.rmtree(previous, ignore_errors=True)
+

@@ -121,6 +121,11 @@ def leave_group() -> None:
         _left_group = True
 
 
+def in_group() -> bool:
+    """Whether several processes are training together now (and have not left the group)."""
+    return jax.process_count() > 1 and not _left_group
+
+
 def checkpoint_processes() -> tuple[int, set[int] | None]:
     """The orbax primary host and active processes for a checkpoint written now: all
     processes while the group trains (``None``), this process alone once it has left."""
@@ -142,6 +147,7 @@ def localize(tree: Any) -> Any:
 
 __all__ = [
     "checkpoint_processes",
+    "in_group",
     "localize",
     "DistributedOptions",
     "check_process_layout",

@@ -11,7 +11,7 @@ import numpy as np
 import optax
 import pytest
 
-from bezmotion.training import CheckpointStore, TrainState, apply_gradients, compile_train_step, run_training
+from bezmotion.training import CheckpointStore, TrainState, apply_gradients, compile_train_step, run_training, save_model_folder
 
 OPTIMIZER = optax.adam(0.05)
 TARGET = jnp.asarray([1.0, -1.0, 0.5, 2.0])
@@ -117,3 +117,16 @@ def test_an_extendable_setting_may_grow_but_not_shrink(tmp_path):
     with pytest.raises(ValueError, match=r"train.learning_rate"):
         store.check_resumable({"train": {"learning_rate": 0.002, "num_steps": 2400}}, extendable=("train.num_steps",))
     store.close()
+
+
+def test_saving_a_model_over_an_old_one_replaces_it(tmp_path):
+    """A retrained model saved into the folder of an earlier one must replace its parameters
+    (a store alone skips a step it holds) and leave no staging folders behind."""
+    folder = tmp_path / "model"
+    save_model_folder(folder, toy_state(0), {"version": 1})
+    save_model_folder(folder, toy_state(7), {"version": 2})
+    store = CheckpointStore(folder, read_only=True)
+    assert_identical(store.restore(toy_state(0)), toy_state(7))
+    assert store.config() == {"version": 2}
+    store.close()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["model"]
