@@ -88,6 +88,10 @@ class Options:
         None, help="train only up to this step of the --steps run (or take its checkpoint there, if kept) and evaluate it; "
         "the same command without it (or with a later one) goes on training"
     )  # fmt: skip
+    raw_params: bool = option(
+        False, help="evaluate and save (to <run-dir>/model_raw) the raw parameters instead of their moving average: "
+        "a short run's average at decay 0.999 is still mostly the initialisation"
+    )  # fmt: skip
     batch_size: int = BMMTrainConfig.batch_size
     learning_rate: float = BMMTrainConfig.learning_rate
     min_snr_gamma: float = option(BMMTrainConfig.min_snr_gamma, help="Min-SNR-γ loss weighting (paper: 5; 0 = off)")
@@ -224,8 +228,9 @@ def main(argv: list[str] | None = None) -> dict:
     graphdef, state, history, train_s = train(args, config, train_config, arrays, stats)
     num_train = int(arrays.features.shape[0])
     del arrays
-    model = DenseMotionModel(state.ema, stats, graphdef, config)
-    save_dense_model(Path(args.run_dir) / "model", model)
+    model = DenseMotionModel(state.params if args.raw_params else state.ema, stats, graphdef, config)
+    model_dir = Path(args.run_dir) / ("model_raw" if args.raw_params else "model")
+    save_dense_model(model_dir, model)
 
     val_set = curve_dataset(corpus, "validation", progress=progress)
     eval_set = make_eval_set(val_set, key=jax.random.key(EVAL_KEY), num_windows=args.eval_windows or None)
@@ -242,7 +247,7 @@ def main(argv: list[str] | None = None) -> dict:
         "training": {
             "corpus": args.corpus, "steps": args.steps if args.stop_at is None else args.stop_at, "schedule_steps": args.steps, "batch_size": args.batch_size, "learning_rate": args.learning_rate,
             "min_snr_gamma": train_config.min_snr_gamma, "ema_decay": args.ema_decay, "lr_schedule": args.lr_schedule, "warmup_steps": args.warmup_steps,
-            "handle_frames": args.handle_frames, "seed": args.seed, "train_windows": num_train, "wall_s_this_run": train_s,
+            "handle_frames": args.handle_frames, "seed": args.seed, "train_windows": num_train, "evaluated_params": "raw" if args.raw_params else "ema", "wall_s_this_run": train_s,
             "run_dir": args.run_dir, "history": history,
         },  # fmt: skip
         "eval": {
@@ -258,7 +263,7 @@ def main(argv: list[str] | None = None) -> dict:
     }
     results["wall_s"] = time.perf_counter() - started
     write_results(args.out, results, format_report(results))
-    print(f"model in {Path(args.run_dir) / 'model'}")
+    print(f"model in {model_dir}")
     return results
 
 

@@ -544,6 +544,9 @@ def plot_table6(results: dict, path: Path) -> bool:
         steps = [int(st) for st in t]
         ax.plot(steps, [t[str(st)]["fid"] for st in steps], marker="o", label=f"BMM ({corpus})")
     ax.set_xscale("log")
+    ticks = sorted({int(st) for t in series.values() for st in t})
+    ax.set_xticks(ticks, [str(t) for t in ticks])
+    ax.minorticks_off()
     ax.set_xlabel("DDIM steps")
     ax.set_ylabel("FID (our extractor) ↓")
     ax.set_title("FID against inference steps (Figure 12 analogue)")
