@@ -29,6 +29,21 @@ CHARACTERISTIC_HELP = (
 )
 
 
+PARAMETER_CHOICES = ("ema", "raw")
+PARAMETERS_HELP = (
+    "which trained parameters are evaluated and saved: their moving average (the paper; <run-dir>/model) or the raw "
+    "ones (<run-dir>/model_raw; a short run's average at decay 0.999 is still mostly its initialisation)"
+)
+
+
+def trained_parameters(state, which: str):
+    """The parameters ``--parameters`` names (``"ema"`` or ``"raw"``) of a train state, and the
+    run-folder name they are saved under (``model`` or ``model_raw``)."""
+    if which not in PARAMETER_CHOICES:
+        raise ValueError(f"--parameters must be one of {PARAMETER_CHOICES}, got {which!r}")
+    return (state.ema, "model") if which == "ema" else (state.params, "model_raw")
+
+
 def runs_dir(*parts: str) -> Path:
     """``<cache>/runs/<parts…>``: where trainings keep checkpoints and saved models.
 

@@ -67,7 +67,7 @@ from bezmotion.io import write_results
 from bezmotion.metrics import mean_position_error
 from bezmotion.options import option, options, parse_options, presets
 from bezmotion.training import CheckpointStore, compile_train_step, count_parameters, data_mesh, run_training
-from _common import runs_dir
+from _common import PARAMETER_CHOICES, PARAMETERS_HELP, runs_dir, trained_parameters
 
 CORPORA = ("lafan1", "bandai_namco")
 EVAL_KEY = 1234  # bmm_lafan1.py's evaluation windows and handles
@@ -88,10 +88,7 @@ class Options:
         None, help="train only up to this step of the --steps run (or take its checkpoint there, if kept) and evaluate it; "
         "the same command without it (or with a later one) goes on training"
     )  # fmt: skip
-    raw_params: bool = option(
-        False, help="evaluate and save (to <run-dir>/model_raw) the raw parameters instead of their moving average: "
-        "a short run's average at decay 0.999 is still mostly the initialisation"
-    )  # fmt: skip
+    parameters: str = option("ema", choices=PARAMETER_CHOICES, help=PARAMETERS_HELP)
     batch_size: int = BMMTrainConfig.batch_size
     learning_rate: float = BMMTrainConfig.learning_rate
     min_snr_gamma: float = option(BMMTrainConfig.min_snr_gamma, help="Min-SNR-γ loss weighting (paper: 5; 0 = off)")
@@ -228,8 +225,9 @@ def main(argv: list[str] | None = None) -> dict:
     graphdef, state, history, train_s = train(args, config, train_config, arrays, stats)
     num_train = int(arrays.features.shape[0])
     del arrays
-    model = DenseMotionModel(state.params if args.raw_params else state.ema, stats, graphdef, config)
-    model_dir = Path(args.run_dir) / ("model_raw" if args.raw_params else "model")
+    trained, folder = trained_parameters(state, args.parameters)
+    model = DenseMotionModel(trained, stats, graphdef, config)
+    model_dir = Path(args.run_dir) / folder
     save_dense_model(model_dir, model)
 
     val_set = curve_dataset(corpus, "validation", progress=progress)
@@ -247,7 +245,7 @@ def main(argv: list[str] | None = None) -> dict:
         "training": {
             "corpus": args.corpus, "steps": args.steps if args.stop_at is None else args.stop_at, "schedule_steps": args.steps, "batch_size": args.batch_size, "learning_rate": args.learning_rate,
             "min_snr_gamma": train_config.min_snr_gamma, "ema_decay": args.ema_decay, "lr_schedule": args.lr_schedule, "warmup_steps": args.warmup_steps,
-            "handle_frames": args.handle_frames, "seed": args.seed, "train_windows": num_train, "evaluated_params": "raw" if args.raw_params else "ema", "wall_s_this_run": train_s,
+            "handle_frames": args.handle_frames, "seed": args.seed, "train_windows": num_train, "evaluated_parameters": args.parameters, "wall_s_this_run": train_s,
             "run_dir": args.run_dir, "history": history,
         },  # fmt: skip
         "eval": {

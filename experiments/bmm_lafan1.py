@@ -73,7 +73,7 @@ from bezmotion.pipeline.transfer import CharacterProfile, Transfer, transfer_cur
 from bezmotion.options import option, options, parse_options, presets
 from bezmotion.training import StoppingRule, compile_train_step, count_parameters, data_mesh, run_training, train_with_learning_curve
 from bezmotion.training.distributed import DistributedOptions, is_coordinator, leave_group
-from _common import matches_any, runs_dir, window_labels
+from _common import PARAMETER_CHOICES, PARAMETERS_HELP, matches_any, runs_dir, trained_parameters, window_labels
 
 DEFAULT_DATA = {name: default_source(name) for name in ("lafan1", "bandai_namco")}
 STEP_COUNTS = (5, 10, 25, 50, 100)
@@ -123,9 +123,7 @@ class Options(DistributedOptions):
     ema_decay: float = option(
         BMMTrainConfig.ema_decay, help="decay of the evaluated and saved parameters' moving average (paper: 0.999; its ~1/(1-decay)-step memory lags a short run)"
     )
-    parameters: str = option(
-        "ema", choices=("ema", "raw"), help="which trained parameters are evaluated and saved: the moving average (the paper; <run-dir>/model) or the raw ones (<run-dir>/model_raw)"
-    )
+    parameters: str = option("ema", choices=PARAMETER_CHOICES, help=PARAMETERS_HELP)
     holdout_contents: tuple[str, ...] = option(
         (), help="held-out contents: train without the clips whose content/action matches these patterns (e.g. 'wave-*' run), evaluate on all their windows too"
     )
@@ -460,9 +458,9 @@ def main(argv: list[str] | None = None) -> dict:
     if args.model:
         models = {"saved": saved}
     else:
-        trained = state.ema if args.parameters == "ema" else state.params
+        trained, folder = trained_parameters(state, args.parameters)
         models = {str(seed): BezierMotionModel(jax.tree.map(lambda x: x[i], trained), stats, graphdef, model_config) for i, seed in enumerate(args.seeds)}
-        save_model(Path(args.run_dir) / ("model" if args.parameters == "ema" else "model_raw"), models[str(args.seeds[0])])
+        save_model(Path(args.run_dir) / folder, models[str(args.seeds[0])])
     seed_keys = {name: jax.random.key((0 if args.model else int(name)) + 99) for name in models}
     for name, model in models.items():
         results["model"]["params"] = count_parameters(model.params)
