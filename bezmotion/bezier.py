@@ -260,6 +260,17 @@ class FitResult(NamedTuple):
         return self.result == optx.RESULTS.successful
 
 
+# The Gauss-Newton step's linear solve. LSMR (iterative, plain XLA ops) gives the same
+# minimum-norm solution as an SVD, to float32 round-off. Not lx.SVD: jaxlib's batched LAPACK
+# kernels fan the batch out into the XLA thread pool they run on, and when two such kernels
+# run at once on a 2-core machine both pool threads wait on work nobody can pick up — a
+# deadlock seen in experiments/pipeline_eval.py (gdb: two threads in lapack_sgesdd_ffi →
+# ParallelBatchMap → BlockingCounter::Wait, the main thread in block_until_ready).
+def _linear_solver(dtype) -> lx.LSMR:
+    eps = float(jnp.finfo(dtype).eps)  # the solve converged to round-off: an SVD's precision
+    return lx.LSMR(rtol=eps, atol=eps, max_steps=256)
+
+
 @functools.partial(jax.jit, static_argnames=("layout", "pin_positions", "rtol", "atol", "max_steps"))
 def fit_curves(
     layout: BezierLayout,
@@ -291,7 +302,7 @@ def fit_curves(
     more steps confirm it (three in all, so ``max_steps`` must be at least 3). Where the
     data do not fully determine the tangents (stride 1 — every frame is a control point —
     stride 2, or a 1-frame last segment) the linear solve is the minimum-norm correction
-    from the finite-difference tangents (SVD): the part the data leave free keeps its
+    from the finite-difference tangents (LSMR from a zero step): the part the data leave free keeps its
     finite-difference value instead of being arbitrary (at stride 1, all of it). The three coordinates of a curve are independent problems and are
     solved separately, which keeps every Jacobian at ``frames × (2·controls)``.
 
@@ -315,7 +326,7 @@ def fit_curves(
     w_pos, w_tan = (w.astype(points.dtype) for w in basis(layout))
     default_tol = float(jnp.finfo(points.dtype).eps) ** 0.5
     rtol, atol = (default_tol if tol is None else tol for tol in (rtol, atol))
-    solver = optx.GaussNewton(rtol=rtol, atol=atol, linear_solver=lx.SVD())
+    solver = optx.GaussNewton(rtol=rtol, atol=atol, linear_solver=_linear_solver(points.dtype))
     ctrl = layout.control_frames
 
     def solve_one(x):
