@@ -14,7 +14,10 @@ import hook that ``conftest`` installs.
 
 from __future__ import annotations
 
+import importlib.util
+import sys
 from collections.abc import Callable, Mapping, Sequence
+from types import ModuleType
 from pathlib import Path
 
 import jax
@@ -34,6 +37,20 @@ requires_shared = pytest.mark.skipif(
 )
 
 # ---------------------------------------------------------------------- NumPy references
+
+
+def load_experiment(name: str) -> ModuleType:
+    """``experiments/<name>.py`` loaded as a module (``experiments/`` on ``sys.path`` while it
+    runs its imports, as when the script is started from the command line)."""
+    folder = REPO_ROOT / "experiments"
+    sys.path.insert(0, str(folder))
+    try:
+        spec = importlib.util.spec_from_file_location(name, folder / f"{name}.py")
+        module = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(folder))
+    return module
 
 
 def np_quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:

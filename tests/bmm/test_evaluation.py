@@ -5,7 +5,6 @@ the LaFAN1 experiment end to end.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 
 import jax
@@ -13,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from helpers import REPO_ROOT, SHARED_DATA, assert_trees_identical, requires_shared
+from helpers import SHARED_DATA, assert_trees_identical, load_experiment, requires_shared
 from bmm.common import J, K
 
 from bezmotion.baselines import handle_interpolation
@@ -209,14 +208,9 @@ def test_sample_in_chunks(eval_set):
     assert calls == [10]
 
 
-@pytest.fixture
-def experiment(monkeypatch):
-    """``experiments/bmm_lafan1.py`` loaded as a module, ``experiments/`` on ``sys.path`` for the test."""
-    monkeypatch.syspath_prepend(str(REPO_ROOT / "experiments"))
-    spec = importlib.util.spec_from_file_location("bmm_lafan1", REPO_ROOT / "experiments" / "bmm_lafan1.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+@pytest.fixture(scope="module")
+def experiment():
+    return load_experiment("bmm_lafan1")
 
 
 @requires_shared

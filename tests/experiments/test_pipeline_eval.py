@@ -8,7 +8,6 @@ that clip played forward then back (79 frames: room for chains of two windows).
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import json
 import shutil
 
@@ -19,19 +18,14 @@ import pytest
 from bezmotion.assets import DEMO_CLIP
 from bezmotion.bmm.evaluation import make_eval_set
 from bezmotion.data.bvh import read_bvh, write_bvh
-from helpers import REPO_ROOT, assert_trees_identical
+from helpers import assert_trees_identical, load_experiment
 
 METRICS = {"handles_error_cm", "handles_error_max_cm", "unreachable_fraction", "mpjpe_cm", "foot_skating_ratio", "key_pop_deg"}
 
 
 @pytest.fixture(scope="module")
 def experiment():
-    with pytest.MonkeyPatch.context() as mp:
-        mp.syspath_prepend(str(REPO_ROOT / "experiments"))
-        spec = importlib.util.spec_from_file_location("pipeline_eval", REPO_ROOT / "experiments" / "pipeline_eval.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-    return module
+    return load_experiment("pipeline_eval")
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,6 @@ ones saved into the test's folder (the bundled learned IK), so only the plumbing
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 import shutil
@@ -19,7 +18,7 @@ import numpy as np
 import pytest
 
 from bmm.common import TINY
-from helpers import REPO_ROOT
+from helpers import load_experiment
 
 from bezmotion.assets import DEMO_CLIP
 from bezmotion.bmm.ablations import DenseBMMConfig, DenseMotionModel, dense_windows, save_dense_model
@@ -41,12 +40,7 @@ from bezmotion.evaluation.motion_features import (
 
 @pytest.fixture(scope="module")
 def experiment():
-    with pytest.MonkeyPatch.context() as mp:
-        mp.syspath_prepend(str(REPO_ROOT / "experiments"))
-        spec = importlib.util.spec_from_file_location("table1", REPO_ROOT / "experiments" / "table1.py")
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-    return module
+    return load_experiment("table1")
 
 
 @pytest.fixture(scope="module")
