@@ -15,6 +15,7 @@ import hook that ``conftest`` installs.
 from __future__ import annotations
 
 import importlib.util
+import re
 import sys
 from collections.abc import Callable, Mapping, Sequence
 from types import ModuleType
@@ -293,3 +294,11 @@ def without_key_bias(tree):
         return x
 
     return jax.tree_util.tree_map_with_path(strip, tree)
+
+
+def lapack_calls(fn: Callable, *args, **kwargs) -> set[str]:
+    """The LAPACK kernels ``jax.jit(fn)(*args, **kwargs)`` would call (from its lowering,
+    nothing is compiled). Our code must call none: see :mod:`bezmotion.linalg` for the
+    deadlock jaxlib's batched CPU kernels cause."""
+    text = jax.jit(fn).lower(*args, **kwargs).as_text()
+    return {name for name in re.findall(r"custom_call @(\w+)", text) if "lapack" in name.lower()}

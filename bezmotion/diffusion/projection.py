@@ -26,6 +26,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from bezmotion.bezier import BezierLayout, basis
+from bezmotion.linalg import min_norm_solve
 
 
 def on_control_frame(layout: BezierLayout, frame: Int[ArrayLike, "*shape"]) -> tuple[Bool[Array, "*shape"], Int[Array, "*shape"]]:
@@ -61,7 +62,7 @@ def project_off_grid(
     on control frames, padding (``valid=False``) and the positions marked ``fixed`` (set by
     grid constraints, which the caller has already written) do not move anything;
     constraints with no off-grid handle give exactly the input back. Fixed positions and
-    tangents come back bit for bit (the pseudo-inverse's rows for them are zero only to
+    tangents come back bit for bit (the solve's moves for them are zero only to
     round-off, so they are restored rather than trusted).
 
     Args:
@@ -75,7 +76,8 @@ def project_off_grid(
         curves, broadcastable to ``(joints, 3)``.
       fixed_tangent: ``(controls, joints)`` control tangents that must not change either
         (e.g. a tangent shared with the next window of a chain); default none. A joint whose
-        handles then outnumber its free variables in a stride gets the least-squares fit.
+        handles then outnumber its free variables in a stride meets them in slot order as
+        far as the variables allow (:func:`bezmotion.linalg.min_norm_solve`).
     Returns:
       ``(ctrl_pos, ctrl_tangent)`` corrected, same space as the inputs.
     """
@@ -104,9 +106,9 @@ def project_off_grid(
     a_pos = jnp.where(owns[:, None, :, None] & free[:, None, None, :], w_pos[None, None] * pos_std[:, :, None, None], 0.0)
     a_tan = jnp.where(owns[:, None, :, None] & free_tan[:, None, None, :], w_tan[None, None] * tangent_std[:, :, None, None], 0.0)
     a = jnp.concatenate([a_pos, a_tan], axis=-1)  # (J, 3, H, 2K)
-    # Pseudo-inverse, not a solve: identical duplicate handles make A rank-deficient, and
+    # Minimum-norm solve of any rank: identical duplicate handles make A rank-deficient, and
     # zero rows (no off-grid handle) must give a zero correction, not a division by zero.
-    delta = jnp.einsum("jdkh,jhd->jdk", jnp.linalg.pinv(a), residual)  # (J, 3, 2K)
+    delta = min_norm_solve(a, jnp.moveaxis(residual, -1, 1))  # (J, 3, 2K)
     delta = jnp.moveaxis(delta, -1, 0)  # (2K, J, 3)
     return (
         jnp.where(fixed[..., None], ctrl_pos, ctrl_pos + delta[:k]),

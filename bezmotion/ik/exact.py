@@ -67,6 +67,7 @@ from bezmotion.geometry.rotations import (
     safe_norm,
 )
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, pose_fk
+from bezmotion.linalg import cholesky_solve
 
 # A joint without limits: a range wider than any rotation's logarithm (|log| ≤ π).
 _UNLIMITED = 1e3
@@ -432,7 +433,7 @@ def _step(params: ExactIKParams, problem: _Problem, delta: Array, root_delta: Ar
     rows = jac_free.shape[0]
     schur = jd_free.reshape(rows, -1) @ jac_free.reshape(rows, -1).T + jd_root @ jac_root.T + jnp.diag(1.0 / row_weight_sq)
     rhs = res - jnp.einsum("rfa,fa->r", jd_free, block_grad) - jd_root @ root_grad
-    mu = jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(schur), rhs)
+    mu = cholesky_solve(schur, rhs)
     move_free = -jnp.einsum("fab,fb->fa", inv_blocks, block_grad + jnp.einsum("rfa,r->fa", jac_free, mu))
     move_root = -(root_grad + jac_root.T @ mu) / root_block
     return move_free, move_root

@@ -21,8 +21,9 @@ from jaxtyping import Array, Float
 from bezmotion.bmm.sampling import SampledCurves
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.data.curves import CurveDataset
-from bezmotion.geometry.rotations import matrix_from_quat, quat_conjugate, quat_from_matrix, quat_from_rot6d, quat_mul, rot6d_from_quat
+from bezmotion.geometry.rotations import quat_conjugate, quat_from_rot6d, quat_mul, rot6d_from_quat
 from bezmotion.ik.protocol import Character, Pose, targets_from_pose
+from bezmotion.linalg import top_eigenvector
 
 LEFT = tuple(CHARACTERISTIC_JOINTS.index(j) for j in ("left_hand", "left_foot"))
 RIGHT = tuple(CHARACTERISTIC_JOINTS.index(j) for j in ("right_hand", "right_foot"))
@@ -44,10 +45,14 @@ def facing_yaw(positions: Float[Array, "*batch 6 3"]) -> Float[Array, "*batch 4"
 
 
 def mean_rotation(quat: Float[Array, "samples 4"]) -> Float[Array, "4"]:
-    """Chordal mean of rotations: the rotation nearest (Frobenius) to the mean matrix."""
-    u, _, vt = jnp.linalg.svd(matrix_from_quat(quat).mean(0))
-    d = jnp.sign(jnp.linalg.det(u @ vt))
-    return quat_from_matrix(u @ jnp.diag(jnp.asarray([1.0, 1.0, 1.0], quat.dtype).at[2].set(d)) @ vt)
+    """Chordal mean of rotations: the rotation nearest (Frobenius) to the mean matrix.
+
+    ``tr(R(q)ᵀ R(qᵢ)) = 4 (q·qᵢ)² − 1``, so that rotation is the top eigenvector of the mean
+    quaternion outer product (Markley's average; the same as an SVD of the mean matrix,
+    without LAPACK: :mod:`bezmotion.linalg`). Returned with ``w ≥ 0``.
+    """
+    mean = top_eigenvector(jnp.einsum("si,sj->ij", quat, quat) / quat.shape[0])
+    return jnp.where(mean[:1] < 0, -mean, mean)
 
 
 @dataclasses.dataclass(frozen=True)

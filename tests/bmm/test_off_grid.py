@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from helpers import assert_trees_close, assert_trees_identical
+from helpers import assert_trees_close, assert_trees_identical, lapack_calls
 from bmm.common import J, K, RESIDUAL, TINY
 
 from bezmotion.bezier import BezierLayout, basis, evaluate
@@ -176,6 +176,20 @@ def _old_sampler(model, start, end, control, joint, position, valid, key, steps)
     x0, _ = ddim_sample(lambda x, t: denoise(x, t), cosine_schedule(cfg.num_timesteps), x_T, steps=steps, overwrite=fix, has_aux=True)
     pos, tangent, _ = split_features(stats.denormalize(from_tokens(x0)))
     return jnp.where(mask[..., None], world_target, pos + translation), tangent
+
+
+def test_sampler_has_no_lapack_calls(model, motion):
+    """The projection at every DDIM step stays in plain XLA ops (``bezmotion.linalg``):
+    jaxlib's batched LAPACK kernels can deadlock each other on a 2-core CPU."""
+    start, end, pos = motion
+    handles = Handles(
+        joint=jnp.asarray([[2, 0]], jnp.int32).repeat(2, 0),
+        frame=jnp.asarray([[13, 12]], jnp.int32).repeat(2, 0),
+        position=jnp.asarray(pos[:, 2, :2], jnp.float32),
+        valid=jnp.ones((2, 2), bool),
+    )
+    sample = lambda s, e, h: sample_curves(model, s, e, h, key=jax.random.key(0), steps=2)
+    assert lapack_calls(sample, start, end, handles) == set()
 
 
 def test_grid_handles_sample_as_before(model, motion):

@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 from conftest import synthetic_clip
+from helpers import lapack_calls
 
 from bezmotion.assets import BUNDLED_IK, DEMO_CLIP
 from bezmotion.data.bvh import read_bvh
@@ -119,6 +120,13 @@ def test_finite_gradients(bandai):
 
     grad = jax.jit(jax.grad(loss))(one.position)
     assert np.all(np.isfinite(grad)) and float(jnp.max(jnp.abs(grad))) > 0.0
+
+
+def test_no_lapack_calls(bandai):
+    """The solve stays in plain XLA ops (``bezmotion.linalg``): jaxlib's batched LAPACK
+    kernels can deadlock each other on a 2-core CPU."""
+    targets = targets_from_pose(bandai.character, bandai.truth)
+    assert lapack_calls(lambda t: bandai.solve(bandai.params, t), targets) == set()
 
 
 def test_composes_with_learned_ik_and_window_solve(bandai):
