@@ -1,12 +1,17 @@
-"""Train one of the paper's dense ablations of the BMM and evaluate it like the BMM (Table 1 rows BMM⁻ᴮ, BMM⁻ᴵᴷ⁻ᴮ).
+"""Train one of the paper's dense ablations of the BMM or its CondMDIᴳ baseline and evaluate
+it like the BMM (Table 1 rows BMM⁻ᴮ, BMM⁻ᴵᴷ⁻ᴮ, CondMDIᴳ).
 
     python experiments/ablations.py --ablation minus_b --out results/ablation_minus_b_lafan1.json
     python experiments/ablations.py --ablation minus_ik_b --out results/ablation_minus_ik_b_lafan1.json
+    python experiments/ablations.py --ablation condmdi_g --out results/ablation_condmdi_g_lafan1.json
 
 ``--ablation minus_b`` is BMM⁻ᴮ: the BMM's transformer generating the six characteristic
 joints' positions (and ortho6D orientations; ``--no-orientation``: positions only) at every
 frame instead of Bézier control points. ``--ablation minus_ik_b`` is BMM⁻ᴵᴷ⁻ᴮ: every joint of
-the corpus skeleton at every frame, positions only, no IK. Both are conditioned like the
+the corpus skeleton at every frame, positions only, no IK. ``--ablation condmdi_g`` is
+CondMDIᴳ: the same data as BMM⁻ᴵᴷ⁻ᴮ from a 1-D temporal UNet with the conditions as input
+channels, sampled with classifier-free guidance 2.5 (``--guidance``; trained with
+``--condition-dropout`` 0.1). All are conditioned like the
 BMM (start and end of the six joints, 0–4 handles) and trained with its optimiser, loss
 weights and defaults (``--steps``, ``--batch-size``, ``--learning-rate``, ``--min-snr-gamma``,
 ``--lr-schedule``: bmm_lafan1.py's), checkpointing into ``--run-dir`` (default
@@ -20,7 +25,7 @@ steps; handles error, dense six-joint error, foot-skating ratio and contact accu
 six joints' trajectories (:func:`~bezmotion.bmm.evaluation.trajectory_metrics`), per
 ``--overwrite`` mode (``keys``: start and end written in, the paper's setting for the
 ablation; ``all``: the handles too, at their own frame), beside the mocap and the
-non-learned reference. BMM⁻ᴵᴷ⁻ᴮ also reports the dense error of the whole skeleton.
+non-learned reference. BMM⁻ᴵᴷ⁻ᴮ and CondMDIᴳ also report the dense error of the whole skeleton.
 Writes the JSON, a Markdown report beside it, and the model under ``<run-dir>/model``.
 """
 
@@ -77,11 +82,12 @@ EVAL_KEY = 1234  # bmm_lafan1.py's evaluation windows and handles
 class Options:
     out: str = option(help="output JSON (a .md report is written beside it)")
     ablation: str = option(
-        "minus_b", choices=ABLATIONS, help="minus_b: dense six-joint trajectories (BMM⁻ᴮ); minus_ik_b: the dense full skeleton, no IK (BMM⁻ᴵᴷ⁻ᴮ)"
-    )
+        "minus_b", choices=ABLATIONS, help="minus_b: dense six-joint trajectories (BMM⁻ᴮ); minus_ik_b: the dense full skeleton, no IK (BMM⁻ᴵᴷ⁻ᴮ); "
+        "condmdi_g: the dense full skeleton from a 1-D UNet with classifier-free guidance (CondMDIᴳ)"
+    )  # fmt: skip
     corpus: str = option("lafan1", choices=CORPORA, help="training and evaluation corpus (default lafan1)")
     data: str | None = option(None, help="the corpus archive or folder (default: the corpus's archive under ../shared/data)")
-    config: str = option("cpu", choices=presets(BMMConfig), help="model size, the BMM's presets (default cpu; tiny: smoke tests)")
+    config: str = option("cpu", choices=presets(BMMConfig), help="model size, the BMM's presets (default cpu; tiny: smoke tests); condmdi_g: its UNet's")
     no_orientation: bool = option(False, help="minus_b: positions only (default: positions and ortho6D orientations, what the IK reads)")
     steps: int = option(6000, help="training steps (default 6000, as bmm_lafan1.py)")
     stop_at: int | None = option(
@@ -95,6 +101,9 @@ class Options:
     ema_decay: float = option(BMMTrainConfig.ema_decay, help="decay of the evaluated parameters' moving average (paper: 0.999; a short smoke run wants less)")
     lr_schedule: str = option("constant", choices=LR_SCHEDULES, help="learning rate: constant (the paper) or cosine (warm-up, then decay to 0.1×)")
     warmup_steps: int = option(0, help="linear warm-up steps of the cosine schedule")
+    condition_dropout: float = option(
+        BMMTrainConfig.condition_dropout, help="classifier-free guidance: probability of dropping a training example's conditions (CondMDI, the BMM: 0.1)"
+    )  # fmt: skip
     handle_frames: str = option("any", choices=HANDLE_FRAMES, help="training handles' frames: any (default) 1…29, grid (the BMM's control frames) or off_grid")
     seed: int = 0
     run_dir: str | None = option(None, help="checkpoints and the final model (default: <cache>/runs/ablation_<ablation>_<corpus>_<config>)")
@@ -104,7 +113,7 @@ class Options:
     overwrite: tuple[str, ...] = option(
         ("keys", "all"), choices=OVERWRITE_MODES, help="overwrite modes evaluated: none, keys (start and end; the paper's), all (handles too)"
     )
-    guidance: float = option(1.0, help="classifier-free guidance scale at sampling (1 = off)")
+    guidance: float | None = option(None, help="classifier-free guidance scale at sampling (1 = off; default: the model's, 2.5 for condmdi_g, else 1)")
     no_progress: bool = False
 
     def __post_init__(self):
@@ -113,6 +122,10 @@ class Options:
         for name in ("steps", "batch_size", "eval_steps", "checkpoint_every"):
             if getattr(self, name) < 1:
                 raise ValueError(f"--{name.replace('_', '-')} must be ≥ 1, got {getattr(self, name)}")
+        if not 0.0 <= self.condition_dropout < 1.0:
+            raise ValueError(f"--condition-dropout must be in [0, 1), got {self.condition_dropout}")
+        if self.guidance is not None and not self.guidance >= 0.0:
+            raise ValueError(f"--guidance must be ≥ 0, got {self.guidance}")
         if self.eval_windows < 0:
             raise ValueError(f"--eval-windows must be ≥ 0, got {self.eval_windows}")
         if self.stop_at is not None and not 1 <= self.stop_at <= self.steps:
@@ -174,7 +187,10 @@ def evaluate(args, model: DenseMotionModel, metrics_config: CurveMetricsConfig, 
 
 def format_report(results: dict) -> str:
     r = results
-    name = {"minus_b": "BMM⁻ᴮ (dense six-joint trajectories)", "minus_ik_b": "BMM⁻ᴵᴷ⁻ᴮ (dense full skeleton, no IK)"}[r["ablation"]]
+    name = {
+        "minus_b": "BMM⁻ᴮ (dense six-joint trajectories)", "minus_ik_b": "BMM⁻ᴵᴷ⁻ᴮ (dense full skeleton, no IK)",
+        "condmdi_g": f"CondMDIᴳ (dense full skeleton, 1-D UNet, guidance {r['eval']['guidance']})",
+    }[r["ablation"]]  # fmt: skip
     t, e = r["training"], r["eval"]
     lines = [
         f"{name} on {t['corpus']}: config {r['model']['preset']} ({r['model']['params']} parameters), {t['steps']} steps of batch "
@@ -196,7 +212,7 @@ def format_report(results: dict) -> str:
     lines.append(row("reference: curves through start, end, handles", r["reference"]["id"], r["reference"]["ood"]))
     for mode, m in r["ablation_metrics"].items():
         lines.append(row(f"{r['ablation']}, overwrite {mode}", m["id"], m["ood"]))
-    if r["ablation"] == "minus_ik_b":
+    if r["ablation"] != "minus_b":
         lines += ["", "Full-skeleton dense error (cm, ID / OOD): " + ", ".join(
             f"overwrite {mode} {m['id']['skeleton_dense_error_cm']:.3f} / {m['ood']['skeleton_dense_error_cm']:.3f}" for mode, m in r["ablation_metrics"].items()
         )]  # fmt: skip
@@ -212,14 +228,17 @@ def main(argv: list[str] | None = None) -> dict:
     train_clips = motion_clips(corpus, "train")
     if args.ablation == "minus_b":
         config = DenseBMMConfig.minus_b(args.config, orientation=not args.no_orientation)
-    else:
+    elif args.ablation == "minus_ik_b":
         config = DenseBMMConfig.minus_ik_b(train_clips.joint_names, mapping, args.config)
+    else:
+        config = DenseBMMConfig.condmdi_g(train_clips.joint_names, mapping, args.config)
     arrays, _, _ = dense_windows(train_clips, mapping, config)
     stats = FeatureStats.from_features(arrays.features)
     # floor_height_from of the training curves: these are the same windows' ankles.
     floor = float(np.percentile(arrays.characteristic_positions(config)[..., list(FEET), 1], 5.0))
     train_config = BMMTrainConfig(
         batch_size=args.batch_size, learning_rate=args.learning_rate, min_snr_gamma=args.min_snr_gamma or None, ema_decay=args.ema_decay,
+        condition_dropout=args.condition_dropout,
         lr_schedule=args.lr_schedule, warmup_steps=args.warmup_steps, total_steps=args.steps if args.lr_schedule != "constant" else None,
     )  # fmt: skip
     graphdef, state, history, train_s = train(args, config, train_config, arrays, stats)
@@ -235,7 +254,7 @@ def main(argv: list[str] | None = None) -> dict:
     layout = BezierLayout(config.num_frames)  # the BMM's control frames: where the contact labels are
     metrics_config = CurveMetricsConfig(layout, val_set.fps, floor)
     skeleton = None
-    if config.variant == "minus_ik_b":
+    if config.full_skeleton:
         pos, clip_index, start_frame = skeleton_windows(motion_clips(corpus, "validation"), mapping, window=config.num_frames)
         assert np.array_equal(clip_index, val_set.clip_index) and np.array_equal(start_frame, val_set.start_frame)
         skeleton = pos[eval_set.rows]
@@ -250,7 +269,7 @@ def main(argv: list[str] | None = None) -> dict:
         },  # fmt: skip
         "eval": {
             "n_windows": int(eval_set.start.shape[0]), "floor_height_cm": floor, "fps": val_set.fps, "eval_steps": args.eval_steps,
-            "guidance": args.guidance, "key": EVAL_KEY,
+            "guidance": config.default_guidance if args.guidance is None else args.guidance, "key": EVAL_KEY,
         },  # fmt: skip
         "ground_truth": ground_truth_metrics(metrics_config, eval_set),
         "reference": {

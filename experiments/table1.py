@@ -19,12 +19,14 @@ diversity and multimodality; and its Table 6 / Figure 12 (FID against DDIM steps
 - ``bmm_minus_b``: BMM⁻ᴮ's dense six-joint trajectories (position + ortho6D) after the
   learned IK, as the paper measures it (``--minus-b``; overwrite ``keys``);
 - ``bmm_minus_ik_b``: BMM⁻ᴵᴷ⁻ᴮ's dense full skeleton, no IK (``--minus-ik-b``);
-- ``condmdi_g``: not implemented (``null``).
+- ``condmdi_g``: CondMDIᴳ's dense full skeleton (a 1-D UNet, no IK), evaluated exactly as
+  ``bmm_minus_ik_b`` (overwrite ``keys``), at its classifier-free guidance 2.5
+  (``--condmdi-g``).
 
 Trained models are reused from their standard run folders (``<cache>/runs/…``, the
 defaults of ``experiments/bmm_lafan1.py``, ``train_ik.py``, ``ablations.py`` at ``--config
 cpu``); ``--bmm CORPUS=PATH`` (and ``--ik-model``, ``--minus-b``, ``--minus-ik-b``,
-``--data``) point elsewhere.
+``--condmdi-g``, ``--data``) point elsewhere.
 
 **Windows.** ``--windows`` validation windows (LaFAN1 subject 5, Bandai-Namco's validation
 takes) and their 1–4 handles on control frames, in distribution and OOD (±16 cm):
@@ -97,7 +99,6 @@ CORPORA = ("bandai_namco", "lafan1")
 ROWS = ("mocap", "reference", "bmm", "bmm_exact", "bmm_minus_b", "bmm_minus_ik_b", "condmdi_g")
 METRICS = ("handles_error_cm", "ood_handles_error_cm", "foot_skating_ratio", "fid", "diversity", "multimodality")
 IKS = ("learned", "exact")
-CONDMDI_MISSING = "CondMDIᴳ (a 1-D UNet over dense positions, classifier-free guidance 2.5) is not implemented in bezmotion"
 MM_KEY = 1_000_003  # folded into a window's key for its multimodality samples (not its Table 1 sample)
 
 TRAIN_COMMANDS = {
@@ -106,7 +107,10 @@ TRAIN_COMMANDS = {
     "ik": "python experiments/train_ik.py --corpus {corpus}",
     "bmm_minus_b": "python experiments/ablations.py --corpus {corpus} --ablation minus_b --out results/ablation_minus_b_{corpus}.json",
     "bmm_minus_ik_b": "python experiments/ablations.py --corpus {corpus} --ablation minus_ik_b --out results/ablation_minus_ik_b_{corpus}.json",
+    "condmdi_g": "python experiments/ablations.py --corpus {corpus} --ablation condmdi_g --out results/ablation_condmdi_g_{corpus}.json",
 }
+DENSE_ROWS = {"bmm_minus_b": "minus_b", "bmm_minus_ik_b": "minus_ik_b", "condmdi_g": "condmdi_g"}  # row: its model option
+DENSE_LABELS = {"minus_b": "BMM⁻ᴮ (minus_b)", "minus_ik_b": "BMM⁻ᴵᴷ⁻ᴮ (minus_ik_b)", "condmdi_g": "CondMDIᴳ (condmdi_g)"}
 
 
 @options
@@ -119,6 +123,7 @@ class Options:
     ik_model: tuple[str, ...] = option((), repeat=True, metavar="CORPUS=PATH", help="a saved learned IK (default: bundled for bandai_namco, <cache>/runs/ik_<corpus>/model)")
     minus_b: tuple[str, ...] = option((), repeat=True, metavar="CORPUS=PATH", help="a saved BMM⁻ᴮ (default <cache>/runs/ablation_minus_b_<corpus>_cpu/model)")
     minus_ik_b: tuple[str, ...] = option((), repeat=True, metavar="CORPUS=PATH", help="a saved BMM⁻ᴵᴷ⁻ᴮ (default <cache>/runs/ablation_minus_ik_b_<corpus>_cpu/model)")
+    condmdi_g: tuple[str, ...] = option((), repeat=True, metavar="CORPUS=PATH", help="a saved CondMDIᴳ (default <cache>/runs/ablation_condmdi_g_<corpus>_cpu/model)")
     ik: tuple[str, ...] = option(IKS, choices=IKS, help="IKs after the BMM: learned (row bmm), exact (row bmm_exact)")
     rows: tuple[str, ...] = option(ROWS, choices=ROWS, help="rows evaluated (default all; the others are taken from --merge, or null)")
     merge: str | None = option(None, help="an earlier table1 JSON of the same windows and settings: its rows (and Table 6) fill the rows not evaluated here")
@@ -135,7 +140,7 @@ class Options:
     no_progress: bool = False
 
     def __post_init__(self):
-        for name in ("data", "bmm", "ik_model", "minus_b", "minus_ik_b"):
+        for name in ("data", "bmm", "ik_model", "minus_b", "minus_ik_b", "condmdi_g"):
             per_corpus(self, name)  # raises on a malformed or unknown CORPUS=PATH
         if self.windows < 0 or self.steps < 1 or self.chunk < 1 or self.exact_chunk < 1:
             raise ValueError("--windows must be ≥ 0, --steps, --chunk and --exact-chunk ≥ 1")
@@ -157,14 +162,14 @@ def per_corpus(args: Options, name: str) -> dict[str, str]:
 
 
 def model_dir(args: Options, what: str, corpus: str) -> Path:
-    """Where ``what`` (bmm, ik_model, minus_b, minus_ik_b) of ``corpus`` is read from."""
+    """Where ``what`` (bmm, ik_model, minus_b, minus_ik_b, condmdi_g) of ``corpus`` is read from."""
     given = per_corpus(args, what)
     if corpus in given:
         return Path(given[corpus]).expanduser()
     if corpus == "bandai_namco" and what in ("bmm", "ik_model"):
         return BUNDLED_BMM if what == "bmm" else BUNDLED_IK
     default = {"bmm": f"bmm_{corpus}_cpu", "ik_model": f"ik_{corpus}", "minus_b": f"ablation_minus_b_{corpus}_cpu",
-               "minus_ik_b": f"ablation_minus_ik_b_{corpus}_cpu"}[what]  # fmt: skip
+               "minus_ik_b": f"ablation_minus_ik_b_{corpus}_cpu", "condmdi_g": f"ablation_condmdi_g_{corpus}_cpu"}[what]  # fmt: skip
     return runs_dir(default, "model")
 
 
@@ -356,14 +361,16 @@ def minus_b_row(args: Options, s: Setting, nat, character, iks, truth, model) ->
     return row
 
 
-def minus_ik_b_row(args: Options, s: Setting, nat, model) -> dict:
-    """BMM⁻ᴵᴷ⁻ᴮ's dense full skeleton, no IK: its characteristic joints are the final motion."""
+def minus_ik_b_row(args: Options, s: Setting, nat, model, name: str = "bmm_minus_ik_b") -> dict:
+    """A dense full skeleton, no IK (BMM⁻ᴵᴷ⁻ᴮ, CondMDIᴳ at its own default guidance): its
+    characteristic joints are the final motion."""
     es, cfg = s.eval_set, model.config
     positions = {
         cond: dense_sample(args, model, es.start, es.end, s.handles[cond], s.keys).characteristic_positions(cfg) for cond in ("id", "ood")
     }  # fmt: skip
-    row = curve_row(s, positions, nat, "bmm_minus_ik_b")
+    row = curve_row(s, positions, nat, name)
     row["multimodality"] = None
+    row["guidance"] = cfg.default_guidance
     if nat is not None:
         m = dense_sample(args, model, es.start[s.mm_index], es.end[s.mm_index], s.take(s.handles["id"], s.mm_index), s.mm_keys)
         row["multimodality"] = nat.multimodality(s.mm_shape(m.characteristic_positions(cfg)))
@@ -439,20 +446,19 @@ def evaluate_corpus(args: Options, name: str, extractor, extractor_missing: str 
             rows_bmm, table6 = bmm_rows(args, s, nat, character, {k: v for k, v in iks.items() if k != "exact" or "bmm_exact" in wanted}, truth, load_model(bmm_path))
             rows.update(rows_bmm)
 
-    for row, what in (("bmm_minus_b", "minus_b"), ("bmm_minus_ik_b", "minus_ik_b")):
+    for row, what in DENSE_ROWS.items():
         if row not in wanted:
             continue
         path = model_dir(args, what, name)
         if not (path / "config.json").exists():
-            label = "BMM⁻ᴮ (minus_b)" if what == "minus_b" else "BMM⁻ᴵᴷ⁻ᴮ (minus_ik_b)"
-            rows[row] = missing_row(not_there(path, label, TRAIN_COMMANDS[row].format(corpus=name)))
+            rows[row] = missing_row(not_there(path, DENSE_LABELS[what], TRAIN_COMMANDS[row].format(corpus=name)))
             continue
         model = load_dense_model(path)
-        rows[row] = minus_b_row(args, s, nat, character, iks, truth, model) if what == "minus_b" else minus_ik_b_row(args, s, nat, model)
+        if model.config.variant != what:
+            raise ValueError(f"--{what.replace('_', '-')} {path}: a saved {model.config.variant}, not {what}")
+        rows[row] = minus_b_row(args, s, nat, character, iks, truth, model) if what == "minus_b" else minus_ik_b_row(args, s, nat, model, row)
         rows[row]["model"] = str(path)
         print(f"{name} {row}: {rows[row]}", flush=True)
-    if "condmdi_g" in wanted:
-        rows["condmdi_g"] = missing_row(CONDMDI_MISSING)
     for r in rows.values():
         for metric in METRICS:
             r.setdefault(metric, None)
@@ -471,10 +477,8 @@ def evaluate_corpus(args: Options, name: str, extractor, extractor_missing: str 
                 reason = not_there(bmm_path, "BMM", TRAIN_COMMANDS["bmm"].format(corpus=name))
             elif row in ("bmm", "bmm_exact") and ik_model is None:
                 reason = no_ik
-            elif row in ("bmm_minus_b", "bmm_minus_ik_b") and not (model_dir(args, row[4:], name) / "config.json").exists():
-                reason = not_there(model_dir(args, row[4:], name), row, TRAIN_COMMANDS[row].format(corpus=name))
-            elif row == "condmdi_g":
-                reason = CONDMDI_MISSING
+            elif row in DENSE_ROWS and not (model_dir(args, DENSE_ROWS[row], name) / "config.json").exists():
+                reason = not_there(model_dir(args, DENSE_ROWS[row], name), row, TRAIN_COMMANDS[row].format(corpus=name))
             rows[row] = missing_row(reason)
     if not table6 and earlier_table6:
         table6 = earlier_table6

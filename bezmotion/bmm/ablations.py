@@ -15,6 +15,24 @@ same transformer denoiser, one token per *frame* instead of per control point.
   positions can be inpainted"); ours keeps the positions that issue 13's metrics read
   (handles error, skating, dense error). A pose for export would need the orientations,
   or an IK again.
+- **CondMDIᴳ** (``variant="condmdi_g"``, :class:`CondMDIConfig`): the paper's baseline
+  (§5.3, Appendix C.3), CondMDI (Cohan et al. 2024) in world coordinates: BMM⁻ᴵᴷ⁻ᴮ's data,
+  losses, schedule, training and sampling, with another network and guidance. The network
+  is a 1-D temporal UNet (:class:`~bezmotion.bmm.unet.CondUNet1D`, GMD's backbone) whose
+  input channels are the noisy motion, the condition values and the condition mask
+  (imputation-style conditioning) instead of condition tokens; classifier-free guidance
+  (conditions dropped with p = 0.1 in training, :func:`drop_conditions`) is sampled at
+  scale 2.5 by default (``CondMDIConfig.guidance``, CondMDI's and the paper's setting).
+  Known entries are inpainted into x̂₀ at every DDIM step by :func:`sample_dense`'s
+  ``overwrite``: CondMDI's imputation writes every known entry (``"all"``); the Table 1
+  row uses ``"keys"`` (start and end poses) like BMM⁻ᴵᴷ⁻ᴮ, so that both rows are measured
+  alike and the handles error measures what the network does with a handle (the paper
+  reports CondMDIᴳ missing its handles by centimetres, which exact imputation at the last
+  step would not). As for BMM⁻ᴵᴷ⁻ᴮ, ours generates positions only (the paper's pairs them
+  with orientations). Its sizes are ours (``cpu``: 64 base channels, levels ×1, ×2, ×4,
+  4.2 M parameters on the 22-joint Bandai-Namco skeleton); ``paper`` is GMD's UNet as we
+  read it (512 base channels, four levels ×2: 224 M parameters, the paper's Table 7
+  reports 224.6 M).
 
 **The same as the BMM**, by reuse rather than copy: the denoiser
 (:class:`~bezmotion.bmm.denoiser.BMMDenoiser`, whose token layout is its config's
@@ -74,6 +92,7 @@ from bezmotion.bmm.features import (
 from bezmotion.bmm.losses import CM_PER_M, dense_velocity, min_snr_weight
 from bezmotion.bmm.sampling import Handles, guided_denoiser, over_batch
 from bezmotion.bmm.train import BMMTrainConfig
+from bezmotion.bmm.unet import GROUPS, init_unet
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, FEET, HIPS, characteristic_indices, contact_labels
 from bezmotion.data.corpus import MotionClips
 from bezmotion.data.curves import DEFAULT_OFFSET, DEFAULT_WINDOW, characteristic_windows, skeleton_windows
@@ -85,8 +104,9 @@ from bezmotion.training.state import TrainState, fresh_train_state
 from bezmotion.training.step import apply_gradients
 from bezmotion.xla_options import call_with_inference_options
 
-ABLATIONS = ("minus_b", "minus_ik_b")
-"""``minus_b``: BMM⁻ᴮ, dense six-joint trajectories; ``minus_ik_b``: BMM⁻ᴵᴷ⁻ᴮ, the dense full skeleton."""
+ABLATIONS = ("minus_b", "minus_ik_b", "condmdi_g")
+"""``minus_b``: BMM⁻ᴮ, dense six-joint trajectories; ``minus_ik_b``: BMM⁻ᴵᴷ⁻ᴮ, the dense full skeleton;
+``condmdi_g``: CondMDIᴳ, the dense full skeleton from a 1-D UNet with classifier-free guidance."""
 
 OVERWRITE_MODES = ("none", "keys", "all")
 """What :func:`sample_dense` writes into x̂₀: nothing, the start and end poses, or those and the handles."""
@@ -101,13 +121,15 @@ class DenseBMMConfig(BMMConfig):
     """The BMM denoiser over dense frames: one token per frame of ``token_joints`` joints.
 
     Shares :class:`~bezmotion.bmm.denoiser.BMMConfig`'s transformer sizes and presets
-    (``DenseBMMConfig.cpu(...)``); build one with :meth:`minus_b` or :meth:`minus_ik_b`.
+    (``DenseBMMConfig.cpu(...)``); build one with :meth:`minus_b`, :meth:`minus_ik_b` or
+    :meth:`condmdi_g`.
 
     Attributes (beyond the BMM's; ``num_joints`` stays the six characteristic joints the
     conditions are on):
       num_controls: tokens per window = frames (31).
       stride: frames between tokens, 1.
-      variant: ``"minus_b"`` or ``"minus_ik_b"`` (:data:`ABLATIONS`).
+      variant: ``"minus_b"``, ``"minus_ik_b"`` or ``"condmdi_g"`` (:data:`ABLATIONS`; the
+        last only as a :class:`CondMDIConfig`, whose network is a UNet).
       token_joints: joints in a frame token: 6 (BMM⁻ᴮ) or the skeleton's ``J`` (BMM⁻ᴵᴷ⁻ᴮ).
       features_per_joint: 9 (``[position cm | ortho6D]``) or 3 (position); the full
         skeleton has positions only.
@@ -149,17 +171,31 @@ class DenseBMMConfig(BMMConfig):
             )
         if self.variant == "minus_b" and (self.token_joints != _NUM_CHARACTERISTIC or c != tuple(range(_NUM_CHARACTERISTIC))):
             raise ValueError(f"minus_b's tokens are the six characteristic joints in order, got token_joints={self.token_joints}, characteristic={c}")
-        if self.variant == "minus_ik_b" and self.features_per_joint != POSITION:
-            raise ValueError(f"minus_ik_b generates positions only (features_per_joint={POSITION}), got {self.features_per_joint}")
+        if self.full_skeleton and self.features_per_joint != POSITION:
+            raise ValueError(f"{self.variant} generates positions only (features_per_joint={POSITION}), got {self.features_per_joint}")
+        if (self.variant == "condmdi_g") != isinstance(self, CondMDIConfig):
+            raise ValueError(f"variant 'condmdi_g' is a CondMDIConfig (its UNet's sizes), and only it: got {type(self).__name__}(variant={self.variant!r})")
 
     @property
     def frame_features(self) -> int:
         return self.token_joints * self.features_per_joint
 
+    @property
+    def full_skeleton(self) -> bool:
+        """Whether a frame is every joint of the skeleton (BMM⁻ᴵᴷ⁻ᴮ, CondMDIᴳ), not the six joints."""
+        return self.variant != "minus_b"
+
+    @property
+    def default_guidance(self) -> float:
+        """The classifier-free guidance scale :func:`sample_dense` uses unless told (1: off)."""
+        return 1.0
+
     @classmethod
     def from_dict(cls, saved: Mapping) -> DenseBMMConfig:
-        """The config from ``dataclasses.asdict(config)`` as a checkpoint's JSON gives it back (lists for tuples)."""
-        return cls(**{**saved, "characteristic": tuple(saved["characteristic"])})
+        """The config from ``dataclasses.asdict(config)`` as a checkpoint's JSON gives it back
+        (lists for tuples; a CondMDIᴳ's as a :class:`CondMDIConfig`)."""
+        tuples = {k: tuple(v) for k, v in saved.items() if k in ("characteristic", "unet_mults")}
+        return (CondMDIConfig if saved.get("variant") == "condmdi_g" else DenseBMMConfig)(**{**saved, **tuples})
 
     @property
     def orientation(self) -> bool:
@@ -181,6 +217,80 @@ class DenseBMMConfig(BMMConfig):
             variant="minus_ik_b", token_joints=len(joint_names), features_per_joint=POSITION,
             characteristic=characteristic_indices(joint_names, mapping), **overrides,
         )  # fmt: skip
+
+    @classmethod
+    def condmdi_g(
+        cls, joint_names: Sequence[str], mapping: str | Mapping[str, str], size: str = "cpu", **overrides
+    ) -> CondMDIConfig:
+        """CondMDIᴳ for a skeleton (its joint names and characteristic-joint map) at a size:
+        ``tiny`` (16 base channels, 2 levels), ``cpu`` (64, 3 levels ×1, ×2, ×4) or
+        ``paper`` (GMD's UNet as we read it: 512 base channels, 4 levels ×2)."""
+        if size not in _SIZES:
+            raise ValueError(f"unknown size {size!r}; the presets are {_SIZES}")
+        width, mults = _UNET_SIZES[size]
+        return CondMDIConfig(**{
+            "width": width, "unet_mults": mults, "variant": "condmdi_g", "token_joints": len(joint_names),
+            "features_per_joint": POSITION, "characteristic": characteristic_indices(joint_names, mapping), **overrides,
+        })  # fmt: skip
+
+
+_UNET_SIZES = {"tiny": (16, (1, 2)), "cpu": (64, (1, 2, 4)), "paper": (512, (2, 2, 2, 2))}
+
+
+@dataclasses.dataclass(frozen=True)
+class CondMDIConfig(DenseBMMConfig):
+    """CondMDIᴳ: the dense full skeleton of BMM⁻ᴵᴷ⁻ᴮ from a 1-D temporal UNet
+    (:class:`~bezmotion.bmm.unet.CondUNet1D`) with classifier-free guidance; build one with
+    :meth:`DenseBMMConfig.condmdi_g`.
+
+    The UNet reads ``width`` (its base channels and timestep-embedding width),
+    ``num_timesteps`` and the dense layout; the transformer's ``ff_width``, ``num_heads``,
+    ``num_layers`` and ``dropout`` are unused (the UNet has no dropout).
+
+    Attributes (beyond :class:`DenseBMMConfig`'s):
+      unet_mults: channels of each resolution level, as multiples of ``width``; a level
+        halves the frames of the one before (31 frames are padded to a multiple of
+        ``2^(levels−1)``).
+      kernel_size: the temporal convolutions' kernel (frames; 5 as Diffuser's temporal UNet,
+        whose blocks GMD's is built from).
+      guidance: the classifier-free guidance scale sampled with by default (CondMDI's 2.5;
+        ≥ 0, 1 = the conditional model alone, 0 = the unconditional one).
+    """
+
+    variant: str = "condmdi_g"
+    features_per_joint: int = POSITION
+    unet_mults: tuple[int, ...] = (1, 2, 4)
+    kernel_size: int = 5
+    guidance: float = 2.5
+
+    def __post_init__(self):
+        super().__post_init__()
+        m = self.unet_mults
+        if not isinstance(m, tuple) or not m or not all(isinstance(x, int) and not isinstance(x, bool) and x >= 1 for x in m):
+            raise ValueError(f"CondMDIConfig.unet_mults must be a non-empty tuple of positive integers, got {m!r}")
+        if any((self.width * x) % GROUPS for x in m):
+            raise ValueError(f"CondMDIConfig: every level's channels (width {self.width} × {m}) must be divisible by {GROUPS} (GroupNorm groups)")
+        if isinstance(self.kernel_size, bool) or not isinstance(self.kernel_size, int) or self.kernel_size < 1 or self.kernel_size % 2 == 0:
+            raise ValueError(f"CondMDIConfig.kernel_size must be an odd positive integer, got {self.kernel_size!r}")
+        check_guidance(self.guidance)
+
+    @property
+    def default_guidance(self) -> float:
+        return float(self.guidance)
+
+
+def check_guidance(guidance: float | int) -> None:
+    """Refuse a classifier-free guidance scale that is not a finite number ≥ 0, naming it."""
+    if isinstance(guidance, bool) or not isinstance(guidance, (int, float)) or not 0.0 <= guidance < float("inf"):
+        raise ValueError(f"classifier-free guidance must be a finite number ≥ 0, got {guidance!r}")
+
+
+def init_dense_network(config: DenseBMMConfig, *, key: Array) -> tuple[nnx.GraphDef, nnx.State]:
+    """The network of an ablation, split into ``(graphdef, params)``: the BMM's transformer
+    (BMM⁻ᴮ, BMM⁻ᴵᴷ⁻ᴮ) or the 1-D UNet (CondMDIᴳ)."""
+    if isinstance(config, CondMDIConfig):
+        return init_unet(config, key=key)
+    return init_denoiser(config, key=key)
 
 
 def _preset(cls, size: str) -> Callable[..., DenseBMMConfig]:
@@ -301,7 +411,19 @@ def dense_loss_terms(
 
 def init_dense_train_state(config: DenseBMMConfig, train_config: BMMTrainConfig, *, key: Array) -> tuple[nnx.GraphDef, TrainState]:
     """Fresh parameters, optimiser state (the BMM's) and EMA for one seed."""
-    return fresh_train_state(lambda k: init_denoiser(config, key=k), train_config.optimizer(), key=key, ema=True)
+    return fresh_train_state(lambda k: init_dense_network(config, key=k), train_config.optimizer(), key=key, ema=True)
+
+
+def drop_conditions(key: Array, conditions: Conditions, rate: float) -> Conditions:
+    """Classifier-free guidance's training-time dropout: with probability ``rate`` every
+    condition of the example at once (``valid`` all false: the model's unconditional input).
+
+    Raises:
+      ValueError: ``rate`` outside [0, 1), naming it.
+    """
+    if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not 0.0 <= rate < 1.0:
+        raise ValueError(f"condition dropout must be a probability in [0, 1), got {rate!r}")
+    return conditions._replace(valid=conditions.valid & ~jax.random.bernoulli(key, rate))
 
 
 def check_train_config(train_config: BMMTrainConfig) -> None:
@@ -363,8 +485,7 @@ def make_dense_train_step(
             cond_key, grid, _NUM_CHARACTERISTIC, train_config.max_intermediate_handles, frames=handle_frames
         )
         conditions = inbetween_conditions(frames, six[0], six[-1], frame, joint, six[frame, joint], valid)
-        # Classifier-free guidance: drop every condition of this example at once.
-        conditions = conditions._replace(valid=conditions.valid & ~jax.random.bernoulli(drop_key, train_config.condition_dropout))
+        conditions = drop_conditions(drop_key, conditions, train_config.condition_dropout)
         pred, logits = predict_x0(
             nnx.merge(graphdef, params), stats, x_t, t, normalize_conditions(cond_stats, conditions), key=dropout_key
         )
@@ -454,7 +575,7 @@ def sample_dense(
     *,
     key: Array,
     steps: int = 10,
-    guidance: float = 1.0,
+    guidance: float | None = None,
     overwrite: str = "keys",
 ) -> DenseMotion:
     """Sample an ablation's dense motion between a start and an end pose through sparse handles.
@@ -469,7 +590,10 @@ def sample_dense(
       handles: intermediate handles, batched like ``start``.
       key: PRNG key; split per motion when batched.
       steps: DDIM steps (the paper's 10).
-      guidance: classifier-free guidance scale (1: the conditional model alone).
+      guidance: classifier-free guidance scale, ``out_uncond + guidance · (out_cond −
+        out_uncond)`` (1: the conditional model alone; 0: the unconditional one); ``None``
+        (default): the model's ``config.default_guidance`` (1 for BMM⁻ᴮ and BMM⁻ᴵᴷ⁻ᴮ,
+        CondMDIᴳ's 2.5).
       overwrite: :data:`OVERWRITE_MODES`: ``"keys"`` (default) writes the start and end
         positions into x̂₀ at every step and exactly into the output; ``"all"`` also each
         handle, at its own frame only (§5.4: not without artifacts for dense
@@ -478,8 +602,11 @@ def sample_dense(
       :class:`DenseMotion` in the world frame; the overwritten positions equal their
       conditions exactly.
     Raises:
-      ValueError: an unknown ``overwrite``, or inputs of the wrong shapes (naming them).
+      ValueError: an unknown ``overwrite``, a negative ``guidance``, or inputs of the wrong
+        shapes (naming them).
     """
+    guidance = model.config.default_guidance if guidance is None else guidance
+    check_guidance(guidance)
     if overwrite not in OVERWRITE_MODES:
         raise ValueError(f"overwrite must be one of {OVERWRITE_MODES}, got {overwrite!r}")
     if start.shape[-2:] != (_NUM_CHARACTERISTIC, 3) or end.shape != start.shape:
@@ -526,7 +653,7 @@ def load_dense_model(directory: str | os.PathLike) -> DenseMotionModel:
     if saved is None or saved.get("format") != _FORMAT or store.latest_step() is None:
         raise FileNotFoundError(f"{directory}: not a saved ablation (config.json of format {_FORMAT} and a checkpoint expected)")
     config = DenseBMMConfig.from_dict(saved["model"])
-    graphdef, params = init_denoiser(config, key=jax.random.key(0))
+    graphdef, params = init_dense_network(config, key=jax.random.key(0))
     shape = (config.token_joints, config.features_per_joint)
     restored = store.restore({"params": params, "stats": FeatureStats(jnp.zeros(shape), jnp.ones(shape))})
     store.close()
@@ -536,14 +663,18 @@ def load_dense_model(directory: str | os.PathLike) -> DenseMotionModel:
 __all__ = [
     "ABLATIONS",
     "OVERWRITE_MODES",
+    "CondMDIConfig",
     "DenseArrays",
     "DenseBMMConfig",
     "DenseMotion",
     "DenseMotionModel",
+    "check_guidance",
     "check_train_config",
     "characteristic_stats",
     "dense_loss_terms",
     "dense_windows",
+    "drop_conditions",
+    "init_dense_network",
     "init_dense_train_state",
     "load_dense_model",
     "make_dense_train_step",

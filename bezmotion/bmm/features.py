@@ -21,6 +21,7 @@ from bezmotion.data.curves import CurveDataset
 from bezmotion.diffusion.projection import on_control_frame, project_off_grid
 from bezmotion.baselines import handle_interpolation
 from bezmotion.bmm.denoiser import FEATURES_PER_JOINT, BMMDenoiser, Conditions
+from bezmotion.bmm.unet import CondUNet1D
 
 MAX_INTERMEDIATE_HANDLES = 4  # BMM §5.2: zero to four uniformly sampled intermediate handles
 STD_FLOOR = 1e-3  # features that never vary (e.g. a constant) must not divide by zero
@@ -240,7 +241,7 @@ def interpolation_prior(stats: FeatureStats, conditions: Conditions, layout: Bez
 
 
 def predict_x0(
-    denoiser: BMMDenoiser,
+    denoiser: BMMDenoiser | CondUNet1D,
     stats: FeatureStats,
     x_t: Float[Array, "controls features"],
     t: Int[Array, ""],
@@ -248,8 +249,9 @@ def predict_x0(
     *,
     key: Array | None = None,
 ) -> tuple[Float[Array, "controls features"], Float[Array, "controls 2"]]:
-    """x̂₀ and contact logits from a denoiser of either ``prediction`` kind: training and
-    sampling both call this, so they cannot disagree on what the network outputs."""
+    """x̂₀ and contact logits from a denoiser of either ``prediction`` kind (the BMM's
+    transformer, or CondMDIᴳ's UNet, which predicts x₀): training and sampling both call
+    this, so they cannot disagree on what the network outputs."""
     x0, logits = denoiser(x_t, t, conditions, key=key)
     if denoiser.config.prediction == "residual":
         cfg = denoiser.config

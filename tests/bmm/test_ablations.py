@@ -1,6 +1,8 @@
-"""The dense ablations BMM⁻ᴮ and BMM⁻ᴵᴷ⁻ᴮ (``bezmotion.bmm.ablations``): configs, data,
-training through ``bezmotion.training``, DDIM sampling with overwrite, storage, and the
-errors of bad inputs. Real data: the bundled ``DEMO_CLIP`` (10 windows of 31 frames).
+"""The dense ablations BMM⁻ᴮ and BMM⁻ᴵᴷ⁻ᴮ and the CondMDIᴳ baseline
+(``bezmotion.bmm.ablations``, its UNet ``bezmotion.bmm.unet``): configs, data, training
+through ``bezmotion.training``, DDIM sampling with overwrite and classifier-free guidance,
+storage, and the errors of bad inputs. Real data: the bundled ``DEMO_CLIP`` (10 windows of
+31 frames).
 """
 
 from __future__ import annotations
@@ -17,10 +19,13 @@ from flax import nnx
 
 from bezmotion.assets import DEMO_CLIP
 from bezmotion.bmm.ablations import (
+    CondMDIConfig,
     DenseArrays,
     DenseBMMConfig,
     DenseMotionModel,
     dense_windows,
+    drop_conditions,
+    init_dense_network,
     init_dense_train_state,
     load_dense_model,
     make_dense_train_step,
@@ -28,16 +33,17 @@ from bezmotion.bmm.ablations import (
     save_dense_model,
 )
 from bezmotion.bmm.denoiser import BMMDenoiser, init_denoiser
-from bezmotion.bmm.features import FeatureStats
-from bezmotion.bmm.sampling import Handles
+from bezmotion.bmm.features import FeatureStats, inbetween_conditions, predict_x0
+from bezmotion.bmm.sampling import Handles, guided_denoiser
 from bezmotion.bmm.train import BMMTrainConfig
+from bezmotion.bmm.unet import CondUNet1D, condition_channels
 from bezmotion.data.bvh import read_bvh
 from bezmotion.data.characteristic import characteristic_indices
 from bezmotion.data.corpus import MotionClips
 from bezmotion.training import compile_train_step, run_training
 
 TRAIN = BMMTrainConfig(batch_size=8, learning_rate=1e-3, ema_decay=0.9)
-VARIANTS = ("minus_b", "minus_ik_b")
+VARIANTS = ("minus_b", "minus_ik_b", "condmdi_g")
 
 
 @pytest.fixture(scope="module")
@@ -48,6 +54,8 @@ def clips() -> MotionClips:
 def make_config(variant: str, clips: MotionClips) -> DenseBMMConfig:
     if variant == "minus_b":
         return DenseBMMConfig.minus_b("tiny", dropout=0.0)
+    if variant == "condmdi_g":
+        return DenseBMMConfig.condmdi_g(clips.joint_names, "bandai_namco", "tiny")
     return DenseBMMConfig.minus_ik_b(clips.joint_names, "bandai_namco", "tiny", dropout=0.0)
 
 
@@ -216,3 +224,143 @@ def test_save_and_load_give_the_same_samples(kit, conditions, tmp_path):
     np.testing.assert_array_equal(a.pos, b.pos)
     with pytest.raises(FileNotFoundError, match="nowhere"):
         load_dense_model(tmp_path / "nowhere")
+
+
+# ------------------------------------------------------------------------------- CondMDIᴳ
+
+
+@pytest.fixture(scope="module")
+def unet(clips) -> SimpleNamespace:
+    """A tiny CondMDIᴳ UNet (untrained) with real statistics, and one motion's conditions."""
+    config = make_config("condmdi_g", clips)
+    arrays, _, _ = dense_windows(clips, "bandai_namco", config, offset=1)
+    graphdef, params = init_dense_network(config, key=jax.random.key(3))
+    rng = np.random.default_rng(0)
+    conditions = inbetween_conditions(
+        31, jnp.asarray(rng.normal(size=(6, 3)), jnp.float32), jnp.asarray(rng.normal(size=(6, 3)), jnp.float32),
+        jnp.asarray([7, 20, 0], jnp.int32), jnp.asarray([2, 5, 0], jnp.int32),
+        jnp.asarray(rng.normal(size=(3, 3)), jnp.float32), jnp.asarray([True, True, False]),
+    )  # fmt: skip
+    x_t = jnp.asarray(rng.normal(size=(31, config.frame_features)), jnp.float32)
+    stats = FeatureStats.from_features(arrays.features)
+    # Used functionally, as the training step and the sampler use it (and jitted: eager NNX is slow).
+    predict = jax.jit(lambda x, t, c: predict_x0(nnx.merge(graphdef, params), stats, x, t, c))
+    return SimpleNamespace(config=config, net=nnx.merge(graphdef, params), predict=predict, conditions=conditions, x_t=x_t)
+
+
+def test_condmdi_g_config_is_the_full_skeleton_with_unet_sizes(clips):
+    config = make_config("condmdi_g", clips)
+    joints = len(clips.joint_names)
+    assert isinstance(config, CondMDIConfig) and config.variant == "condmdi_g" and config.full_skeleton
+    assert config.frame_features == joints * 3 and config.characteristic == make_config("minus_ik_b", clips).characteristic
+    assert (config.width, config.unet_mults, config.kernel_size, config.guidance) == (16, (1, 2), 5, 2.5)
+    assert config.default_guidance == 2.5 and make_config("minus_ik_b", clips).default_guidance == 1.0
+    cpu = DenseBMMConfig.condmdi_g(clips.joint_names, "bandai_namco")
+    assert (cpu.width, cpu.unet_mults) == (64, (1, 2, 4))
+    # The paper size without building it: GMD's UNet is ≈ 224 M parameters (the paper's Table 7: 224.6 M).
+    paper = DenseBMMConfig.condmdi_g(clips.joint_names, "bandai_namco", "paper")
+    shapes = nnx.state(nnx.eval_shape(lambda: CondUNet1D(paper, rngs=nnx.Rngs(0))), nnx.Param)
+    assert 200e6 < sum(int(np.prod(x.shape)) for x in jax.tree.leaves(shapes)) < 250e6
+    assert DenseBMMConfig.from_dict(json.loads(json.dumps(dataclasses.asdict(config)))) == config
+
+
+@pytest.mark.parametrize(
+    ("overrides", "message"),
+    [
+        ({"guidance": -0.5}, "-0.5"),
+        ({"unet_mults": ()}, "()"),
+        ({"unet_mults": (1, 0)}, "(1, 0)"),
+        ({"width": 12}, "width 12"),
+        ({"kernel_size": 4}, "got 4"),
+        ({"features_per_joint": 9}, "got 9"),
+    ],
+)
+def test_bad_condmdi_g_configs_raise_naming_the_value(clips, overrides, message):
+    with pytest.raises(ValueError) as error:
+        DenseBMMConfig.condmdi_g(clips.joint_names, "bandai_namco", "tiny", **overrides)
+    assert message in str(error.value)
+    with pytest.raises(ValueError, match="CondMDIConfig"):
+        DenseBMMConfig.tiny(variant="condmdi_g", features_per_joint=3)
+
+
+def test_unet_shapes_and_condition_channels(unet):
+    cfg, cond = unet.config, unet.conditions
+    f = cfg.frame_features
+    assert unet.net.downs[0].res1.block1.conv.in_features == 3 * f  # noisy motion ⊕ condition values ⊕ mask
+    x0, logits = unet.predict(unet.x_t, jnp.int32(500), cond)
+    assert x0.shape == (31, f) and logits.shape == (31, 2) and np.isfinite(np.asarray(x0)).all()
+    values, mask = (np.asarray(a).reshape(31, cfg.token_joints, 3) for a in condition_channels(cfg, cond))
+    char = np.asarray(cfg.characteristic)
+    # Start and end of all six joints, the two valid handles; nothing else, the padding slot neither.
+    expected = np.zeros((31, cfg.token_joints, 3))
+    expected[0, char] = expected[-1, char] = expected[7, char[2]] = expected[20, char[5]] = 1.0
+    np.testing.assert_array_equal(mask, expected)
+    np.testing.assert_array_equal(values[20, char[5]], cond.position[13])
+    np.testing.assert_array_equal(values[0, char], cond.position[:6])
+    assert values[0, char[0]].tolist() != [0.0, 0.0, 0.0]
+    # A padding slot holding NaN leaves no trace; a moved handle changes the prediction.
+    poisoned = cond._replace(position=cond.position.at[-1].set(jnp.nan))
+    np.testing.assert_array_equal(unet.predict(unet.x_t, jnp.int32(500), poisoned)[0], x0)
+    moved = cond._replace(position=cond.position.at[12].add(1.0))
+    assert np.abs(np.asarray(unet.predict(unet.x_t, jnp.int32(500), moved)[0] - x0)).max() > 1e-4
+
+
+def test_guidance_one_is_the_conditional_prediction_and_2_5_extrapolates(unet):
+    predict = unet.predict
+    t = jnp.int32(300)
+    cond_x0, cond_logits = predict(unet.x_t, t, unet.conditions)
+    uncond_x0, _ = predict(unet.x_t, t, unet.conditions._replace(valid=jnp.zeros_like(unet.conditions.valid)))
+    assert np.abs(np.asarray(cond_x0 - uncond_x0)).max() > 1e-4
+    one = guided_denoiser(predict, unet.conditions, 1.0)(unet.x_t, t)
+    np.testing.assert_array_equal(one[0], cond_x0)
+    np.testing.assert_array_equal(one[1], cond_logits)
+    guided, logits = guided_denoiser(predict, unet.conditions, 2.5)(unet.x_t, t)
+    np.testing.assert_allclose(guided, uncond_x0 + 2.5 * (cond_x0 - uncond_x0), atol=1e-5)
+    np.testing.assert_allclose(logits, cond_logits, atol=1e-5)
+
+
+def test_condition_dropout_drops_every_condition_at_the_configured_rate(unet):
+    keys = jax.random.split(jax.random.key(11), 4000)
+    for rate in (0.1, 0.3):
+        valid = np.asarray(jax.vmap(lambda k: drop_conditions(k, unet.conditions, rate).valid)(keys))  # noqa: B023
+        dropped = ~valid.any(axis=1)
+        # All conditions of an example at once, never some of them; the padding slot stays invalid.
+        assert ((valid == np.asarray(unet.conditions.valid)) | dropped[:, None]).all()
+        assert abs(dropped.mean() - rate) < 0.025, (rate, dropped.mean())  # 4000 draws: σ ≤ 0.008
+    assert np.asarray(jax.vmap(lambda k: drop_conditions(k, unet.conditions, 0.0).valid)(keys[:100])).any(axis=1).all()
+    for bad in (1.0, -0.1, 1.5):
+        with pytest.raises(ValueError, match=str(bad)):
+            drop_conditions(keys[0], unet.conditions, bad)
+    with pytest.raises(ValueError, match="condition_dropout=1.0"):
+        BMMTrainConfig(condition_dropout=1.0)
+
+
+@pytest.fixture(scope="module")
+def condmdi_kit(clips) -> SimpleNamespace:
+    config = make_config("condmdi_g", clips)
+    arrays, _, _ = dense_windows(clips, "bandai_namco", config, offset=1)
+    stats = FeatureStats.from_features(arrays.features)
+    graphdef, state = init_dense_train_state(config, TRAIN, key=jax.random.key(0))
+    return SimpleNamespace(config=config, model=DenseMotionModel(state.params, stats, graphdef, config), arrays=arrays)
+
+
+def test_condmdi_g_samples_at_guidance_2_5_by_default_and_refuses_negative_guidance(condmdi_kit):
+    k = condmdi_kit
+    six = np.asarray(k.arrays.characteristic_positions(k.config))[[0, 3]]
+    start, end = jnp.asarray(six[:, 0]), jnp.asarray(six[:, -1])
+    handles = Handles(
+        joint=jnp.asarray([[4], [1]], jnp.int32), frame=jnp.asarray([[9], [22]], jnp.int32),
+        position=jnp.asarray(six[[0, 1], [9, 22], [4, 1]][:, None] + 3.0, jnp.float32), valid=jnp.ones((2, 1), bool),
+    )  # fmt: skip
+    key = jax.random.key(4)
+    default = sample_dense(k.model, start, end, handles, key=key, steps=3)
+    np.testing.assert_array_equal(default.pos, sample_dense(k.model, start, end, handles, key=key, steps=3, guidance=2.5).pos)
+    plain = sample_dense(k.model, start, end, handles, key=key, steps=3, guidance=1.0)
+    assert np.abs(np.asarray(default.pos - plain.pos)).max() > 1e-3
+    for motion in (default, plain):
+        assert np.isfinite(np.asarray(motion.pos)).all()
+        pos6 = np.asarray(motion.characteristic_positions(k.config))
+        np.testing.assert_array_equal(pos6[:, 0], start)  # the keys inpainted
+        np.testing.assert_array_equal(pos6[:, -1], end)
+    with pytest.raises(ValueError, match="-0.5"):
+        sample_dense(k.model, start, end, handles, key=key, guidance=-0.5)

@@ -21,7 +21,7 @@ from bmm.common import TINY
 from helpers import load_experiment
 
 from bezmotion.assets import DEMO_CLIP
-from bezmotion.bmm.ablations import DenseBMMConfig, DenseMotionModel, dense_windows, save_dense_model
+from bezmotion.bmm.ablations import DenseBMMConfig, DenseMotionModel, dense_windows, init_dense_network, save_dense_model
 from bezmotion.bmm.denoiser import init_denoiser
 from bezmotion.bmm.features import FeatureStats
 from bezmotion.bmm.sampling import BezierMotionModel, save_model
@@ -59,9 +59,10 @@ def models(tmp_path_factory):
     for name, config in (
         ("minus_b", DenseBMMConfig.minus_b("tiny", dropout=0.0)),
         ("minus_ik_b", DenseBMMConfig.minus_ik_b(clips.joint_names, "bandai_namco", "tiny", dropout=0.0)),
+        ("condmdi_g", DenseBMMConfig.condmdi_g(clips.joint_names, "bandai_namco", "tiny")),
     ):
         arrays, _, _ = dense_windows(clips, "bandai_namco", config, offset=1)
-        graphdef, params = init_denoiser(config, key=jax.random.key(1))
+        graphdef, params = init_dense_network(config, key=jax.random.key(1))
         save_dense_model(root / name, DenseMotionModel(params, FeatureStats.from_features(arrays.features), graphdef, config))
     config = MotionFeatureConfig.tiny()
     graphdef, params = init_motion_autoencoder(config, key=jax.random.key(2))
@@ -77,7 +78,7 @@ def test_table1_every_row_table6_and_figure12(experiment, models, tmp_path, monk
     results = experiment.main([
         "--out", str(out), "--corpora", "bandai_namco", "--data", c + str(models / "clips"), "--features", str(models / "features"),
         "--bmm", c + str(models / "bmm"), "--minus-b", c + str(models / "minus_b"), "--minus-ik-b", c + str(models / "minus_ik_b"),
-        "--ik", "learned", "--windows", "0", "--steps", "2", "--table6-steps", "2", "--mm-conditions", "1",
+        "--condmdi-g", c + str(models / "condmdi_g"), "--ik", "learned", "--windows", "0", "--steps", "2", "--table6-steps", "2", "--mm-conditions", "1",
         "--mm-samples", "2", "--chunk", "4", "--no-progress",
     ])  # fmt: skip
     saved = json.loads(out.read_text())
@@ -87,7 +88,7 @@ def test_table1_every_row_table6_and_figure12(experiment, models, tmp_path, monk
         assert set(experiment.METRICS) <= set(row)
     assert saved["info"]["bandai_namco"]["windows"] == 2
     # Rows with a model: every metric a finite number (the mocap's handles and multimodality excepted).
-    for name in ("bmm", "bmm_minus_b", "bmm_minus_ik_b"):
+    for name in ("bmm", "bmm_minus_b", "bmm_minus_ik_b", "condmdi_g"):
         assert all(math.isfinite(table[name][m]) for m in experiment.METRICS), (name, table[name])
         assert table[name]["diversity"] > 0 and table[name]["multimodality"] > 0
     assert "note" not in table["bmm_minus_b"]  # after the learned IK
@@ -95,7 +96,9 @@ def test_table1_every_row_table6_and_figure12(experiment, models, tmp_path, monk
     assert mocap["handles_error_cm"] is None and mocap["multimodality"] is None and mocap["fid"] >= 0
     assert ref["handles_error_cm"] < 1e-3 and ref["ood_handles_error_cm"] < 1e-3 and ref["multimodality"] == 0.0
     assert table["bmm_exact"]["fid"] is None and "not requested" in table["bmm_exact"]["missing"]
-    assert table["condmdi_g"]["fid"] is None and "not implemented" in table["condmdi_g"]["missing"]
+    # CondMDIᴳ: evaluated as BMM⁻ᴵᴷ⁻ᴮ, at its own guidance.
+    assert table["condmdi_g"]["guidance"] == 2.5 and table["bmm_minus_ik_b"]["guidance"] == 1.0
+    assert table["condmdi_g"]["model"] == str(models / "condmdi_g") and "missing" not in table["condmdi_g"]
     assert list(saved["table6"]["bandai_namco"]) == ["2"]
     assert all(math.isfinite(r["fid"]) for r in saved["table6"]["bandai_namco"].values())
     assert results["bandai_namco"] == saved["bandai_namco"]
@@ -114,6 +117,8 @@ def test_table1_missing_models_are_null_rows_naming_their_command(experiment, mo
     assert "experiments/bmm_lafan1.py --corpus bandai_namco" in table["bmm"]["missing"] and table["bmm"]["fid"] is None
     assert "experiments/ablations.py --corpus bandai_namco --ablation minus_b" in table["bmm_minus_b"]["missing"]
     assert "--ablation minus_ik_b" in table["bmm_minus_ik_b"]["missing"]
+    assert "CondMDIᴳ" in table["condmdi_g"]["missing"] and "--ablation condmdi_g" in table["condmdi_g"]["missing"]
+    assert "ablation_condmdi_g_bandai_namco_cpu" in table["condmdi_g"]["missing"] and table["condmdi_g"]["fid"] is None
     assert table["mocap"]["fid"] is None and "experiments/motion_features.py" in table["mocap"]["naturalness_missing"]
     assert table["reference"]["handles_error_cm"] < 1e-3 and math.isfinite(table["mocap"]["foot_skating_ratio"])
     assert not out.with_suffix(".png").exists()
@@ -129,7 +134,7 @@ def test_table1_missing_models_are_null_rows_naming_their_command(experiment, mo
                          "--features", str(tmp_path / "none"), "--rows", "mocap", "--merge", str(out), "--windows", "1", "--no-progress"])
 
 
-@pytest.mark.parametrize("flags", [["--bmm", "amass=x"], ["--mm-samples", "1"], ["--table6-steps", "0"], ["--rows", "nothing"]])
+@pytest.mark.parametrize("flags", [["--bmm", "amass=x"], ["--condmdi-g", "nowhere"], ["--mm-samples", "1"], ["--table6-steps", "0"], ["--rows", "nothing"]])
 def test_table1_bad_options_exit_through_the_parser(experiment, flags, capsys):
     with pytest.raises(SystemExit) as exit_:
         experiment.main(["--out", "x.json", *flags])
