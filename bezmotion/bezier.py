@@ -225,6 +225,12 @@ def from_segments(
     return merge(starts, ends), merge(out_tangent, in_tangent)
 
 
+def tangent_from_velocity(layout: BezierLayout, velocity: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape"]:
+    """The control tangent ``T = v·s/3`` whose curve moves at ``velocity`` (units per frame)
+    through its control point (the velocity there is ``3T/s`` on both sides)."""
+    return jnp.asarray(velocity) * (layout.stride / 3.0)
+
+
 def finite_difference_tangents(
     layout: BezierLayout, points: Float[Array, "*batch frames dim"]
 ) -> Float[Array, "*batch controls dim"]:
@@ -232,7 +238,7 @@ def finite_difference_tangents(
     at each control frame (one-sided at the window ends) — the fit's starting point."""
     _check_frames(layout, points)
     velocity = jnp.gradient(points, axis=-2)  # units per frame
-    return velocity[..., layout.control_frames, :] * (layout.stride / 3.0)
+    return tangent_from_velocity(layout, velocity[..., layout.control_frames, :])
 
 
 class FitResult(NamedTuple):

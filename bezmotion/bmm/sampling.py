@@ -247,6 +247,7 @@ def _sample_one(
     end,
     handles: Handles,
     key_rot6d,
+    key_tangent,
     key,
     steps,
     guidance,
@@ -268,6 +269,9 @@ def _sample_one(
     denoiser = functools.partial(predict_x0, nnx.merge(model.graphdef, model.params), stats)
     # Shared tangents are set by the coupling, so the handle projection must leave them be.
     shared = None if chain is None else _shared_keys(chain, cfg.num_controls, cfg.num_joints)
+    if key_tangent is not None:  # the keys' tangents are conditions: the projection keeps them too
+        at_keys = jnp.zeros((cfg.num_controls, cfg.num_joints), bool).at[ends].set(True)
+        shared = at_keys if shared is None else shared | at_keys
     couple = (lambda x: x) if chain is None else functools.partial(_couple, chain=chain)
 
     denoise = guided_denoiser(denoiser, normalized, guidance)
@@ -279,6 +283,8 @@ def _sample_one(
         feats = from_tokens(x0_tokens)
         if key_rot6d is not None:  # the keys' orientations, overwritten like their positions
             feats = feats.at[ends, :, 6:].set((key_rot6d - stats.mean[:, 6:]) / stats.std[:, 6:])
+        if key_tangent is not None:  # and their tangents (velocities), like positions too
+            feats = feats.at[ends, :, 3:6].set((key_tangent - stats.mean[:, 3:6]) / stats.std[:, 3:6])
         pos = jnp.where(mask[..., None], target, feats[..., :3])
         # A chain's shared keys: tangents and orientations averaged with the neighbour's.
         # Every window normalises them by the same affine map (no translation), so the
@@ -296,6 +302,8 @@ def _sample_one(
         # normalise/denormalise round trip: control frames bit for bit, the others by a
         # (tiny) world-space correction; shared tangents equal in world units, bit for bit.
         pos = jnp.where(mask[..., None], world_target, pos)
+        if key_tangent is not None:  # exactly, not through the normalisation round trip
+            tangent = tangent.at[ends].set(key_tangent)
         return project_off_grid(
             layout, pos, couple(tangent), mask, world.joint, world.frame, world.position, world.valid, fixed_tangent=shared
         )
@@ -332,6 +340,7 @@ def sample_curves(
     overwrite: bool = True,
     foot_lock: bool = False,
     key_rot6d: Float[Array, "*batch 2 6 6"] | None = None,
+    key_tangent: Float[Array, "*batch 2 6 3"] | None = None,
 ) -> SampledCurves:
     """Sample Bézier curves of the six characteristic joints between a start and an end pose.
 
@@ -359,16 +368,22 @@ def sample_curves(
         conditions like the key positions: written into x̂₀'s first and last control points
         at every step and exactly after the last, so the curves leave and reach each key
         facing the way it does (ours; the paper conditions on positions only, ``None``).
+      key_tangent: optionally ``(*batch, 2, 6, 3)`` the curves' tangents at the first and at
+        the last frame (cm, world frame; a velocity ``v`` in cm/frame is the tangent
+        ``v·stride/3``, :func:`~bezmotion.bezier.tangent_from_velocity`), where the keys'
+        motion is known, e.g. from the frames around them in a clip. With ``overwrite``
+        they are conditions like ``key_rot6d``: the curves leave and reach each key at its
+        own velocity instead of one the model guesses (ours).
     Returns:
-      :class:`SampledCurves` in the world frame; constrained control points equal their
-      targets exactly when ``overwrite``.
+      :class:`SampledCurves` in the world frame; constrained control points (and the key
+      tangents) equal their targets exactly when ``overwrite``.
 
     Compiled once per input shape and static argument, with the backend's inference
     compiler options (:mod:`bezmotion.xla_options`); inside a caller's own ``jax.jit`` it is
     simply traced into that computation.
     """
     return call_with_inference_options(
-        _compiled_sampler, model, start, end, handles, key_rot6d,
+        _compiled_sampler, model, start, end, handles, key_rot6d, key_tangent,
         key=key, steps=steps, guidance=guidance, overwrite=overwrite, foot_lock=foot_lock,
     )  # fmt: skip
 
@@ -378,17 +393,19 @@ def _compiled_sampler(options: tuple[tuple[str, str], ...]):
     return jax.jit(_sample_curves, static_argnames=("steps", "guidance", "overwrite", "foot_lock"), compiler_options=dict(options) or None)
 
 
-def _sample_curves(model, start, end, handles, key_rot6d, *, key, steps, guidance, overwrite, foot_lock) -> SampledCurves:
+def _sample_curves(model, start, end, handles, key_rot6d, key_tangent, *, key, steps, guidance, overwrite, foot_lock) -> SampledCurves:
     batch = start.shape[:-2]
     joints = model.config.num_joints
     if start.shape[-2:] != (joints, 3) or end.shape != start.shape:
         raise ValueError(f"start and end must both be (..., {joints}, 3), got {start.shape}, {end.shape}")
     if key_rot6d is not None and key_rot6d.shape != (*batch, 2, joints, 6):
         raise ValueError(f"key_rot6d must be {(*batch, 2, joints, 6)} (start and end orientations), got {key_rot6d.shape}")
+    if key_tangent is not None and key_tangent.shape != (*batch, 2, joints, 3):
+        raise ValueError(f"key_tangent must be {(*batch, 2, joints, 3)} (start and end tangents), got {key_tangent.shape}")
     if handles.position.shape[:-2] != batch:
         raise ValueError(f"handles must be batched like start {batch}, got {handles.position.shape[:-2]}")
     one = functools.partial(_sample_one, model, steps=steps, guidance=guidance, overwrite=overwrite, foot_lock=foot_lock)
-    return over_batch(one, batch, key, start, end, handles, key_rot6d)
+    return over_batch(one, batch, key, start, end, handles, key_rot6d, key_tangent)
 
 
 def over_batch(fn, batch: tuple[int, ...], key: Array, *args):
@@ -397,7 +414,7 @@ def over_batch(fn, batch: tuple[int, ...], key: Array, *args):
     n = int(np.prod(batch, dtype=int))
     flat = lambda x: x.reshape(n, *x.shape[len(batch) :])  # noqa: E731
     keys = jax.random.split(key, n) if batch else key[None]
-    out = jax.vmap(fn)(*(jax.tree.map(flat, a) for a in args), keys)  # None (no key_rot6d) has no leaves
+    out = jax.vmap(fn)(*(jax.tree.map(flat, a) for a in args), keys)  # None (no key_rot6d, …) has no leaves
     return jax.tree.map(lambda x: x.reshape(*batch, *x.shape[1:]), out)
 
 
@@ -413,6 +430,7 @@ def sample_chained_curves(
     overwrite: bool = True,
     foot_lock: bool = False,
     key_rot6d: Float[Array, "*batch keys 6 6"] | None = None,
+    key_tangent: Float[Array, "*batch keys 6 3"] | None = None,
 ) -> SampledCurves:
     """Sample the curves of a chain of windows through ``keys`` key poses, one window
     (``model.config.num_frames`` frames, 31) between each pair of consecutive keys, all in
@@ -441,6 +459,9 @@ def sample_chained_curves(
       coupled: join the windows at the shared keys (default); ``False``: independent windows.
       key_rot6d: optionally ``(*batch, keys, 6, 6)`` global orientations (6-D) of the six
         joints at every key, conditions like the key positions (``sample_curves``'s).
+      key_tangent: optionally ``(*batch, keys, 6, 3)`` the curves' tangents at every key
+        (cm, ``sample_curves``'s), conditions like ``key_rot6d``; both windows of a shared
+        key take its tangent, so a coupled chain keeps it.
     Returns:
       :class:`SampledCurves` batched ``(*batch, keys − 1, controls, …)``, world frame; window
       ``i``'s last control point and window ``i + 1``'s first are the same key.
@@ -448,7 +469,7 @@ def sample_chained_curves(
     Compiled once per input shape and static argument, like :func:`sample_curves`.
     """
     return call_with_inference_options(
-        _compiled_chain_sampler, model, key_pos, handles, key_rot6d,
+        _compiled_chain_sampler, model, key_pos, handles, key_rot6d, key_tangent,
         key=key, steps=steps, guidance=guidance, coupled=coupled, overwrite=overwrite, foot_lock=foot_lock,
     )  # fmt: skip
 
@@ -465,7 +486,7 @@ def _compiled_chain_sampler(options: tuple[tuple[str, str], ...]):
 CHAIN_AXIS = "chain_window"  # the vmap axis the windows of one chain are coupled over
 
 
-def _sample_chained_curves(model, key_pos, handles, key_rot6d, *, key, steps, guidance, coupled, overwrite, foot_lock) -> SampledCurves:
+def _sample_chained_curves(model, key_pos, handles, key_rot6d, key_tangent, *, key, steps, guidance, coupled, overwrite, foot_lock) -> SampledCurves:
     joints = model.config.num_joints
     if key_pos.ndim < 3 or key_pos.shape[-2:] != (joints, 3) or key_pos.shape[-3] < 2:
         raise ValueError(f"key_pos must be (..., keys ≥ 2, {joints}, 3), got {key_pos.shape}")
@@ -473,6 +494,8 @@ def _sample_chained_curves(model, key_pos, handles, key_rot6d, *, key, steps, gu
     batch = tuple(batch)
     if key_rot6d is not None and key_rot6d.shape != (*batch, num_keys, joints, 6):
         raise ValueError(f"key_rot6d must be {(*batch, num_keys, joints, 6)} (one orientation per key), got {key_rot6d.shape}")
+    if key_tangent is not None and key_tangent.shape != (*batch, num_keys, joints, 3):
+        raise ValueError(f"key_tangent must be {(*batch, num_keys, joints, 3)} (one tangent per key), got {key_tangent.shape}")
     if handles.position.shape[:-2] != (*batch, num_keys - 1):
         raise ValueError(
             f"handles must be batched (..., windows, handles) = {(*batch, num_keys - 1)} for {num_keys} keys, "
@@ -482,17 +505,18 @@ def _sample_chained_curves(model, key_pos, handles, key_rot6d, *, key, steps, gu
         raise ValueError("a coupled chain needs overwrite=True (the coupling is part of the overwrite); use coupled=False")
     windows = num_keys - 1
     start, end = key_pos[..., :-1, :, :], key_pos[..., 1:, :, :]
-    pairs = None if key_rot6d is None else jnp.stack([key_rot6d[..., :-1, :, :], key_rot6d[..., 1:, :, :]], axis=-3)
+    window_ends = lambda x: None if x is None else jnp.stack([x[..., :-1, :, :], x[..., 1:, :, :]], axis=-3)  # noqa: E731
+    rot6d_pairs, tangent_pairs = window_ends(key_rot6d), window_ends(key_tangent)
     one = functools.partial(
         _sample_one, model, steps=steps, guidance=guidance, overwrite=overwrite, foot_lock=foot_lock,
         chain=_Chain(CHAIN_AXIS, windows) if coupled else None,
     )  # fmt: skip
 
-    def chain(start, end, handles, pairs, key):
+    def chain(start, end, handles, rot6d_pairs, tangent_pairs, key):
         # One vmap over the windows: its DDIM scans run as one batched loop.
-        return jax.vmap(one, axis_name=CHAIN_AXIS)(start, end, handles, pairs, jax.random.split(key, windows))
+        return jax.vmap(one, axis_name=CHAIN_AXIS)(start, end, handles, rot6d_pairs, tangent_pairs, jax.random.split(key, windows))
 
-    return over_batch(chain, batch, key, start, end, handles, pairs)
+    return over_batch(chain, batch, key, start, end, handles, rot6d_pairs, tangent_pairs)
 
 
 STORAGE_DTYPES = ("float32", "float16", "bfloat16")

@@ -126,6 +126,18 @@ def test_key_orientations_and_foot_lock_keep_the_chain_joined(model, chain):
     assert max(handle_residuals(curves, chain.handles)) < 1e-4
 
 
+def test_key_tangents_are_kept_through_the_coupled_chain(model, chain, demo_dataset):
+    tangent = np.asarray(demo_dataset.ctrl_tangent, np.float32)
+    key_tangent = jnp.asarray(np.stack([2.0 * tangent[r, c] for r, c in zip([0, 0, 5, 9], [0, -1, -1, -1])]))
+    curves = sample_chained_curves(model, chain.key_pos, chain.handles, key=jax.random.key(6), steps=STEPS, key_tangent=key_tangent)
+    got = np.asarray(curves.ctrl_tangent)
+    np.testing.assert_array_equal(got[:, 0], key_tangent[:-1])
+    np.testing.assert_array_equal(got[:, -1], key_tangent[1:])
+    assert max(handle_residuals(curves, chain.handles)) < 1e-4  # also the handles next to the keys (frames 1, 29)
+    with pytest.raises((ValueError, TypeError), match=r"key_tangent"):
+        sample_chained_curves(model, chain.key_pos, chain.handles, key=jax.random.key(0), steps=1, key_tangent=key_tangent[:3])
+
+
 def test_batched_chains_compile_once_and_match_single_chains(model, chain):
     traces = []
 

@@ -13,6 +13,7 @@ from helpers import assert_trees_close, assert_trees_identical, trees_differ
 from bmm.common import F, J, K, RESIDUAL, TINY, grid_errors, some_conditions
 
 from bezmotion.baselines import handle_interpolation
+from bezmotion.bezier import BezierLayout, evaluate, tangent_from_velocity
 from bezmotion.bmm.denoiser import apply_denoiser, init_denoiser
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, load_model, sample_curves, save_model
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
@@ -145,6 +146,31 @@ def test_sample_curves_composes_inside_a_callers_jit(model, motions, sampled):
     # ... also when every input is a constant of the caller's computation.
     constants = jax.jit(lambda: sample_curves(model, motions.start, motions.end, motions.handles, key=jax.random.key(21), steps=5))()
     assert_trees_close(constants, sampled, tol=1e-4)
+
+
+def test_key_tangents_are_conditions_hit_exactly_and_steer_the_sample(model, motions, sampled, demo_dataset):
+    """``key_tangent`` puts the keys' velocities on the first and last control tangents
+    exactly, and, written into x̂₀ at every step, changes what the model predicts between."""
+    tangent = np.asarray(demo_dataset.ctrl_tangent[[0, 7]], np.float32)  # (2, controls, 6, 3)
+    given = np.stack([-2.0 * tangent[:, 0], 3.0 * tangent[:, -1]], axis=1)  # not what the model would guess
+    keyed = sample_curves(
+        model, motions.start, motions.end, motions.handles, key=jax.random.key(21), steps=5, key_tangent=jnp.asarray(given)
+    )
+    np.testing.assert_array_equal(np.asarray(keyed.ctrl_tangent)[:, [0, -1]], given)
+    assert np.all(grid_errors(keyed, motions) == 0.0)  # positions still exact
+    assert trees_differ(keyed.ctrl_pos[:, 1:-1], sampled.ctrl_pos[:, 1:-1])
+    with pytest.raises((ValueError, TypeError), match="key_tangent|shape"):
+        sample_curves(model, motions.start, motions.end, motions.handles, key=jax.random.key(0), key_tangent=jnp.asarray(given[:, :, :3]))
+
+
+def test_tangent_from_velocity_moves_the_curve_at_that_velocity():
+    layout = BezierLayout.from_controls(K, TINY.stride)
+    velocity = jnp.asarray([1.5, -2.0, 0.25])  # cm/frame at control 0 and at the last control
+    ctrl_tangent = jnp.zeros((K, 3)).at[0].set(tangent_from_velocity(layout, velocity)).at[-1].set(tangent_from_velocity(layout, velocity))
+    eps, last = 1e-2, layout.num_frames - 1
+    points = evaluate(layout, jnp.zeros((K, 3)), ctrl_tangent, jnp.asarray([0.0, eps, last - eps, last]))
+    np.testing.assert_allclose(np.asarray(points[1] - points[0]) / eps, np.asarray(velocity), rtol=1e-2)
+    np.testing.assert_allclose(np.asarray(points[3] - points[2]) / eps, np.asarray(velocity), rtol=1e-2)
 
 
 def test_key_orientations_are_conditions_hit_exactly_and_steer_the_sample(model, motions, sampled, demo_dataset):
