@@ -166,6 +166,9 @@ class Options:
     handle_frames: str = option("grid", choices=HANDLE_FRAMES, help="handles on control frames, between them, or any frame")
     segments: int = option(1, help="windows per evaluated chain, keys 30 frames apart (1: single windows)")
     steps: int = option(10, help="DDIM steps")
+    key_velocities: bool = option(
+        False, help="give the curves the keys' velocities too (from the clip: frames 0→1 and 29→30; single windows only)"
+    )
     key_blend: int = option(KEY_BLEND_FRAMES, help="frames over which the start / end poses are blended in (0: replace the two frames)")
     chunk: int = option(10, help="windows per compiled call, chains: chunk // K (large chunks of the exact IK have hung XLA)")
     seed: int = option(1234, help="key of the windows, handles and OOD noise")
@@ -186,6 +189,8 @@ class Options:
             raise ValueError("--windows must be ≥ 0, --chunk and --steps ≥ 1")
         if self.segments < 1:
             raise ValueError(f"--segments {self.segments}: must be ≥ 1 (windows per chain; 1 = single windows)")
+        if self.key_velocities and self.segments > 1:
+            raise ValueError(f"--key-velocities is for single windows, not --segments {self.segments}")
         exact_settings(self)  # raises on a malformed or unknown setting
 
 
@@ -303,7 +308,10 @@ def chain_chunk(args: Options) -> int:
 def sample_items(args: Options, bmm, character, items: Items, cond: str, keys: jax.Array, coupled: bool = True) -> WindowCurves:
     """The curves of every item, sampled once (chains: ``(items, K, …)`` per window)."""
     if args.segments == 1:
-        return sample_window_curves(bmm, character, items.truth, items.handles[cond], keys, steps=args.steps, chunk=args.chunk)
+        return sample_window_curves(
+            bmm, character, items.truth, items.handles[cond], keys,
+            steps=args.steps, with_key_velocities=args.key_velocities, chunk=args.chunk,
+        )  # fmt: skip
     return sample_chain_curves(
         bmm, character, items.truth, items.handles[cond], keys, coupled=coupled, steps=args.steps, chunk=chain_chunk(args)
     )
@@ -422,6 +430,7 @@ def main(argv: list[str] | None = None) -> dict:
         "settings": {
             "bmm": str(model_path(args, "bmm")), "ik_model": str(model_path(args, "ik_model")), "joint_limits": limited,
             "handle_frames": args.handle_frames, "steps": args.steps, "key_blend_frames": args.key_blend,
+            "key_velocities": args.key_velocities,
             "chunk": args.chunk, "seed": args.seed, "sample_seed": args.sample_seed, "segments": k,
             "exact": exact_settings(args),
             "rows": np.asarray(items.rows).tolist(),
@@ -470,7 +479,7 @@ def format_report(r: dict) -> str:
     per, items = ("window", f"{r['windows']} windows") if seg is None else ("chain", f"{seg['chains']} chains of {seg['k']} windows")
     lines = [
         f"Pipeline on {r['source']}: {items}, handles on {s['handle_frames']} frames, {s['steps']} DDIM steps, "
-        f"key blend {s['key_blend_frames']} frames; the curves sampled once, every IK on the same curves ({r['seconds']:.0f} s).",
+        f"key blend {s['key_blend_frames']} frames{'; the keys’ velocities given to the curves' if s.get('key_velocities') else ''}; the curves sampled once, every IK on the same curves ({r['seconds']:.0f} s).",
         f"Mocap: foot skating {m['foot_skating_ratio']:.4f}, key pop {m['key_pop_deg']:.2f}°, "
         f"largest per-frame change {m['max_rotation_change_deg']:.2f}°.",
     ]

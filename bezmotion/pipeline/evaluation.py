@@ -242,11 +242,20 @@ def _chunked(fn, inputs: Any, chunk: int) -> tuple[Any, list[float], int]:
 
 @functools.partial(jax.jit, static_argnames=("steps", "foot_lock", "key_orientations"))
 def _curves_chunk(bmm, character, transfer, inputs, *, steps, foot_lock, key_orientations) -> WindowCurves:
-    start, end, handles, keys = inputs
+    start, end, handles, keys, velocity = inputs
     one = functools.partial(
         window_curves_traced, steps=steps, guidance=1.0, foot_lock=foot_lock, key_orientations=key_orientations
     )
-    return jax.vmap(lambda s, e, h, k: one(bmm, character, s, e, h, transfer, k))(start, end, handles, keys)
+    return jax.vmap(lambda s, e, h, k, v: one(bmm, character, s, e, h, transfer, k, key_velocity=v))(start, end, handles, keys, velocity)
+
+
+def key_velocities(character: Character, truth: Pose) -> Float[Array, "windows 2 6 3"]:
+    """The six joints' velocities at each window's start and end key (cm/frame) from the
+    motion itself: one-sided differences into the window (frames 0→1 and 29→30), where a
+    user would take them from the frames around the keys. An evaluation that gives them to
+    the curves knows one frame past each key: an upper bound on what context buys."""
+    position = targets_from_pose(character, jax.tree.map(lambda x: x[:, jnp.asarray([0, 1, -2, -1])], truth)).position
+    return jnp.stack([position[:, 1] - position[:, 0], position[:, 3] - position[:, 2]], axis=1)
 
 
 def sample_window_curves(
@@ -260,19 +269,22 @@ def sample_window_curves(
     steps: int = 10,
     foot_lock: bool = False,
     key_orientations: bool = True,
+    with_key_velocities: bool = False,
     chunk: int = 128,
 ) -> WindowCurves:
     """The curves stage of every window (start and end from ``truth``, one key per window,
     e.g. :func:`window_keys`), ``chunk`` windows per compiled call: batched
     :class:`~bezmotion.pipeline.inbetweening.WindowCurves`, which :func:`solve_window_curves`
-    hands to any number of IKs."""
+    hands to any number of IKs. ``with_key_velocities``: the curves are also given the
+    keys' velocities (:func:`key_velocities`)."""
     transfer = Transfer.identity() if transfer is None else transfer
     first = jax.tree.map(lambda x: x[:, 0], truth)
     last = jax.tree.map(lambda x: x[:, -1], truth)
+    velocity = key_velocities(character, truth) if with_key_velocities else None
     run = functools.partial(
         _curves_chunk, bmm, character, transfer, steps=steps, foot_lock=foot_lock, key_orientations=key_orientations
     )
-    return _chunked(run, (first, last, handles, keys), chunk)[0]
+    return _chunked(run, (first, last, handles, keys, velocity), chunk)[0]
 
 
 @functools.partial(jax.jit, static_argnames=("ik_fn", "key_blend_frames"))

@@ -27,7 +27,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from bezmotion.xla_options import call_with_inference_options
-from bezmotion.bezier import BezierLayout, reconstruct_dense
+from bezmotion.bezier import BezierLayout, reconstruct_dense, tangent_from_velocity
 from bezmotion.bmm.sampling import (
     BezierMotionModel,
     Handles,
@@ -90,18 +90,27 @@ def window_curves_traced(
     guidance: float,
     foot_lock: bool,
     key_orientations: bool = True,
+    key_velocity: Float[Array, "2 6 3"] | None = None,
 ) -> WindowCurves:
     """The first half of :func:`inbetween_traced`: the BMM curves and their dense
-    trajectories, which any number of IK modules can then share (:func:`pose_from_curves`)."""
+    trajectories, which any number of IK modules can then share (:func:`pose_from_curves`).
+
+    ``key_velocity``: optionally ``(2, 6, 3)`` the six joints' velocities at the start and
+    at the end pose (cm/frame, target character), where they are known (e.g. from the clip's
+    frames around the keys): conditions of the curves like the key orientations
+    (:func:`~bezmotion.bmm.sampling.sample_curves`'s ``key_tangent``), met exactly."""
     first, last = targets_from_pose(character, start), targets_from_pose(character, end)
     anchor = floor_anchor(first.position[HIPS])
     source = functools.partial(to_source_space, transfer, anchor)
     key_rot6d = orientations_to_source_space(transfer, jnp.stack([first.rot6d, last.rot6d])) if key_orientations else None
+    layout = BezierLayout.from_controls(bmm.config.num_controls, bmm.config.stride)
+    key_tangent = None if key_velocity is None else tangent_from_velocity(layout, key_velocity)
     curves = sample_curves(
         bmm, source(first.position), source(last.position), handles._replace(position=source(handles.position)),
         key=key, steps=steps, guidance=guidance, foot_lock=foot_lock, key_rot6d=key_rot6d,
+        key_tangent=None if key_tangent is None else key_tangent / transfer.scale,
     )  # fmt: skip
-    return _window_in_target(bmm, transfer, anchor, curves, first, last, handles)
+    return _window_in_target(bmm, transfer, anchor, curves, first, last, handles, key_tangent=key_tangent)
 
 
 def _window_in_target(
@@ -113,16 +122,22 @@ def _window_in_target(
     last: IKTargets,
     handles: Handles,
     shared: Bool[Array, "controls 6"] | None = None,
+    key_tangent: Float[Array, "2 6 3"] | None = None,
 ) -> WindowCurves:
     """Sampled curves of one window (BMM's space) → the target character's, through its
     keys and handles exactly, and their dense trajectories. ``shared``: control tangents a
-    chain shares with the neighbouring windows, which the handle projection keeps."""
+    chain shares with the neighbouring windows, which the handle projection keeps;
+    ``key_tangent``: the keys' own tangents (target character), set and kept likewise."""
     cfg = bmm.config
     curves = curves_to_target(transfer, anchor, curves)
+    ends = jnp.asarray([0, cfg.num_controls - 1])
+    if key_tangent is not None:  # exactly, undoing the scale round trip's rounding
+        curves = curves._replace(ctrl_tangent=curves.ctrl_tangent.at[ends].set(key_tangent))
+        at_keys = jnp.zeros(curves.ctrl_pos.shape[:2], bool).at[ends].set(True)
+        shared = at_keys if shared is None else shared | at_keys
     # The end control points are the given poses themselves: their positions exactly
     # (undoing the scale round trip's rounding) and their orientations (which, without
     # ``key_orientations``, the BMM never saw).
-    ends = jnp.asarray([0, cfg.num_controls - 1])
     curves = curves._replace(
         ctrl_pos=curves.ctrl_pos.at[ends].set(jnp.stack([first.position, last.position])),
         ctrl_rot6d=curves.ctrl_rot6d.at[ends].set(jnp.stack([first.rot6d, last.rot6d])),

@@ -14,9 +14,10 @@ import pytest
 from ik.demo_poses import frame, np_pose_positions, targets_of
 from pipeline.common import FRAMES, K, STRIDE, handles_error, hips_only_ik, identity_quats
 
+from bezmotion.bezier import BezierLayout, tangent_from_velocity
 from bezmotion.bmm.evaluation import floor_height_from, make_eval_set
 from bezmotion.bmm.sampling import Handles
-from bezmotion.ik.protocol import IKTargets, Pose
+from bezmotion.ik.protocol import IKTargets, Pose, targets_from_pose
 from bezmotion.pipeline import mpjpe
 from bezmotion.pipeline.evaluation import (
     PipelineMetricsConfig,
@@ -25,7 +26,10 @@ from bezmotion.pipeline.evaluation import (
     evaluate_pipeline,
     ground_truth_pose_metrics,
     pose_metrics,
+    key_velocities,
     run_pipeline,
+    sample_window_curves,
+    window_keys,
     window_poses,
 )
 
@@ -156,3 +160,23 @@ def test_metrics_of_the_truth_and_of_a_perfect_ik(clip, evaluation):
     assert gt["ik_of_mocap_mpjpe_cm"] < 1e-4
     assert gt["ik_of_mocap_foot_skating_ratio"] == pytest.approx(gt["foot_skating_ratio"], abs=1e-6)
     assert set(ground_truth_pose_metrics(ev.config, c, ev.truth)) - ROTATION_CHANGE == {"foot_skating_ratio"}
+
+
+def test_key_velocities_from_the_clip_reach_the_curves_exactly(clip, bmm, evaluation):
+    c, ev = clip.character, evaluation
+    velocity = np.asarray(key_velocities(c, ev.truth))  # (windows, 2, 6, 3) cm/frame
+    position = np.asarray(targets_from_pose(c, ev.truth).position)
+    np.testing.assert_allclose(velocity[:, 0], position[:, 1] - position[:, 0], atol=1e-4)
+    np.testing.assert_allclose(velocity[:, 1], position[:, -1] - position[:, -2], atol=1e-4)
+    keys = window_keys(jax.random.key(3), ev.eval_set.rows)
+    handles = ev.eval_set.handles
+    plain = sample_window_curves(bmm, c, ev.truth, handles, keys, steps=2)
+    given = sample_window_curves(bmm, c, ev.truth, handles, keys, steps=2, with_key_velocities=True)
+    tangent = np.asarray(tangent_from_velocity(BezierLayout.from_controls(K, STRIDE), velocity))
+    np.testing.assert_array_equal(np.asarray(given.curves.ctrl_tangent)[:, [0, -1]], tangent)
+    assert np.abs(np.asarray(plain.curves.ctrl_tangent)[:, [0, -1]] - tangent).max() > 1e-2  # the model alone guesses otherwise
+    # Still through the keys and every handle.
+    np.testing.assert_array_equal(np.asarray(given.positions)[:, 0], position[:, 0])
+    for w, s in zip(*np.nonzero(np.asarray(handles.valid))):
+        got = np.asarray(given.positions)[w, int(handles.frame[w, s]), int(handles.joint[w, s])]
+        np.testing.assert_allclose(got, np.asarray(handles.position)[w, s], atol=1e-3)
