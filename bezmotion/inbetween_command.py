@@ -62,7 +62,7 @@ from bezmotion.ik.protocol import Pose, pose_fk
 from bezmotion.ik.protores import load_ik_model
 from bezmotion.io import atomic_write_text
 from bezmotion.options import option, options
-from bezmotion.pipeline import inbetween, pose_to_bvh
+from bezmotion.pipeline import inbetween, key_velocities, pose_to_bvh
 from bezmotion.pipeline.authoring import (
     CHANNEL_CHOICES,
     IK_CHOICES,
@@ -128,6 +128,9 @@ class InbetweenOptions:
     )  # fmt: skip
     key_positions_only: bool = option(
         False, help="condition the BMM on the key poses' joint positions alone (the paper); default: their orientations too"
+    )
+    key_velocities: bool = option(
+        False, help="the curves leave and reach the keys at the clip's own velocities (from the frame before the start and the one after the end)"
     )
     no_preview: bool = option(False, help="with --out FOLDER: no preview.gif (drawing it takes a few seconds)")
     no_progress: bool = option(False, help="no progress lines on stderr")
@@ -320,6 +323,7 @@ class Plan:
     outputs: list[dict[str, Path]]
     folder: Path | None
     label: str
+    key_velocity: Any = None  # (2, 6, 3) cm/frame with --key-velocities
 
 
 def _outputs(args: InbetweenOptions) -> tuple[list[dict[str, Path]], Path | None]:
@@ -399,6 +403,14 @@ def plan(args: InbetweenOptions) -> Plan:
     character = recognised.character
     start = motion_poses(start_motion, character, f0)
     end = motion_poses(end_motion, character, f1)
+    key_velocity = None
+    if args.key_velocities:
+        if f0 == 0:
+            raise ValueError(f"--key-velocities: the start key is the first frame of {text0}; its velocity needs the frame before it")
+        if f1 == end_motion.num_frames - 1:
+            raise ValueError(f"--key-velocities: the end key is the last frame ({f1}) of {text1}; its velocity needs the frame after it")
+        around = [motion_poses(start_motion, character, f0 - 1), start, end, motion_poses(end_motion, character, f1 + 1)]
+        key_velocity = key_velocities(character, jax.tree.map(lambda *x: jnp.stack(x), *around))
 
     # The handles as written (their joints known now; their frames once the model is).
     requests = [parse_handle(h) for h in args.handle]
@@ -451,7 +463,10 @@ def plan(args: InbetweenOptions) -> Plan:
         raise ValueError(f"--ik {ik}: the learned IK {args.ik_model} does not fit this skeleton: {error}") from None
 
     handles, records = resolve_handles(requests, recognised, start, end, bmm)
-    return Plan(recognised, start_motion, start, end, reference, bmm, ik, ik_fn, ik_params, transfer, handles, records, outputs, folder, label)
+    return Plan(
+        recognised, start_motion, start, end, reference, bmm, ik, ik_fn, ik_params, transfer, handles, records, outputs, folder, label,
+        key_velocity,
+    )  # fmt: skip
 
 
 # -------------------------------------------------------------------------------- run
@@ -488,7 +503,7 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
         result = inbetween(
             p.bmm, p.ik_fn, p.ik_params, character, p.start, p.end, p.handles,
             key=jax.random.fold_in(jax.random.key(args.seed), k), transfer=p.transfer, steps=args.steps,
-            key_orientations=not args.key_positions_only,
+            key_orientations=not args.key_positions_only, key_velocity=p.key_velocity,
         )  # fmt: skip
         jax.block_until_ready(result)
         seconds = time.perf_counter() - t0

@@ -25,7 +25,8 @@ from helpers import np_forward_kinematics
 from bezmotion.assets import DEMO_CLIP
 from bezmotion.cli import main
 from bezmotion.data.bvh import read_bvh
-from bezmotion.inbetween_command import HandleRequest, parse_handle, read_handles_file
+from bezmotion.inbetween_command import HandleRequest, InbetweenOptions, parse_handle, plan, read_handles_file
+from bezmotion.options import parse_options
 from bezmotion.pipeline.authoring import RigSpec, derive_rig_spec, read_mapping, recognise_character
 
 FAST = ["--ik", "rig", "--steps", "2", "--no-progress"]
@@ -265,6 +266,10 @@ def _cases(tmp):
         "not a number": ([*keys, "--samples", "x"], "argument --samples: invalid int value: 'x'"),
         "unknown profile": ([*keys, "--trained-on", "amass"], "--trained-on amass: not a bundled profile"),
         "no keys": (["--handle", "head@12=+0,1,0"], "give the key poses"),
+        "key velocity before the clip": ([*keys, "--key-velocities"], f"--key-velocities: the start key is the first frame of {clip}"),
+        "key velocity after the clip": (
+            ["--start", f"{clip}@5", "--end", f"{clip}@39", "--key-velocities"], f"--key-velocities: the end key is the last frame (39) of {clip}@39"
+        ),
     }  # fmt: skip
 
 
@@ -294,3 +299,14 @@ def test_the_learned_ik_refuses_another_skeleton(tmp_path):
     code, _, err = run_cli(clip, "--frames", "0", "30", "--mapping", mapping, "--ik", "learned", "--out", tmp_path / "o.bvh")
     assert code == 2 and "--ik learned: the learned IK bandai_namco does not fit this skeleton" in err and "use --ik rig" in err
     assert not (tmp_path / "o.bvh").exists()
+
+
+def test_key_velocities_come_from_the_frames_around_the_keys(tmp_path):
+    """``--key-velocities``: the six joints' velocities at the keys from the frame before the
+    start and the one after the end (the motion kept around the in-between)."""
+    args = parse_options(InbetweenOptions, [str(DEMO_CLIP), "--frames", "5", "35", "--key-velocities", *FAST, "--out", str(tmp_path / "x.bvh")])
+    p = plan(args)
+    six = list(p.recognised.character.characteristic)
+    pos = fk_positions(read_bvh(DEMO_CLIP))[:, six]
+    np.testing.assert_allclose(np.asarray(p.key_velocity), np.stack([pos[5] - pos[4], pos[36] - pos[35]]), atol=1e-3)
+    assert plan(parse_options(InbetweenOptions, [str(DEMO_CLIP), "--frames", "5", "35", *FAST])).key_velocity is None

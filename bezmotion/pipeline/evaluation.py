@@ -42,6 +42,7 @@ from bezmotion.pipeline.inbetweening import (
     WindowCurves,
     chain_curves_traced,
     inbetween_traced,
+    key_velocities,
     pose_from_chain_curves,
     pose_from_curves,
     split_windows,
@@ -249,13 +250,13 @@ def _curves_chunk(bmm, character, transfer, inputs, *, steps, foot_lock, key_ori
     return jax.vmap(lambda s, e, h, k, v: one(bmm, character, s, e, h, transfer, k, key_velocity=v))(start, end, handles, keys, velocity)
 
 
-def key_velocities(character: Character, truth: Pose) -> Float[Array, "windows 2 6 3"]:
+def window_key_velocities(character: Character, truth: Pose) -> Float[Array, "windows 2 6 3"]:
     """The six joints' velocities at each window's start and end key (cm/frame) from the
-    motion itself: one-sided differences into the window (frames 0→1 and 29→30), where a
-    user would take them from the frames around the keys. An evaluation that gives them to
-    the curves knows one frame past each key: an upper bound on what context buys."""
-    position = targets_from_pose(character, jax.tree.map(lambda x: x[:, jnp.asarray([0, 1, -2, -1])], truth)).position
-    return jnp.stack([position[:, 1] - position[:, 0], position[:, 3] - position[:, 2]], axis=1)
+    motion itself (:func:`~bezmotion.pipeline.inbetweening.key_velocities` of frames 0, 1,
+    29, 30): one-sided differences into the window, where a user would take them from the
+    frames around the keys. An evaluation that gives them to the curves knows one frame past
+    each key: an upper bound on what such context buys."""
+    return key_velocities(character, jax.tree.map(lambda x: x[:, jnp.asarray([0, 1, -2, -1])], truth))
 
 
 def sample_window_curves(
@@ -276,11 +277,11 @@ def sample_window_curves(
     e.g. :func:`window_keys`), ``chunk`` windows per compiled call: batched
     :class:`~bezmotion.pipeline.inbetweening.WindowCurves`, which :func:`solve_window_curves`
     hands to any number of IKs. ``with_key_velocities``: the curves are also given the
-    keys' velocities (:func:`key_velocities`)."""
+    keys' velocities (:func:`window_key_velocities`)."""
     transfer = Transfer.identity() if transfer is None else transfer
     first = jax.tree.map(lambda x: x[:, 0], truth)
     last = jax.tree.map(lambda x: x[:, -1], truth)
-    velocity = key_velocities(character, truth) if with_key_velocities else None
+    velocity = window_key_velocities(character, truth) if with_key_velocities else None
     run = functools.partial(
         _curves_chunk, bmm, character, transfer, steps=steps, foot_lock=foot_lock, key_orientations=key_orientations
     )

@@ -24,7 +24,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from bezmotion.xla_options import call_with_inference_options
 from bezmotion.bezier import BezierLayout, reconstruct_dense, tangent_from_velocity
@@ -37,7 +37,7 @@ from bezmotion.bmm.sampling import (
     shared_key_mask,
 )
 from bezmotion.diffusion.projection import project_onto_handles
-from bezmotion.data.characteristic import HIPS
+from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, solve_frames, targets_from_pose
 from bezmotion.pipeline.key_blend import blend_to_keys
 from bezmotion.pipeline.transfer import Transfer, curves_to_target, floor_anchor, orientations_to_source_space, to_source_space
@@ -75,6 +75,15 @@ class WindowCurves(NamedTuple):
     curves: SampledCurves
     positions: Float[Array, "frames 6 3"]
     rot6d: Float[Array, "frames 6 6"]
+
+
+def key_velocities(character: Character, poses: Pose) -> Float[Array, "*batch 2 6 3"]:
+    """The six joints' velocities at a window's two keys (cm/frame) from four poses
+    ``(*batch, 4, …)``: a frame next to the start key, the start key, the end key, a frame
+    next to the end key, one frame apart each — ``[p₁ − p₀, p₃ − p₂]``. From a clip, the
+    frame before the start and the one after the end (the motion kept around the window)."""
+    position = targets_from_pose(character, poses).position  # (*batch, 4, 6, 3)
+    return jnp.stack([position[..., 1, :, :] - position[..., 0, :, :], position[..., 3, :, :] - position[..., 2, :, :]], axis=-3)
 
 
 def window_curves_traced(
@@ -190,6 +199,7 @@ def inbetween_traced(
     keep_keyframes: bool,
     key_blend_frames: int = 0,
     key_orientations: bool = True,
+    key_velocity: Float[Array, "2 6 3"] | None = None,
 ) -> InbetweenResult:
     """The traceable body of :func:`inbetween`, for callers that batch or compile it
     themselves (``jax.vmap`` over windows in :mod:`bezmotion.pipeline.evaluation`).
@@ -200,7 +210,7 @@ def inbetween_traced(
     """
     window = window_curves_traced(
         bmm, character, start, end, handles, transfer, key,
-        steps=steps, guidance=guidance, foot_lock=foot_lock, key_orientations=key_orientations,
+        steps=steps, guidance=guidance, foot_lock=foot_lock, key_orientations=key_orientations, key_velocity=key_velocity,
     )  # fmt: skip
     pose = pose_from_curves(ik_fn, ik_params, window, start, end, keep_keyframes=keep_keyframes, key_blend_frames=key_blend_frames)
     return InbetweenResult(pose, *window)
@@ -249,6 +259,7 @@ def inbetween(
     keep_keyframes: bool = True,
     key_blend_frames: int = KEY_BLEND_FRAMES,
     key_orientations: bool = True,
+    key_velocity: Float[ArrayLike, "2 6 3"] | None = None,
 ) -> InbetweenResult:
     """In-between a window of ``character`` from ``start`` to ``end`` through ``handles``.
 
@@ -274,13 +285,19 @@ def inbetween(
         conditions of the BMM, overwritten like their positions (``sample_curves``'s
         ``key_rot6d``), so the curves leave and reach the keys facing their way; ``False``
         is the paper's position-only conditioning.
+      key_velocity: optionally ``(2, 6, 3)`` the six joints' velocities at the start and at
+        the end pose (cm/frame, :data:`CHARACTERISTIC_JOINTS` order), where they are known,
+        e.g. :func:`key_velocities` of a clip's frames around the keys: the curves then leave
+        and reach the keys at those velocities (conditions met exactly), which keeps the
+        limbs from popping next to the keys. Default: the BMM chooses them.
     Returns:
       :class:`InbetweenResult`; its curves pass through every handle exactly, so the
       full-body handle error is the IK module's alone.
 
     Raises:
-      ValueError: poses not of this character, handles not of one motion, or a start or
-        end pose with non-finite values.
+      ValueError: poses not of this character, handles not of one motion, a start or
+        end pose with non-finite values, or a ``key_velocity`` not of shape ``(2, 6, 3)``
+        or not finite.
       equinox.EquinoxRuntimeError: inside a caller's ``eqx.filter_jit``, when the
         computation runs with a non-finite start or end pose (same message, from
         ``eqx.error_if``; a plain ``jax.jit`` re-wraps it in JAX's own runtime error).
@@ -293,11 +310,20 @@ def inbetween(
     if handles.position.ndim != 2:
         raise ValueError(f"handles must describe one motion ((handles, 3) positions), got {handles.position.shape}")
     start, end = _checked_finite(start, "start"), _checked_finite(end, "end")
+    if key_velocity is not None:
+        key_velocity = jnp.asarray(key_velocity, start.root_pos.dtype)
+        if key_velocity.shape != (2, len(CHARACTERISTIC_JOINTS), 3):
+            raise ValueError(f"key_velocity must be (2, 6, 3) (start and end, six joints, cm/frame), got {key_velocity.shape}")
+        message = "key_velocity contains non-finite values"
+        if isinstance(key_velocity, jax.core.Tracer):  # known at run time only, as _checked_finite's poses
+            key_velocity = eqx.error_if(key_velocity, ~jnp.isfinite(key_velocity).all(), message)
+        elif not np.isfinite(np.asarray(key_velocity)).all():
+            raise ValueError(f"{message}: {np.asarray(key_velocity).tolist()}")
     transfer = Transfer.identity() if transfer is None else transfer
     return call_with_inference_options(
         _compiled, bmm, ik_params, character, start, end, handles, transfer, key,
         ik_fn=ik_fn, steps=steps, guidance=guidance, foot_lock=foot_lock, keep_keyframes=keep_keyframes,
-        key_blend_frames=key_blend_frames, key_orientations=key_orientations,
+        key_blend_frames=key_blend_frames, key_orientations=key_orientations, key_velocity=key_velocity,
     )  # fmt: skip
 
 

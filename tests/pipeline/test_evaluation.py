@@ -26,9 +26,9 @@ from bezmotion.pipeline.evaluation import (
     evaluate_pipeline,
     ground_truth_pose_metrics,
     pose_metrics,
-    key_velocities,
     run_pipeline,
     sample_window_curves,
+    window_key_velocities,
     window_keys,
     window_poses,
 )
@@ -164,7 +164,7 @@ def test_metrics_of_the_truth_and_of_a_perfect_ik(clip, evaluation):
 
 def test_key_velocities_from_the_clip_reach_the_curves_exactly(clip, bmm, evaluation):
     c, ev = clip.character, evaluation
-    velocity = np.asarray(key_velocities(c, ev.truth))  # (windows, 2, 6, 3) cm/frame
+    velocity = np.asarray(window_key_velocities(c, ev.truth))  # (windows, 2, 6, 3) cm/frame
     position = np.asarray(targets_from_pose(c, ev.truth).position)
     np.testing.assert_allclose(velocity[:, 0], position[:, 1] - position[:, 0], atol=1e-4)
     np.testing.assert_allclose(velocity[:, 1], position[:, -1] - position[:, -2], atol=1e-4)

@@ -20,8 +20,9 @@ from bezmotion.bmm.sampling import BezierMotionModel, Handles
 from bezmotion.data.bvh import read_bvh
 from bezmotion.data.characteristic import HIPS
 from bezmotion.geometry.rotations import quat_from_rot6d
-from bezmotion.ik.protocol import Character, IKTargets, Pose, pose_from_motion
-from bezmotion.pipeline.inbetweening import inbetween
+from bezmotion.bezier import BezierLayout, tangent_from_velocity
+from bezmotion.ik.protocol import Character, IKTargets, Pose, pose_from_motion, targets_from_pose
+from bezmotion.pipeline.inbetweening import inbetween, key_velocities
 
 TINY = BMMConfig.cpu(width=32, ff_width=64, num_heads=2, num_layers=1, dropout=0.0)
 STEPS = 1  # DDIM steps: the checks run before sampling
@@ -73,3 +74,23 @@ def test_inside_a_callers_jit_a_non_finite_start_pose_raises_when_it_runs(case):
     # runtime error whose type depends on JAX's dispatch path. The message survives.
     with pytest.raises((eqx.EquinoxRuntimeError, RuntimeError, ValueError), match="the start pose contains non-finite values"):
         jax.block_until_ready(jitted(nan_at(start), end))
+
+
+def test_key_velocities_are_met_exactly_and_bad_ones_raise(case):
+    """``key_velocity`` (e.g. :func:`key_velocities` of the frames around the keys) becomes
+    the curves' tangents at the keys, exactly; a wrong shape or a NaN raises before compiling."""
+    bmm, character, rest, start, end = case
+    motion = read_bvh(DEMO_CLIP)
+    around = pose_from_motion(character, motion.quat_local[[0, 1, 29, 30]].astype(np.float32), motion.pos_local[[0, 1, 29, 30]].astype(np.float32))
+    velocity = key_velocities(character, around)
+    position = targets_from_pose(character, around).position
+    np.testing.assert_allclose(velocity, jnp.stack([position[1] - position[0], position[3] - position[2]]), atol=1e-5)
+    result = inbetween(bmm, hips_only_ik, rest, character, start, end, Handles.empty(), key=jax.random.key(1), steps=STEPS, key_velocity=velocity)
+    layout = BezierLayout.from_controls(TINY.num_controls, TINY.stride)
+    np.testing.assert_array_equal(result.curves.ctrl_tangent[jnp.asarray([0, -1])], tangent_from_velocity(layout, velocity))
+    run_with = lambda v: inbetween(bmm, hips_only_ik, rest, character, start, end, Handles.empty(), key=jax.random.key(1), steps=STEPS, key_velocity=v)  # noqa: E731
+    # The type checks of the test session may catch this one first (as for sample_curves).
+    with pytest.raises((ValueError, TypeError), match="key_velocity"):
+        run_with(velocity[0])
+    with pytest.raises(ValueError, match="key_velocity contains non-finite values"):
+        run_with(velocity.at[1, 2, 0].set(jnp.nan))
