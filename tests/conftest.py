@@ -9,6 +9,7 @@ from jaxtyping import install_import_hook
 
 install_import_hook("bezmotion", "beartype.beartype")
 
+import gc  # noqa: E402
 import zipfile  # noqa: E402
 
 import jax  # noqa: E402
@@ -73,3 +74,23 @@ def synthetic_zip(tmp_path_factory) -> str:
             write_bvh(path, BvhMotion.from_skeleton(skeleton, quat, root, rotation_order="zyx"), precision=6)
             zf.write(path, arcname=path.name)
     return str(archive)
+
+
+# ------------------------------------------------------------------ compiled-code housekeeping
+
+
+@pytest.fixture(scope="module", autouse=True)
+def release_compiled_code():
+    """Drop every compiled computation after each test module.
+
+    XLA's CPU backend maps each executable's machine code into memory pages of its own, and
+    JAX keeps every executable it compiled for as long as the process lives. One pytest
+    process compiles thousands of them; after ~20 minutes the mappings pass the kernel's
+    ``vm.max_map_count`` (65,530 here) and the next compilation aborts the whole process
+    (``Fatal Python error: Aborted`` inside ``backend_compile_and_load``, with ~7 GB of
+    RSS, so not an out-of-memory kill). Modules do not share compiled shapes worth keeping:
+    recompiling what a later module needs costs less than losing the run.
+    """
+    yield
+    jax.clear_caches()
+    gc.collect()
