@@ -16,6 +16,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import jax
 import numpy as np
 import pytest
 
@@ -35,12 +36,14 @@ def free_port() -> int:
 def run_group(run_dir: Path, steps: int, out: Path, num_processes: int, cache: Path) -> None:
     """Run ``num_processes`` workers together (one: an ordinary process) and wait for all.
 
-    The workers share a persistent XLA compilation cache (``cache``): the seven processes
-    compile the same few programs, and only the first compilation of each need run.
+    The workers share a persistent XLA compilation cache (``cache``): the five processes
+    compile the same few programs, and only the first compilation of each need run. They
+    compile with the same optimisation setting as this session (``conftest``).
     """
     env = {
         **os.environ, "XLA_FLAGS": "", "JAX_PLATFORMS": "cpu",
         "JAX_COMPILATION_CACHE_DIR": str(cache), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
+        "JAX_DISABLE_MOST_OPTIMIZATIONS": str(int(jax.config.read("jax_disable_most_optimizations"))),
     }  # fmt: skip
     if num_processes == 1:
         commands = [[sys.executable, str(WORKER), str(run_dir), str(steps), str(out)]]
