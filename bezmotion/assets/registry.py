@@ -119,17 +119,23 @@ REGISTRY: Mapping[str, ModelEntry] = {
             "python experiments/bmm_lafan1.py --corpus bandai_namco --init ~/.cache/bezmotion/runs/bmm_bandai_namco_cpu_residual/model "
             "--off-grid-handles 0.5 --prediction residual --learning-rate 2e-4 --min-snr-gamma 0 --steps 2400 --handle-frames any "
             "--eval-every 400 --curve-windows 200 --eval-windows 500 --table6-steps 10 --out results/bmm_bn_finetune_offgrid_2400.json",
+            "python -c \"from bezmotion.bmm.sampling import save_model, load_model; import os; save_model(os.path.expanduser('~/.cache/bezmotion/runs/bmm_bn_finetune_2400_fp16'), "
+            "load_model(os.path.expanduser('~/.cache/bezmotion/runs/bmm_bandai_namco_finetune_model_offgrid0.5/model')), storage_dtype='float16')\"",
+            "python experiments/bmm_lafan1.py --corpus bandai_namco --init ~/.cache/bezmotion/runs/bmm_bn_finetune_2400_fp16 --off-grid-handles 0.5 --prediction residual "
+            "--learning-rate 2e-4 --min-snr-gamma 0 --steps 3600 --checkpoint-every 200 --eval-every 600 --curve-windows 200 --patience 4 "
+            "--handle-frames any --eval-windows 500 --table6-steps 10 --run-dir ~/.cache/bezmotion/runs/bmm_bn_finetune2_offgrid "
+            "--out results/bmm_bn_finetune2_3600.json",
             "python experiments/train_ik.py --corpus bandai_namco",
             "python experiments/joint_limits.py --corpus bandai_namco --out bezmotion/assets/models/ik_bandai_namco/joint_limits.json",
         ),
         metrics=(
-            "BMM (3,025 grid-handle steps + 2,400 steps with handles at any frame half of the time), 500 validation windows, "
-            "curves before IK, 10 DDIM steps: dense six-joint error 4.92 cm (reference curves through start, end and handles: "
-            "7.04 cm; 0.70x), foot skating 0.112 (reference 0.127), handles at any frame 5.29 cm (reference 7.55), handles hit "
+            "BMM (3,025 grid-handle steps, then 2,400 + 3,600 steps with handles at any frame half of the time), 500 validation "
+            "windows, curves before IK, 10 DDIM steps: dense six-joint error 4.45 cm (reference curves through start, end and handles: "
+            "7.04 cm; 0.63x), foot skating 0.118 (reference 0.127), handles at any frame 4.64 cm (reference 7.55), handles hit "
             "exactly; learned IK, every 4th "
             "validation frame (8,617): MPJPE 0.40 cm from the six joints' positions and rotations, 1.18 cm from positions only"
         ),
-        metrics_file="results/bmm_bn_finetune_offgrid_2400.json",
+        metrics_file="results/bmm_bn_finetune2_3600.json",
     ),
     "lafan1": ModelEntry(
         name="lafan1",
