@@ -28,13 +28,6 @@ import gc  # noqa: E402
 import zipfile  # noqa: E402
 
 import jax  # noqa: E402
-
-if os.environ.get("BEZMOTION_TEST_XLA_OPTIMIZE", "") in ("", "0"):
-    jax.config.update("jax_disable_most_optimizations", True)
-_COMPILATION_CACHE = tempfile.mkdtemp(prefix="bezmotion-test-xla-")
-atexit.register(shutil.rmtree, _COMPILATION_CACHE, ignore_errors=True)
-jax.config.update("jax_compilation_cache_dir", _COMPILATION_CACHE)
-jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.3)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
@@ -43,6 +36,14 @@ from bezmotion.data import lafan1  # noqa: E402  (after the hook, so it is type-
 from bezmotion.data.bvh import BvhMotion, write_bvh  # noqa: E402
 from bezmotion.geometry import Skeleton, quat_from_euler  # noqa: E402
 from helpers import SHARED_DATA, requires_shared  # noqa: E402,F401  (re-exported for test modules)
+
+# Before any test compiles (see the module docstring).
+if os.environ.get("BEZMOTION_TEST_XLA_OPTIMIZE", "") in ("", "0"):
+    jax.config.update("jax_disable_most_optimizations", True)
+_COMPILATION_CACHE = tempfile.mkdtemp(prefix="bezmotion-test-xla-")
+atexit.register(shutil.rmtree, _COMPILATION_CACHE, ignore_errors=True)
+jax.config.update("jax_compilation_cache_dir", _COMPILATION_CACHE)
+jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.3)
 
 
 @pytest.fixture
