@@ -105,6 +105,9 @@ class Options(DistributedOptions):
     seeds: tuple[int, ...] = option((0,), help="seeds trained together (vmapped)")
     run_dir: str | None = option(None, help="checkpoints and the final model (default: <cache>/runs/bmm_lafan1_<config>)")
     checkpoint_every: int = 500
+    train_seconds: float | None = option(
+        None, help="stop training after this many seconds of this run (checkpointed; the same command later goes on), then evaluate"
+    )
     eval_windows: int = option(1000, help="subject-5 windows evaluated (default 1000; 0 = all)")
     guidance: float = option(1.0, help="classifier-free guidance scale at sampling (1 = off)")
     table6_steps: tuple[int, ...] = option(STEP_COUNTS, help="DDIM step counts compared (default 5 10 25 50 100)")
@@ -143,6 +146,8 @@ class Options(DistributedOptions):
             object.__setattr__(self, "run_dir", str(runs_dir(f"bmm_{self.corpus}_{self.config}{suffix}{self.lever_suffix()}")))
         if self.patience and not self.eval_every:
             raise ValueError(f"--patience {self.patience} needs --eval-every (the curve it watches)")
+        if self.train_seconds is not None and self.train_seconds <= 0:
+            raise ValueError(f"--train-seconds must be > 0, got {self.train_seconds}")
         if self.eval_every < 0 or self.patience < 0 or self.curve_windows < 1:
             raise ValueError("--eval-every and --patience must be ≥ 0, --curve-windows ≥ 1")
         if self.also_corpus is not None and (self.also_corpus == self.corpus or self.bandai_namco):
@@ -196,7 +201,8 @@ def train(
     store.check_resumable(config, extendable=("train.num_steps",) if train_config.lr_schedule == "constant" else ())
     started = time.perf_counter()
     data = CurveArrays.from_dataset(train_set)
-    kwargs = dict(store=store, checkpoint_every=args.checkpoint_every, config=config, progress=not args.no_progress)
+    deadline = None if args.train_seconds is None else time.monotonic() + args.train_seconds
+    kwargs = dict(store=store, checkpoint_every=args.checkpoint_every, config=config, progress=not args.no_progress, deadline=deadline)
     curve = None
     if args.eval_every and evaluate is not None:
         stopping = StoppingRule("id.ema.dense_error_cm", args.patience) if args.patience else None
@@ -439,7 +445,8 @@ def main(argv: list[str] | None = None) -> dict:
     results: dict = {
         "model": {"config": f"saved: {args.model}" if args.model else args.config, **dataclasses.asdict(model_config), "params": None},
         "training": {
-            "corpus": args.corpus, "steps": 0 if args.model else args.steps, "batch_size": args.batch_size, "learning_rate": args.learning_rate,
+            "corpus": args.corpus, "steps": 0 if args.model else int(np.max(np.asarray(state.step))), "steps_requested": args.steps,
+            "train_seconds_limit": args.train_seconds, "batch_size": args.batch_size, "learning_rate": args.learning_rate,
             "seeds": ["saved"] if args.model else list(args.seeds), "saved_model": args.model, "fine_tuned_from": args.init,
             "min_snr_gamma": train_config.min_snr_gamma, "off_grid_handles": train_config.off_grid_handles,
             "train_windows": len(train_set), "bandai_namco": bool(args.bandai_namco), "also_corpus": args.also_corpus, "wall_s_this_run": train_s,

@@ -93,6 +93,8 @@ def train_with_learning_curve(
       evaluate: the state after training to an evaluation step → a JSON-able dict.
       curve_file: the curve's JSON file (created; resumed when it exists).
       stopping: the early-stopping rule, or ``None`` to train all ``num_steps``.
+      ``run_kwargs["deadline"]`` (a :func:`time.monotonic` time), when given, also ends
+      the curve: the step reached then is evaluated as the curve's last point.
     Returns:
       The final state, this call's logged training records, and the curve (as written).
     Raises:
@@ -112,7 +114,10 @@ def train_with_learning_curve(
         state, logged = run_training(step_fn, state, data, num_steps=target, **run_kwargs)
         history += logged
         reached = int(np.max(np.asarray(state.step)))  # a checkpoint saved past ``target`` (Ctrl-C) resumes there
+        out_of_time = reached < target  # ``deadline`` passed: later targets would not be reached either
         if reached in done:
+            if out_of_time:
+                break
             continue
         done.add(reached)
         previous = curve["points"][-1]["train_s"] if curve["points"] else 0.0
@@ -124,6 +129,8 @@ def train_with_learning_curve(
         if stopping is not None and stopping.should_stop(curve["points"]):
             curve["stopped_at"] = reached
         atomic_write_text(curve_file, json.dumps(curve, indent=2) + "\n")
+        if out_of_time:
+            break
     return state, history, curve
 
 

@@ -90,6 +90,7 @@ def run_training(
     progress: bool = True,
     log_every: int = 25,
     progress_fn: Callable[[int, dict[str, float | int]], None] | None = None,
+    deadline: float | None = None,
 ) -> tuple[TrainState, list[dict[str, float | int]]]:
     """Run a compiled step until ``state.step`` reaches ``num_steps``, resuming from ``store``.
 
@@ -113,6 +114,10 @@ def run_training(
         after the last call); ``record`` is the entry appended to
         the history (``step``, ``steps_per_s`` since this call started, and the metrics
         averaged over seeds).
+      deadline: a :func:`time.monotonic` time after which training stops at the next
+        step boundary, checkpoints and returns (the state's step then falls short of
+        ``num_steps``; a later call with the same store goes on from there), so a run sized
+        to a wall-clock budget (a lent GPU, a session's end) keeps all it trained.
 
     Returns:
       The final state and the logged records (every ``log_every`` steps and the last).
@@ -141,8 +146,9 @@ def run_training(
                     raise KeyboardInterrupt(f"signal {terminate[0]}")
                 state, metrics = step_fn(state, data)
                 done += 1
+                out_of_time = deadline is not None and time.monotonic() >= deadline
                 record = None
-                if done % log_every == 0 or done == num_steps:
+                if done % log_every == 0 or done == num_steps or out_of_time:
                     logged = {k: float(np.mean(_host_value(v))) for k, v in metrics.items()}
                     rate = (done - started_step) / max(time.perf_counter() - started, 1e-9)
                     record = {"step": done, "steps_per_s": rate, **logged}
@@ -153,6 +159,9 @@ def run_training(
                     store.save(done, state, config)
                 if progress_fn is not None and record is not None:
                     progress_fn(done, record)
+                if out_of_time:
+                    bar.write(f"time limit reached at step {done} of {num_steps}")
+                    break
         except KeyboardInterrupt:
             if store is not None:
                 done = int(np.max(_host_value(state.step)))  # the state actually held, whatever was interrupted

@@ -4,6 +4,7 @@ toy of ``test_loop``: evaluation points, the stopping rule, and resume across ca
 from __future__ import annotations
 
 import json
+import time
 
 import jax.numpy as jnp
 import numpy as np
@@ -74,3 +75,16 @@ def test_early_stop_is_kept_on_resume(step, tmp_path):  # noqa: F811
     assert int(again.step) == 20 and curve2["points"] == curve["points"]
     with pytest.raises(ValueError, match="eval_every"):
         train_with_learning_curve(step, toy_state(0), TARGET, **{**kwargs, "eval_every": 0})
+
+
+def test_out_of_time_the_step_reached_is_the_last_point(step, tmp_path):  # noqa: F811
+    """With the deadline already passed, one step is trained, evaluated as the curve's last
+    point, and the curve ends there; the same call without a deadline goes on from it."""
+    curve_file = tmp_path / "curve.json"
+    kwargs = dict(num_steps=25, eval_every=10, evaluate=distance, curve_file=curve_file, progress=False)
+    store = CheckpointStore(tmp_path / "run")
+    state, _, curve = train_with_learning_curve(step, toy_state(0), TARGET, store=store, deadline=time.monotonic() - 1.0, **kwargs)
+    assert int(state.step) == 1 and [p["step"] for p in curve["points"]] == [1]
+    state, _, curve = train_with_learning_curve(step, toy_state(0), TARGET, store=store, **kwargs)
+    store.close()
+    assert int(state.step) == 25 and [p["step"] for p in curve["points"]] == [1, 10, 20, 25]

@@ -5,6 +5,8 @@ noise is drawn from ``state.key``, so the run depends on its key like a real one
 
 from __future__ import annotations
 
+import time
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -86,6 +88,21 @@ def test_resume_is_bit_identical_to_a_straight_run(step, tmp_path):
     assert [h["loss"] for h in history] == [h["loss"] for h in straight_history[3:]]
     store.close()
     assert step._cache_size() == 1  # the restored state reuses the compiled step
+
+
+def test_a_passed_deadline_stops_after_one_step_and_the_run_goes_on_from_there(step, tmp_path):
+    """A wall-clock budget (``deadline``) ends training at a step boundary with a checkpoint;
+    the same run started again without one finishes as a straight run would."""
+    straight, _ = run_training(step, toy_state(0), TARGET, num_steps=6, progress=False)
+    store = CheckpointStore(tmp_path / "run")
+    stopped, history = run_training(
+        step, toy_state(0), TARGET, num_steps=6, store=store, checkpoint_every=100, progress=False, deadline=time.monotonic() - 1.0
+    )  # fmt: skip
+    assert int(stopped.step) == 1 and store.latest_step() == 1
+    assert [h["step"] for h in history] == [1]  # the step it stopped at is logged
+    resumed, _ = run_training(step, toy_state(7), TARGET, num_steps=6, store=store, progress=False)
+    assert_identical(resumed, straight)
+    store.close()
 
 
 def test_the_resume_guard_names_every_differing_setting(tmp_path):
