@@ -34,6 +34,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from bezmotion.geometry.rotations import quat_from_rot6d, rot6d_from_quat, slerp
+from bezmotion.linalg import exact_einsum, exact_matmul
 
 DEFAULT_STRIDE = 6  # frames between control points (BMM appendix A.2)
 
@@ -176,9 +177,7 @@ def evaluate(
     _check_controls(layout, ctrl_pos, ctrl_tangent)
     w_pos, w_tan = basis(layout, frames)
     dtype = jnp.result_type(ctrl_pos, ctrl_tangent)
-    return jnp.einsum("fk,...kd->...fd", w_pos.astype(dtype), ctrl_pos) + jnp.einsum(
-        "fk,...kd->...fd", w_tan.astype(dtype), ctrl_tangent
-    )
+    return exact_einsum("fk,...kd->...fd", w_pos.astype(dtype), ctrl_pos) + exact_einsum("fk,...kd->...fd", w_tan.astype(dtype), ctrl_tangent)
 
 
 def to_segments(
@@ -341,7 +340,7 @@ def fit_curves(
 
         def residual(y, x):
             pos, tangent = (pinned_pos, y) if pin_positions else y
-            return w_pos @ pos + w_tan @ tangent - x
+            return exact_matmul(w_pos, pos) + exact_matmul(w_tan, tangent) - x
 
         sol = optx.least_squares(residual, solver, y0, args=x, max_steps=max_steps, throw=False)
         pos, tangent = (pinned_pos, sol.value) if pin_positions else sol.value

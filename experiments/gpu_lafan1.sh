@@ -12,6 +12,8 @@
 #
 #   OUT=results/gpu bash experiments/gpu_lafan1.sh LAFAN1_ZIP [TRAIN_SECONDS] [KILL_AFTER_S]
 #
+# It sets JAX_DEFAULT_MATMUL_PRECISION=highest (unless set): the runs of 2026-11-26 were measured so.
+#
 # KILL_AFTER_S counts from the script's start. Runs unchanged on a CPU (slowly). Writes under $OUT: results.tar.gz (every job's JSON,
 # Markdown report, learning-curve PNG and JSON, log) and the trained models as float16
 # tars (the paper-size one split into 15 MB parts, to fit a transfer limit). LaFAN1 is
@@ -26,6 +28,7 @@ mkdir -p "$OUT" "$RUNS/logs"
 export PYTHONPATH=$PWD${PYTHONPATH:+:$PYTHONPATH} PYTHONUNBUFFERED=1
 export BEZMOTION_CACHE=${BEZMOTION_CACHE:-/tmp/bezmotion-cache}
 export XLA_PYTHON_CLIENT_MEM_FRACTION=0.25  # three processes share the GPU
+export JAX_DEFAULT_MATMUL_PRECISION=${JAX_DEFAULT_MATMUL_PRECISION:-highest}  # as measured; the curve fit asks for it itself
 python3 -c "import jax, flax, optax, optimistix, orbax.checkpoint; print('jax', jax.__version__, 'flax', flax.__version__, 'optax', optax.__version__, jax.devices())"
 nvidia-smi --query-gpu=name,memory.total,driver_version --format=csv,noheader 2>/dev/null
 

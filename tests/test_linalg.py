@@ -4,6 +4,8 @@ beside their other tests: ``tests/bmm/test_off_grid.py``, ``tests/ik/test_exact.
 
 from __future__ import annotations
 
+import re
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -11,7 +13,7 @@ import pytest
 
 from helpers import lapack_calls, np_matrix_from_quat, np_quat_from_axis_angle, np_quat_mul, random_quat
 
-from bezmotion.bezier import BezierLayout, fit_curves
+from bezmotion.bezier import BezierLayout, evaluate, fit_curves
 from bezmotion.linalg import cholesky_solve, min_norm_solve, top_eigenvector
 from bezmotion.pipeline.transfer import mean_rotation
 
@@ -83,3 +85,21 @@ def test_mean_rotation_is_the_svd_chordal_mean(rng):
 )
 def test_no_lapack_calls(name, fn, args):
     assert lapack_calls(fn, *args) == set(), name
+
+
+@pytest.mark.parametrize(
+    "name, fn, args",
+    [
+        ("evaluate", lambda p, t: evaluate(BezierLayout.from_controls(6, 6), p, t), (jnp.ones((2, 6, 3)), jnp.ones((2, 6, 3)))),
+        ("fit_curves", lambda p: fit_curves(BezierLayout.from_controls(6, 6), p), (jnp.ones((2, 31, 3)),)),
+        ("min_norm_solve", min_norm_solve, (jnp.ones((4, 6)), jnp.ones(4))),
+        ("cholesky_solve", cholesky_solve, (jnp.eye(4), jnp.ones(4))),
+    ],
+)
+def test_geometric_products_ask_for_full_float32(name, fn, args):
+    """Every matrix product of these asks for full precision, so a GPU does not run it in
+    TF32 (which kept the curve fit from converging on an H200); CPUs ignore the request."""
+    text = jax.jit(fn).lower(*args).as_text()
+    dots = re.findall(r"stablehlo\.dot_general.*", text)
+    assert dots, name
+    assert all("HIGHEST" in d for d in dots), (name, [d for d in dots if "HIGHEST" not in d][:2])

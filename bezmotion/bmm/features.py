@@ -17,6 +17,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from bezmotion.bezier import BezierLayout, basis
+from bezmotion.linalg import exact_einsum
 from bezmotion.data.curves import CurveDataset
 from bezmotion.diffusion.projection import on_control_frame, project_off_grid
 from bezmotion.baselines import handle_interpolation
@@ -174,7 +175,7 @@ def handle_positions(
     itself on control frames (bit for bit), the evaluated curve between them."""
     on_grid, control = on_control_frame(layout, frame)
     w_pos, w_tan = basis(layout, frame.astype(ctrl_pos.dtype))
-    between = jnp.einsum("hk,khd->hd", w_pos.astype(ctrl_pos.dtype), ctrl_pos[:, joint]) + jnp.einsum(
+    between = exact_einsum("hk,khd->hd", w_pos.astype(ctrl_pos.dtype), ctrl_pos[:, joint]) + exact_einsum(
         "hk,khd->hd", w_tan.astype(ctrl_pos.dtype), ctrl_tangent[:, joint]
     )
     return jnp.where(on_grid[:, None], ctrl_pos[control, joint], between)

@@ -26,7 +26,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from bezmotion.bezier import BezierLayout, basis
-from bezmotion.linalg import min_norm_solve
+from bezmotion.linalg import exact_einsum, min_norm_solve
 
 
 def on_control_frame(layout: BezierLayout, frame: Int[ArrayLike, "*shape"]) -> tuple[Bool[Array, "*shape"], Int[Array, "*shape"]]:
@@ -95,7 +95,7 @@ def project_off_grid(
     curve_pos = pos_mean + pos_std * ctrl_pos  # (K, J, 3)
     curve_tan = tangent_mean + tangent_std * ctrl_tangent
     safe_joint = jnp.clip(joint, 0, j - 1)
-    current = jnp.einsum("hk,hkd->hd", w_pos, curve_pos[:, safe_joint].swapaxes(0, 1)) + jnp.einsum(
+    current = exact_einsum("hk,hkd->hd", w_pos, curve_pos[:, safe_joint].swapaxes(0, 1)) + exact_einsum(
         "hk,hkd->hd", w_tan, curve_tan[:, safe_joint].swapaxes(0, 1)
     )
     owns = rows[None, :] & (joint[None, :] == jnp.arange(j)[:, None])  # (J, H): row h constrains joint j
