@@ -434,14 +434,14 @@ def evaluate_corpus(args: Options, name: str, extractor, extractor_missing: str 
     no_ik = not_there(ik_path, "learned IK", TRAIN_COMMANDS["ik"].format(corpus=name))
 
     bmm_path = model_dir(args, "bmm", name)
+    # What the bmm rows lack, if anything: the BMM, the learned IK, or both (every command named).
+    bmm_missing = [not_there(bmm_path, "BMM", TRAIN_COMMANDS["bmm"].format(corpus=name))] if not (bmm_path / "config.json").exists() else []
+    bmm_missing += [no_ik] if ik_model is None else []
+    bmm_missing_reason = "; and ".join(bmm_missing) or None
     table6: dict = {}
     if wanted & {"bmm", "bmm_exact"}:
-        if not (bmm_path / "config.json").exists():
-            reason = not_there(bmm_path, "BMM", TRAIN_COMMANDS["bmm"].format(corpus=name))
-            rows["bmm"] = missing_row(reason + ("" if ik_model else f"; and {no_ik}"))
-            rows["bmm_exact"] = missing_row(rows["bmm"]["missing"])
-        elif ik_model is None:
-            rows["bmm"], rows["bmm_exact"] = missing_row(no_ik), missing_row(no_ik)
+        if bmm_missing_reason:
+            rows["bmm"], rows["bmm_exact"] = missing_row(bmm_missing_reason), missing_row(bmm_missing_reason)
         else:
             rows_bmm, table6 = bmm_rows(args, s, nat, character, {k: v for k, v in iks.items() if k != "exact" or "bmm_exact" in wanted}, truth, load_model(bmm_path))
             rows.update(rows_bmm)
@@ -473,10 +473,8 @@ def evaluate_corpus(args: Options, name: str, extractor, extractor_missing: str 
             rows[row] = {**earlier[row], "merged_from": args.merge}
         else:  # not evaluated here: still say when its model is missing
             reason = "not evaluated (--rows)"
-            if row in ("bmm", "bmm_exact") and not (bmm_path / "config.json").exists():
-                reason = not_there(bmm_path, "BMM", TRAIN_COMMANDS["bmm"].format(corpus=name))
-            elif row in ("bmm", "bmm_exact") and ik_model is None:
-                reason = no_ik
+            if row in ("bmm", "bmm_exact") and bmm_missing_reason:
+                reason = bmm_missing_reason
             elif row in DENSE_ROWS and not (model_dir(args, DENSE_ROWS[row], name) / "config.json").exists():
                 reason = not_there(model_dir(args, DENSE_ROWS[row], name), row, TRAIN_COMMANDS[row].format(corpus=name))
             rows[row] = missing_row(reason)

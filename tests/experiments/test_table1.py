@@ -111,10 +111,11 @@ def test_table1_missing_models_are_null_rows_naming_their_command(experiment, mo
     c = "bandai_namco="
     experiment.main([
         "--out", str(out), "--corpora", "bandai_namco", "--data", c + str(models / "clips"), "--features", str(tmp_path / "none"),
-        "--bmm", c + str(tmp_path / "no_bmm"), "--ik", "learned", "--windows", "0", "--no-progress",
+        "--bmm", c + str(tmp_path / "no_bmm"), "--ik-model", c + str(tmp_path / "no_ik"), "--ik", "learned", "--windows", "0", "--no-progress",
     ])  # fmt: skip
     table = json.loads(out.read_text())["bandai_namco"]
     assert "experiments/bmm_lafan1.py --corpus bandai_namco" in table["bmm"]["missing"] and table["bmm"]["fid"] is None
+    assert "experiments/train_ik.py --corpus bandai_namco" in table["bmm"]["missing"]  # both models lack: both commands
     assert "experiments/ablations.py --corpus bandai_namco --ablation minus_b" in table["bmm_minus_b"]["missing"]
     assert "--ablation minus_ik_b" in table["bmm_minus_ik_b"]["missing"]
     assert "CondMDIᴳ" in table["condmdi_g"]["missing"] and "--ablation condmdi_g" in table["condmdi_g"]["missing"]
