@@ -144,6 +144,7 @@ def pose_fk(character: Character, pose: Pose) -> tuple[Float[Array, "*batch join
     return forward_kinematics(character.skeleton.parents, quat_local, pos_local)
 
 
+@jax.jit  # one compiled program per shape; eagerly, forward kinematics runs as hundreds of tiny ones
 def pose_from_motion(
     character: Character,
     quat_local: Float[Array | np.ndarray, "*batch joints 4"],

@@ -529,11 +529,15 @@ def handle_distances(positions: Float[Array, "*batch frames joints 3"], handles:
     return jnp.linalg.norm(picked - handles.position, axis=-1)
 
 
-def _per_window(fn, x: Array) -> np.ndarray:
-    return np.asarray(jax.vmap(fn)(x))
+def _per_window(fn, x: Array) -> Array:
+    return jax.vmap(fn)(x)
 
 
-def _key_pop(quat_local: Array, windows: int) -> np.ndarray:
+def _to_numpy(figures: Mapping[str, Array]) -> dict[str, np.ndarray]:
+    return {k: np.asarray(v) for k, v in figures.items()}
+
+
+def _key_pop(quat_local: Array, windows: int) -> Array:
     """Key pop of each item ``(items, frames, joints, 4)``; a chain of ``windows`` windows pops
     at each of its windows' first and last frame pairs (both sides of every shared key)."""
     if windows == 1:
@@ -565,14 +569,19 @@ def window_pose_metrics(
     frames, ``handles`` ``(chains, handles)`` at chain frames (:func:`chain_frame_handles`)
     and ``windows`` the windows per chain, whose key pop is the largest over every window's
     first and last frame pair (every key, from both sides)."""
+    return _to_numpy(_pose_figures(config, character, pose, truth, handles, chains, windows))
+
+
+@functools.partial(jax.jit, static_argnames=("config", "windows"))
+def _pose_figures(config, character, pose, truth, handles, chains, windows) -> dict[str, Array]:
     _, pos = pose_fk(character, pose)
     _, true_pos = pose_fk(character, truth)
     six = pos[..., np.asarray(character.characteristic), :]
     feet = six[..., list(FEET), :]
     out = {
-        "handle_error": np.asarray(handle_distances(six, handles)),
-        "handle_valid": np.asarray(handles.valid),
-        "mpjpe": np.asarray(jnp.mean(jnp.linalg.norm(pos - true_pos, axis=-1), axis=(-2, -1))),
+        "handle_error": handle_distances(six, handles),
+        "handle_valid": handles.valid,
+        "mpjpe": jnp.mean(jnp.linalg.norm(pos - true_pos, axis=-1), axis=(-2, -1)),
         "skating": _per_window(lambda f: foot_skating_ratio(f, config.fps, floor_height=config.floor_height), feet),
         "key_pop": _key_pop(pose.quat_local, windows),
     }
@@ -580,7 +589,7 @@ def window_pose_metrics(
         root = jnp.asarray(chains.root)[handles.joint]
         at_root = handles._replace(joint=jnp.maximum(root, 0))
         beyond = handle_distances(pos, at_root) > jnp.asarray(chains.length, pos.dtype)[handles.joint] + HANDLE_MISS_CM
-        out["handle_unreachable"] = np.asarray(beyond & (root >= 0))
+        out["handle_unreachable"] = beyond & (root >= 0)
     return out
 
 
@@ -601,16 +610,22 @@ def window_curve_metrics(
     handle distances, position error per joint (``dense``, ``(windows, 6)``), foot skating, and
     with orientations, the angle (degrees) between the curves' and the mocap's global
     orientation per joint (``orientation``, ``(windows, 6)``)."""
+    orientations = (rot6d, true_rot6d) if rot6d is not None and true_rot6d is not None else None
+    return _to_numpy(_curve_figures(config, positions, handles, true_positions, orientations))
+
+
+@functools.partial(jax.jit, static_argnames=("config",))
+def _curve_figures(config, positions, handles, true_positions, orientations) -> dict[str, Array]:
     out = {
-        "handle_error": np.asarray(handle_distances(positions, handles)),
-        "handle_valid": np.asarray(handles.valid),
-        "dense": np.asarray(jnp.mean(jnp.linalg.norm(positions - true_positions, axis=-1), axis=-2)),
+        "handle_error": handle_distances(positions, handles),
+        "handle_valid": handles.valid,
+        "dense": jnp.mean(jnp.linalg.norm(positions - true_positions, axis=-1), axis=-2),
         "skating": _per_window(
             lambda f: foot_skating_ratio(f, config.fps, floor_height=config.floor_height), positions[..., list(FEET), :]
         ),
     }
-    if rot6d is not None and true_rot6d is not None:
-        out["orientation"] = np.asarray(jnp.mean(_angle_deg(rot6d, true_rot6d), axis=-2))
+    if orientations is not None:
+        out["orientation"] = jnp.mean(_angle_deg(*orientations), axis=-2)
     return out
 
 
@@ -621,12 +636,17 @@ def window_mocap_metrics(
     rotation change (the yardsticks of :func:`ground_truth_pose_metrics`). For chains,
     ``truth`` ``(chains, frames, …)`` and ``windows`` per chain (key pop at every key, as in
     :func:`window_pose_metrics`)."""
+    return _to_numpy(_mocap_figures(config, character, truth, windows))
+
+
+@functools.partial(jax.jit, static_argnames=("config", "windows"))
+def _mocap_figures(config, character, truth, windows) -> dict[str, Array]:
     _, pos = pose_fk(character, truth)
     feet = pos[..., np.asarray(character.characteristic[4:6]), :]
     return {
         "skating": _per_window(lambda f: foot_skating_ratio(f, config.fps, floor_height=config.floor_height), feet),
         "key_pop": _key_pop(truth.quat_local, windows),
-        "max_rotation_change": np.asarray(jnp.max(rotation_change_deg(truth.quat_local), axis=(-2, -1))),
+        "max_rotation_change": jnp.max(rotation_change_deg(truth.quat_local), axis=(-2, -1)),
     }
 
 
