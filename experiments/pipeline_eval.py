@@ -2,6 +2,7 @@
 
     python experiments/pipeline_eval.py --corpus bandai_namco --windows 100 --out results/pipeline_eval_bn.json
     python experiments/pipeline_eval.py --corpus bandai_namco --bvh-dir my_clips/ --ik exact --out mine.json
+    python experiments/pipeline_eval.py --corpus lafan1 --out lafan1.json   # LaFAN1's registered models, trained here
     python experiments/pipeline_eval.py --corpus lafan1 --bmm runs/bmm/model --ik-model runs/ik/model --out lafan1.json
     python experiments/pipeline_eval.py --corpus bandai_namco --windows 20 --segments 3 --ik exact --out chains.json
 
@@ -108,7 +109,7 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
-from bezmotion.assets import BUNDLED_BMM, BUNDLED_IK
+from bezmotion.assets.registry import REGISTRY, model_folder
 from bezmotion.bmm.evaluation import EvalSet, dense_positions, floor_height_from, make_eval_set, reference_curves
 from bezmotion.bmm.features import HANDLE_FRAMES
 from bezmotion.bmm.sampling import Handles, load_model
@@ -144,7 +145,6 @@ from _common import window_labels
 
 CORPORA = ("bandai_namco", "lafan1")
 IKS = ("learned", "refined", "rig", "exact", "exact_refined")
-BUNDLED = {"bandai_namco": {"bmm": BUNDLED_BMM, "ik": BUNDLED_IK}}  # no LaFAN1 models ship with the package
 CONDITIONS = ("id", "ood")
 
 
@@ -153,8 +153,10 @@ class Options:
     out: str = option(help="output JSON (a .md report is written beside it)")
     corpus: str = option("bandai_namco", choices=CORPORA, help="the skeleton (and, without --bvh-dir, the validation split)")
     bvh_dir: str | None = option(None, help="evaluate every .bvh in this folder (the corpus's skeleton) instead of the validation split")
-    bmm: str = option("bundled", help="a saved BMM folder, or 'bundled' (Bandai-Namco only)")
-    ik_model: str = option("bundled", help="a saved learned IK folder, or 'bundled' (Bandai-Namco only)")
+    bmm: str = option(
+        "bundled", help="a saved BMM folder or a registered model's name (`bezmotion models`); 'bundled' (default): the corpus's own (LaFAN1's once trained here)"
+    )
+    ik_model: str = option("bundled", help="a saved learned IK folder or a registered model's name; 'bundled' (default): the corpus's own")
     joint_limits: str | None = option(None, help="the exact IK's joint limits JSON (default: joint_limits.json beside the IK model, if any)")
     no_limits: bool = False
     exact: tuple[str, ...] = option(
@@ -176,13 +178,7 @@ class Options:
 
     def __post_init__(self):
         for what in ("bmm", "ik_model"):
-            value = getattr(self, what)
-            flag = "--" + what.replace("_", "-")
-            if value == "bundled":
-                if self.corpus not in BUNDLED:
-                    raise ValueError(f"no bundled {what.replace('_model', '').upper()} model for {self.corpus}: pass {flag} PATH")
-            elif not Path(value).is_dir():
-                raise ValueError(f"{flag} {value}: no saved model folder there")
+            model_path(self, what)  # raises naming the folder (and the command that trains a registered model)
         if self.bvh_dir is not None and not Path(self.bvh_dir).is_dir():
             raise ValueError(f"--bvh-dir {self.bvh_dir}: not a folder")
         if self.windows < 0 or self.chunk < 1 or self.steps < 1:
@@ -211,8 +207,20 @@ def exact_settings(args: Options) -> dict[str, float | int]:
 
 
 def model_path(args: Options, what: str) -> Path:
-    value = getattr(args, what)
-    return BUNDLED[args.corpus]["bmm" if what == "bmm" else "ik"] if value == "bundled" else Path(value)
+    """The folder of ``--bmm`` or ``--ik-model``: a saved model's, or a registered model's
+    (``bundled``: the one registered under the corpus's name, bundled or trained here)."""
+    value, flag, part = getattr(args, what), "--" + what.replace("_", "-"), "bmm" if what == "bmm" else "ik"
+    name = args.corpus if value == "bundled" else value
+    if name in REGISTRY:
+        try:
+            return model_folder(name, part)
+        except FileNotFoundError as error:
+            raise ValueError(f"{flag} {value}: {error}") from None
+    if value == "bundled":
+        raise ValueError(f"no registered model for the corpus {args.corpus}: pass {flag} PATH")
+    if not Path(value).is_dir():
+        raise ValueError(f"{flag} {value}: no saved model folder there")
+    return Path(value)
 
 
 def open_windows(args: Options) -> tuple[Corpus, CurveDataset]:

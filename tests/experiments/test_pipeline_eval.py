@@ -131,10 +131,16 @@ def test_per_window_draws_do_not_depend_on_the_number_of_windows(experiment, cli
         make_eval_set(dataset, key=jax.random.key(3), per_window=True, rows=np.asarray([6]))
 
 
-def test_lafan1_needs_its_models(experiment, capsys):
+def test_lafan1_needs_its_models(experiment, capsys, tmp_path, monkeypatch):
+    """LaFAN1's registered models are trained locally: until they are, the error names the command."""
+    monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path / "cache"))
     with pytest.raises(SystemExit):
         experiment.main(["--out", "x.json", "--corpus", "lafan1"])
-    assert "no bundled BMM model for lafan1: pass --bmm PATH" in capsys.readouterr().err
+    error = capsys.readouterr().err
+    assert "--bmm bundled: pretrained model 'lafan1' is not bundled" in error and "experiments/bmm_lafan1.py" in error
+    with pytest.raises(SystemExit):
+        experiment.main(["--out", "x.json", "--corpus", "lafan1", "--bmm", str(tmp_path / "nowhere")])
+    assert "no saved model folder there" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize(
