@@ -348,7 +348,7 @@ def format_report(results: dict) -> str:
     if "held_out" in results:
         section = results["held_out"]
         lines += [
-            "", f"Held-out contents ({', '.join(section['contents'])}: never trained on; {section['n_windows']} windows), 10 DDIM steps:", "",
+            "", f"Held-out contents ({', '.join(section['contents'])}: {section['trained_on']}; {section['n_windows']} windows), 10 DDIM steps:", "",
             "| method | handles error ID (cm) | OOD (cm) | dense error ID (cm) | foot skating | contact acc. |",
             "|---|---|---|---|---|---|",
             f"| mocap (GT) | – | – | – | {section['ground_truth']['foot_skating_ratio']:.4f} | – |",
@@ -476,6 +476,8 @@ def main(argv: list[str] | None = None) -> dict:
         held = make_eval_set(held_set, key=jax.random.key(1234), num_windows=args.eval_windows or None)
         results["held_out"] = {
             "contents": list(args.holdout_contents), "n_windows": int(held.start.shape[0]),
+            # A saved model (--model) was trained elsewhere: these contents may have been in its training set.
+            "trained_on": "a saved model: it may have trained on them" if args.model else "never trained on",
             "ground_truth": ground_truth_metrics(metrics_config, held),
             "reference": {
                 name: curve_metrics(metrics_config, reference_curves(held, h, layout), held, h) for name, h in (("id", held.handles), ("ood", held.handles_ood))
