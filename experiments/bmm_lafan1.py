@@ -396,6 +396,9 @@ def main(argv: list[str] | None = None) -> dict:
             raise ValueError(f"--holdout-contents {' '.join(args.holdout_contents)}: no clip of {args.corpus} has such a content")
         held_set = concat_datasets([train_set.subset(held_train), val_set.subset(held_val)])
         train_set, val_set = train_set.subset(~held_train), val_set.subset(~held_val)
+    # The floor the skating metric measures against: the corpus's own training windows, never
+    # the other corpus's moved into its character (whose ankles sit at another height).
+    floor_height = floor_height_from(train_set)
     if args.also_corpus:
         # Character-agnostic training (BMM §8): the other corpus's windows as --corpus's character.
         other = load_corpus(args.also_corpus, source=args.also_data or str(DEFAULT_DATA[args.also_corpus]), progress=not args.no_progress)
@@ -424,7 +427,7 @@ def main(argv: list[str] | None = None) -> dict:
         model_config = init.config if init else CONFIGS[args.config](prediction=args.prediction)
         stats = init.stats if init else stats
         layout = BezierLayout.from_controls(model_config.num_controls, model_config.stride)
-        metrics_config = CurveMetricsConfig(layout, val_set.fps, floor_height_from(train_set))
+        metrics_config = CurveMetricsConfig(layout, val_set.fps, floor_height)
         curve_sets = {"id": make_eval_set(val_set, key=jax.random.key(4321), num_windows=args.curve_windows)}
         if held_set is not None:
             curve_sets["held_out"] = make_eval_set(held_set, key=jax.random.key(4321), num_windows=args.curve_windows)
@@ -440,7 +443,7 @@ def main(argv: list[str] | None = None) -> dict:
         return {}
 
     layout = BezierLayout.from_controls(model_config.num_controls, model_config.stride)
-    metrics_config = metrics_config or CurveMetricsConfig(layout, val_set.fps, floor_height_from(train_set))
+    metrics_config = metrics_config or CurveMetricsConfig(layout, val_set.fps, floor_height)
     eval_set = make_eval_set(val_set, key=jax.random.key(1234), num_windows=args.eval_windows or None)
     results: dict = {
         "model": {"config": f"saved: {args.model}" if args.model else args.config, **dataclasses.asdict(model_config), "params": None},
