@@ -109,7 +109,7 @@ from typing import NamedTuple
 import jax
 import numpy as np
 
-from bezmotion.assets.registry import REGISTRY, model_folder
+from bezmotion.assets.registry import REGISTRY, resolve_folder
 from bezmotion.bmm.evaluation import EvalSet, dense_positions, floor_height_from, make_eval_set, reference_curves
 from bezmotion.bmm.features import HANDLE_FRAMES
 from bezmotion.bmm.sampling import Handles, load_model
@@ -210,17 +210,15 @@ def model_path(args: Options, what: str) -> Path:
     """The folder of ``--bmm`` or ``--ik-model``: a saved model's, or a registered model's
     (``bundled``: the one registered under the corpus's name, bundled or trained here)."""
     value, flag, part = getattr(args, what), "--" + what.replace("_", "-"), "bmm" if what == "bmm" else "ik"
-    name = args.corpus if value == "bundled" else value
-    if name in REGISTRY:
-        try:
-            return model_folder(name, part)
-        except FileNotFoundError as error:
-            raise ValueError(f"{flag} {value}: {error}") from None
-    if value == "bundled":
+    if value == "bundled" and args.corpus not in REGISTRY:
         raise ValueError(f"no registered model for the corpus {args.corpus}: pass {flag} PATH")
-    if not Path(value).is_dir():
+    try:
+        folder, _ = resolve_folder(args.corpus if value == "bundled" else value, part)
+    except FileNotFoundError as error:
+        raise ValueError(f"{flag} {value}: {error}") from None
+    if not folder.is_dir():
         raise ValueError(f"{flag} {value}: no saved model folder there")
-    return Path(value)
+    return folder
 
 
 def open_windows(args: Options) -> tuple[Corpus, CurveDataset]:
