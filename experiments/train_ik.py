@@ -63,8 +63,15 @@ class Options:
     seed: int = 0
     frame_step: int = option(1, help="train on every n-th frame (default 1)")
     checkpoint_every: int = 500
+    train_seconds: float | None = option(
+        None, help="stop training after this many seconds (at a step boundary, checkpointed; the same command resumes)"
+    )
     eval_step: int = option(4, help="validate on every n-th validation frame (default 4)")
     no_progress: bool = False
+
+    def __post_init__(self):
+        if self.train_seconds is not None and not self.train_seconds > 0:
+            raise ValueError(f"--train-seconds must be > 0, got {self.train_seconds}")
 
 
 def parse_args(argv: list[str] | None = None) -> Options:
@@ -118,9 +125,12 @@ def train_ik(args: Options) -> dict:
                 flush=True,
             )
 
+    # The learning-rate schedule stays that of --steps: a run stopped by --train-seconds
+    # resumes on the same schedule.
+    deadline = None if args.train_seconds is None else time.monotonic() + args.train_seconds
     state, history = run_training(
         step, state, poses, num_steps=args.steps, store=store, checkpoint_every=args.checkpoint_every, config=config,
-        progress=not args.no_progress, log_every=min(100, args.checkpoint_every), progress_fn=report,
+        progress=not args.no_progress, log_every=min(100, args.checkpoint_every), progress_fn=report, deadline=deadline,
     )  # fmt: skip
     store.close()
     train_s = time.perf_counter() - train_started
@@ -135,7 +145,8 @@ def train_ik(args: Options) -> dict:
         "corpus": args.corpus,
         "config": args.config,
         "params": count_parameters(state.params),
-        "steps": args.steps,
+        "steps": int(state.step),
+        "steps_requested": args.steps,
         "train_frames": int(poses.root_pos.shape[0]),
         "validation_frames": int(validation.root_pos.shape[0]),
         "train_s_this_session": train_s,

@@ -28,7 +28,7 @@ from flax import nnx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from bezmotion.xla_options import call_with_inference_options
-from bezmotion.training.checkpoint import CheckpointStore, save_model_folder
+from bezmotion.training.checkpoint import CheckpointStore, cast_floating, save_model_folder
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.bezier import BezierLayout
 from bezmotion.diffusion.ddim import ddim_sample
@@ -519,23 +519,13 @@ def _sample_chained_curves(model, key_pos, handles, key_rot6d, key_tangent, *, k
     return over_batch(chain, batch, key, start, end, handles, rot6d_pairs, tangent_pairs)
 
 
-STORAGE_DTYPES = ("float32", "float16", "bfloat16")
-
-
-def cast_floating(tree, dtype):
-    """``tree`` with every floating-point leaf cast to ``dtype`` (other leaves untouched)."""
-    return jax.tree.map(lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x, tree)
-
-
 def save_model(directory: str | os.PathLike, model: BezierMotionModel, *, storage_dtype: str = "float32") -> None:
     """Write a trained BMM (parameters, statistics, config) to ``directory``, atomically.
 
     ``storage_dtype="float16"`` halves the file (for bundling); :func:`load_model` casts
     the parameters back to float32. The statistics are always stored in float32.
     """
-    if storage_dtype not in STORAGE_DTYPES:
-        raise ValueError(f"storage_dtype must be one of {STORAGE_DTYPES}, got {storage_dtype!r}")
-    params = cast_floating(model.params, jnp.dtype(storage_dtype))
+    params = cast_floating(model.params, storage_dtype)
     save_model_folder(directory, {"params": params, "stats": model.stats}, {"model": dataclasses.asdict(model.config), "storage_dtype": storage_dtype})
 
 

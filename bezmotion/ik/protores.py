@@ -66,7 +66,7 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
-from bezmotion.training.checkpoint import CheckpointStore, save_model_folder
+from bezmotion.training.checkpoint import CheckpointStore, cast_floating, save_model_folder
 from bezmotion.training.step import count_parameters  # its old home, re-exported (__all__)
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.geometry.rotations import matrix_from_rot6d, quat_from_matrix, rot6d_from_matrix, safe_norm
@@ -513,10 +513,17 @@ def character_from_json(data: dict[str, Any]) -> Character:
         raise ValueError(f"a saved character needs {e.args[0]!r}; got keys {sorted(data)}") from None
 
 
-def save_ik_model(directory: str | os.PathLike, model: ProtoResModel) -> None:
-    """Write a trained learned IK (parameters; config and character as JSON) to ``directory``, atomically."""
-    config = {"format": _FORMAT, "model": dataclasses.asdict(model.config), "character": character_to_json(model.character)}
-    save_model_folder(directory, {"params": model.params}, config)
+def save_ik_model(directory: str | os.PathLike, model: ProtoResModel, *, storage_dtype: str = "float32") -> None:
+    """Write a trained learned IK (parameters; config and character as JSON) to ``directory``, atomically.
+
+    ``storage_dtype="float16"`` halves the file (to bring a large model back from a GPU
+    machine, or to bundle one); :func:`load_ik_model` casts the parameters back to float32.
+    """
+    config = {
+        "format": _FORMAT, "model": dataclasses.asdict(model.config), "character": character_to_json(model.character),
+        "storage_dtype": storage_dtype,
+    }  # fmt: skip
+    save_model_folder(directory, {"params": cast_floating(model.params, storage_dtype)}, config)
 
 
 def load_ik_model(directory: str | os.PathLike) -> ProtoResModel:
@@ -539,10 +546,10 @@ def load_ik_model(directory: str | os.PathLike) -> ProtoResModel:
         config = ProtoResConfig(**saved["model"])
         character = character_from_json(saved["character"])
         graphdef, params = init_protores(config, key=jax.random.key(0))
-        restored = store.restore({"params": params})
+        restored = store.restore({"params": cast_floating(params, saved.get("storage_dtype", "float32"))})
     finally:
         store.close()
-    return ProtoResModel(restored["params"], character, graphdef, config)
+    return ProtoResModel(cast_floating(restored["params"], "float32"), character, graphdef, config)
 
 
 __all__ = [

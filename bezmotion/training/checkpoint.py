@@ -167,6 +167,23 @@ class CheckpointStore:
         self._manager.close()
 
 
+STORAGE_DTYPES = ("float32", "float16", "bfloat16")
+"""What a finished model's parameters may be stored as; loaders cast back to float32."""
+
+
+def cast_floating(tree: Any, dtype: Any) -> Any:
+    """``tree`` with every floating-point leaf cast to ``dtype`` (other leaves untouched).
+
+    Raises:
+      ValueError: ``dtype`` is not one of :data:`STORAGE_DTYPES`.
+    """
+    name = dtype if isinstance(dtype, str) else jnp.dtype(dtype).name
+    if name not in STORAGE_DTYPES:
+        raise ValueError(f"storage_dtype must be one of {STORAGE_DTYPES}, got {name!r}")
+    dtype = jnp.dtype(name)
+    return jax.tree.map(lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x, tree)
+
+
 def save_model_folder(directory: str | os.PathLike, state: Any, config: dict[str, Any]) -> None:
     """Write a finished model (``state`` as checkpoint 0, ``config`` as JSON) to ``directory``,
     replacing any model saved there before.

@@ -260,6 +260,9 @@ def test_script_defaults_and_derived_settings(load_script, tmp_path, monkeypatch
     ik = load_script("experiments", "train_ik")
     args = ik.parse_args(["--corpus", "lafan1", "--no-effector-skip"])
     assert (args.steps, args.config, args.effector_skip, args.output_rotations) == (9000, "cpu", False, None)
+    assert ik.parse_args(["--corpus", "lafan1", "--train-seconds", "330"]).train_seconds == 330.0
+    with pytest.raises(SystemExit):
+        ik.parse_args(["--corpus", "lafan1", "--train-seconds", "0"])
 
 
 @options

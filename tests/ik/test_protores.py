@@ -333,6 +333,17 @@ def test_save_and_load_round_trip(clip, model, tmp_path):
         np.testing.assert_array_equal(a, b)
 
 
+def test_a_half_precision_save_loads_as_float32_rounded_once(model, tmp_path):
+    save_ik_model(tmp_path / "ik16", model, storage_dtype="float16")
+    assert json.loads((tmp_path / "ik16" / "config.json").read_text())["storage_dtype"] == "float16"
+    loaded = load_ik_model(tmp_path / "ik16")
+    for a, b in zip(jax.tree.leaves(loaded.params), jax.tree.leaves(model.params)):
+        assert a.dtype == jnp.float32
+        np.testing.assert_array_equal(a, np.asarray(b).astype(np.float16).astype(np.float32))
+    with pytest.raises(ValueError, match="'int8'"):
+        save_ik_model(tmp_path / "ik8", model, storage_dtype="int8")
+
+
 # ---------------------------------------------------------------------------- bad input
 
 
