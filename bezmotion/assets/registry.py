@@ -114,28 +114,25 @@ REGISTRY: Mapping[str, ModelEntry] = {
         data=_BANDAI_DATA,
         licence="CC BY-NC 4.0 (non-commercial use only, attribution kept)",
         commands=(
-            "python experiments/bmm_lafan1.py --corpus bandai_namco --out results/bmm_bandai_namco_residual.json "
-            "--prediction residual --steps 3025 --learning-rate 5e-4 --min-snr-gamma 0 --eval-windows 1000 --table6-steps 10",
-            "python experiments/bmm_lafan1.py --corpus bandai_namco --init ~/.cache/bezmotion/runs/bmm_bandai_namco_cpu_residual/model "
-            "--off-grid-handles 0.5 --prediction residual --learning-rate 2e-4 --min-snr-gamma 0 --steps 2400 --handle-frames any "
-            "--eval-every 400 --curve-windows 200 --eval-windows 500 --table6-steps 10 --out results/bmm_bn_finetune_offgrid_2400.json",
-            "python -c \"from bezmotion.bmm.sampling import save_model, load_model; import os; save_model(os.path.expanduser('~/.cache/bezmotion/runs/bmm_bn_finetune_2400_fp16'), "
-            "load_model(os.path.expanduser('~/.cache/bezmotion/runs/bmm_bandai_namco_finetune_model_offgrid0.5/model')), storage_dtype='float16')\"",
-            "python experiments/bmm_lafan1.py --corpus bandai_namco --init ~/.cache/bezmotion/runs/bmm_bn_finetune_2400_fp16 --off-grid-handles 0.5 --prediction residual "
-            "--learning-rate 2e-4 --min-snr-gamma 0 --steps 3600 --checkpoint-every 200 --eval-every 600 --curve-windows 200 --patience 4 "
-            "--handle-frames any --eval-windows 500 --table6-steps 10 --run-dir ~/.cache/bezmotion/runs/bmm_bn_finetune2_offgrid "
-            "--out results/bmm_bn_finetune2_3600.json",
+            # One run from scratch, 37 minutes on a 2-core CPU (2026-11-26); the model lands in
+            # ~/.cache/bezmotion/runs/bmm_bandai_namco_cpu_residual/model, bundled as float16.
+            "python experiments/bmm_lafan1.py --corpus bandai_namco --prediction residual --learning-rate 5e-4 --min-snr-gamma 0 "
+            "--off-grid-handles 0.5 --steps 10000 --eval-every 2500 --eval-windows 500 --table6-steps 10 --handle-frames any "
+            "--out results/bmm_bn_scratch_10000.json",
+            "python -c \"from bezmotion.bmm.sampling import save_model, load_model; import os; save_model('bezmotion/assets/models/bmm_bandai_namco', "
+            "load_model(os.path.expanduser('~/.cache/bezmotion/runs/bmm_bandai_namco_cpu_residual/model')), storage_dtype='float16')\"",
             "python experiments/train_ik.py --corpus bandai_namco",
             "python experiments/joint_limits.py --corpus bandai_namco --out bezmotion/assets/models/ik_bandai_namco/joint_limits.json",
+            "bezmotion models --write-manifest",
         ),
         metrics=(
-            "BMM (3,025 grid-handle steps, then 2,400 + 3,600 steps with handles at any frame half of the time), 500 validation "
-            "windows, curves before IK, 10 DDIM steps: dense six-joint error 4.45 cm (reference curves through start, end and handles: "
-            "7.04 cm; 0.63x), foot skating 0.118 (reference 0.127), handles at any frame 4.64 cm (reference 7.55), handles hit "
+            "BMM (10,000 steps x 64 from scratch, handles off the control grid half of the time), 500 validation "
+            "windows, curves before IK, 10 DDIM steps: dense six-joint error 4.12 cm (reference curves through start, end and handles: "
+            "7.04 cm; 0.58x), foot skating 0.115 (reference 0.127), handles at any frame 4.27 cm (reference 7.55), handles hit "
             "exactly; learned IK, every 4th "
             "validation frame (8,617): MPJPE 0.40 cm from the six joints' positions and rotations, 1.18 cm from positions only"
         ),
-        metrics_file="results/bmm_bn_finetune2_3600.json",
+        metrics_file="results/bmm_bn_scratch_10000.json",
     ),
     "lafan1": ModelEntry(
         name="lafan1",
