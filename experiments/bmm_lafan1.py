@@ -315,15 +315,13 @@ def format_report(results: dict) -> str:
             f"{id_['foot_skating_ratio']:.4f} | {id_.get('contact_accuracy', float('nan')):.3f} |"
         )
 
-    config = results["model"]["config"]  # a preset's name, or "saved: <folder>"
+    # A saved model: its folder, and not this run's training options, which did not train it.
+    training = results["training"]
+    saved = training.get("saved_model")
     lines = [
-        f"BMM on {results['training']['corpus']} ({config if config.startswith('saved') else config + ' config'}, {results['model']['prediction']} prediction, "
+        f"BMM on {training['corpus']} ({'saved: ' + saved if saved else results['model']['config'] + ' config'}, {results['model']['prediction']} prediction, "
         f"{results['model']['params']:,} parameters, "
-        + (
-            "trained elsewhere"  # a saved model: this run's training options did not train it
-            if results["training"].get("saved_model")
-            else f"{results['training']['steps']} steps × batch {results['training']['batch_size']}, {len(results['training']['seeds'])} seed(s)"
-        )
+        + ("trained elsewhere" if saved else f"{training['steps']} steps × batch {training['batch_size']}, {len(training['seeds'])} seed(s)")
         + f"); {results['eval']['n_windows']} validation windows; curves before IK.",
         "",
         "Table 1 / Table 3 analogue (10 DDIM steps):",

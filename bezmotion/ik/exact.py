@@ -292,12 +292,18 @@ def _apply(character: Character, start: Pose, delta: Float[Array, "free 3"], roo
     return Pose(start.root_pos + root_delta, quat)
 
 
-def _right_jacobian(v: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3 3"]:
-    """``J`` with ``exp(v + dv) ≈ exp(v) ⊗ exp(J dv)`` (SO(3)'s right Jacobian); series near 0."""
+def _angle_of(v: Float[Array, "*batch 3"]) -> tuple[Array, Array, Array, Array]:
+    """``(θ², small, safe θ², safe θ)`` of rotation vectors, each ``(*batch, 1, 1)``: ``small``
+    where θ < ``_SMALL_ANGLE`` (the series apply there), the safe values 1 there (no 0/0)."""
     theta_sq = jnp.sum(v * v, axis=-1)[..., None, None]
     small = theta_sq < _SMALL_ANGLE**2
     safe_sq = jnp.where(small, 1.0, theta_sq)
-    theta = jnp.sqrt(safe_sq)
+    return theta_sq, small, safe_sq, jnp.sqrt(safe_sq)
+
+
+def _right_jacobian(v: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3 3"]:
+    """``J`` with ``exp(v + dv) ≈ exp(v) ⊗ exp(J dv)`` (SO(3)'s right Jacobian); series near 0."""
+    theta_sq, small, safe_sq, theta = _angle_of(v)
     a = jnp.where(small, 0.5 - theta_sq / 24.0, (1.0 - jnp.cos(theta)) / safe_sq)
     b = jnp.where(small, 1.0 / 6.0 - theta_sq / 120.0, (theta - jnp.sin(theta)) / (safe_sq * theta))
     skew = _skew(v)
@@ -309,10 +315,7 @@ def _right_jacobian_inverse(v: Float[Array, "*batch 3"]) -> Float[Array, "*batch
 
     ``I + ½[v]× + c [v]×²`` with ``c = 1/θ² − cot(θ/2)/(2θ)``, finite up to θ = π.
     """
-    theta_sq = jnp.sum(v * v, axis=-1)[..., None, None]
-    small = theta_sq < _SMALL_ANGLE**2
-    safe_sq = jnp.where(small, 1.0, theta_sq)
-    theta = jnp.sqrt(safe_sq)
+    theta_sq, small, safe_sq, theta = _angle_of(v)
     c = jnp.where(small, 1.0 / 12.0 + theta_sq / 720.0, 1.0 / safe_sq - jnp.cos(0.5 * theta) / (2.0 * theta * jnp.sin(0.5 * theta)))
     skew = _skew(v)
     return jnp.eye(3, dtype=v.dtype) + 0.5 * skew + c * (skew @ skew)
