@@ -330,11 +330,12 @@ def joined(args: Options, curves: WindowCurves) -> WindowCurves:
     return curves._replace(positions=jax.vmap(join_windows)(curves.positions), rot6d=jax.vmap(join_windows)(curves.rot6d))
 
 
-def solve_items(args: Options, fn, params, curves: WindowCurves, truth: Pose):
-    """Every IK'd item ``(items, frames, …)`` and its timing (chains: one IK per chain)."""
+def solve_items(args: Options, fn, params, curves: WindowCurves, truth: Pose, handles: Handles):
+    """Every IK'd item ``(items, frames, …)`` and its timing (chains: one IK per chain);
+    ``handles``: the curves' (``Items.handles``), pinned for the IK."""
     if args.segments == 1:
-        return solve_window_curves(fn, params, curves, truth, key_blend_frames=args.key_blend, chunk=args.chunk)
-    return solve_chain_curves(fn, params, curves, truth, key_blend_frames=args.key_blend, chunk=chain_chunk(args))
+        return solve_window_curves(fn, params, curves, truth, handles=handles, key_blend_frames=args.key_blend, chunk=args.chunk)
+    return solve_chain_curves(fn, params, curves, truth, handles=handles, key_blend_frames=args.key_blend, chunk=chain_chunk(args))
 
 
 def reference_positions(items: Items, cond: str, layout) -> jax.Array:
@@ -420,7 +421,7 @@ def main(argv: list[str] | None = None) -> dict:
             jumps[cond] = {"coupled": jumps_at_keys(dense.positions, k), "independent": jumps_at_keys(independent.positions, k)}
             print(f"{cond}: velocity jump at the shared keys {jumps[cond]}", flush=True)
         for name, (fn, params) in iks.items():
-            pose, timing = solve_items(args, fn, params, curves, truth)
+            pose, timing = solve_items(args, fn, params, curves, truth, items.handles[cond])
             ik_windows[name][cond] = window_pose_metrics(config, character, pose, truth, items.metric_handles[cond], chains, windows=k)
             summary = summarize_windows(ik_windows[name][cond])
             ik_results[name][cond] = {**summary, timing_name: timing.ms_per_window}

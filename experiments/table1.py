@@ -281,9 +281,10 @@ def pose_row(setting: Setting, character, poses: dict[str, Pose], truth: Pose, n
     return row
 
 
-def ik_solve(args: Options, ik, curves: WindowCurves, truth: Pose, exact: bool = False) -> Pose:
+def ik_solve(args: Options, ik, curves: WindowCurves, truth: Pose, exact: bool = False, handles=None) -> Pose:
+    """IK'd windows; ``handles``: the curves' own, pinned for an IK that weighs its targets (the exact one)."""
     fn, params = ik
-    return solve_window_curves(fn, params, curves, truth, chunk=args.exact_chunk if exact else args.chunk)[0]
+    return solve_window_curves(fn, params, curves, truth, handles=handles, chunk=args.exact_chunk if exact else args.chunk)[0]
 
 
 def bmm_rows(args: Options, s: Setting, nat, character, iks, truth: Pose, bmm) -> tuple[dict, dict]:
@@ -297,7 +298,7 @@ def bmm_rows(args: Options, s: Setting, nat, character, iks, truth: Pose, bmm) -
         if ik_name not in iks:
             rows[row_name] = missing_row(f"--ik {ik_name} not requested")
             continue
-        poses = {cond: ik_solve(args, iks[ik_name], c, truth, exact=ik_name == "exact") for cond, c in curves.items()}
+        poses = {cond: ik_solve(args, iks[ik_name], c, truth, exact=ik_name == "exact", handles=s.handles[cond]) for cond, c in curves.items()}
         rows[row_name] = pose_row(s, character, poses, truth, nat, row_name)
         rows[row_name]["multimodality"] = None
         print(f"{s.name} {row_name}: {rows[row_name]}", flush=True)

@@ -25,12 +25,13 @@ from typing import Any, NamedTuple, Protocol, runtime_checkable
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
 from bezmotion.data.bvh import BvhMotion
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS, characteristic_indices
 from bezmotion.geometry.rotations import quat_identity, rot6d_from_quat
 from bezmotion.geometry.skeleton import Skeleton, forward_kinematics, inverse_kinematics
+from bezmotion.ik.key_blend import blend_to_keys
 
 
 class IKTargets(NamedTuple):
@@ -41,10 +42,15 @@ class IKTargets(NamedTuple):
       rot6d: ``(*batch, 6, 6)`` global orientations in the *target character's* joint
         convention (a BMM trained on another skeleton is mapped to it by
         :class:`bezmotion.pipeline.transfer.Transfer`'s per-joint ``rot_offset``).
+      pinned: ``(*batch, 6)`` which positions are handles the user placed (``None``: none
+        is). An IK that weighs its targets (:class:`~bezmotion.ik.exact.ExactIKFn`) hits
+        those first where not all six can be met (generated curves are not always
+        consistent with the skeleton's bone lengths); the others ignore it.
     """
 
     position: Float[Array, "*batch 6 3"]
     rot6d: Float[Array, "*batch 6 6"]
+    pinned: Bool[Array, "*batch 6"] | None = None
 
 
 class Pose(NamedTuple):
@@ -170,17 +176,26 @@ def pose_from_global(character: Character, quat_global: Float[Array, "*batch joi
     return pose_from_motion(character, quat_local, pos_local)
 
 
-def solve_frames(ik_fn: IKFn, params: Any, targets: IKTargets) -> Pose:
+def solve_frames(
+    ik_fn: IKFn, params: Any, targets: IKTargets, *, keys: tuple[Pose, Pose] | None = None, key_blend_frames: int = 0
+) -> Pose:
     """Poses of a window of frames: ``targets`` are ``(frames, 6, …)``.
 
-    An IK whose ``ik_fn`` has a ``solve_window(params, targets)`` method solves the window
-    itself (e.g. :class:`~bezmotion.ik.exact.ExactIKFn`, which smooths over time);
-    otherwise ``ik_fn`` is vmapped over the frames.
+    An IK whose ``ik_fn`` has a ``solve_window(params, targets, keys, key_blend_frames)``
+    method solves the window itself (e.g. :class:`~bezmotion.ik.exact.ExactIKFn`, which
+    smooths over time and joins the keys before its solve); otherwise ``ik_fn`` is
+    vmapped over the frames and the keys are blended in afterwards.
+
+    Args:
+      keys: the ``(start, end)`` key poses (unbatched) to put at the first and last frame,
+        joined to the in-between over ``key_blend_frames`` frames
+        (:func:`~bezmotion.ik.key_blend.blend_to_keys`); ``None``: the IK's own poses there.
     """
     window = getattr(ik_fn, "solve_window", None)
     if window is not None:
-        return window(params, targets)
-    return jax.vmap(ik_fn, in_axes=(None, 0))(params, targets)
+        return window(params, targets, keys=keys, key_blend_frames=key_blend_frames)
+    pose = jax.vmap(ik_fn, in_axes=(None, 0))(params, targets)
+    return pose if keys is None else blend_to_keys(pose, *keys, key_blend_frames)
 
 
 def targets_from_pose(character: Character, pose: Pose) -> IKTargets:

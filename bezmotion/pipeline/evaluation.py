@@ -290,13 +290,13 @@ def sample_window_curves(
 
 @functools.partial(jax.jit, static_argnames=("ik_fn", "key_blend_frames"))
 def _ik_chunk(ik_params, inputs, *, ik_fn, key_blend_frames) -> Pose:
-    positions, rot6d, start, end = inputs
+    positions, rot6d, start, end, handles = inputs
 
-    def one(p, r, s, e):
+    def one(p, r, s, e, h):
         window = WindowCurves(None, p, r)  # pose_from_curves reads the dense trajectories only
-        return pose_from_curves(ik_fn, ik_params, window, s, e, keep_keyframes=True, key_blend_frames=key_blend_frames)
+        return pose_from_curves(ik_fn, ik_params, window, s, e, keep_keyframes=True, key_blend_frames=key_blend_frames, handles=h)
 
-    return jax.vmap(one)(positions, rot6d, start, end)
+    return jax.vmap(one)(positions, rot6d, start, end, handles)
 
 
 class IKTiming(NamedTuple):
@@ -324,18 +324,21 @@ def solve_window_curves(
     curves: WindowCurves,
     truth: Pose,
     *,
+    handles: Handles | None = None,
     key_blend_frames: int = KEY_BLEND_FRAMES,
     chunk: int = 128,
 ) -> tuple[Pose, IKTiming]:
     """IK of every frame of every window's curves (batched, from :func:`sample_window_curves`),
     the start and end poses of ``truth`` blended in as keys; ``(poses (windows, frames, …), timing)``.
+    ``handles`` ``(windows, handles)``: the curves' handles, pinned for the IK
+    (:func:`~bezmotion.pipeline.inbetweening.pose_from_curves`); ``None``: none.
 
     A warm-up call on the first chunk compiles the chunked IK (``compile_s``: compiling and
     one call; about the call alone when this IK, chunk and settings were compiled before),
     so ``run_s`` is its steady-state time."""
     first = jax.tree.map(lambda x: x[:, 0], truth)
     last = jax.tree.map(lambda x: x[:, -1], truth)
-    inputs = (curves.positions, curves.rot6d, first, last)
+    inputs = (curves.positions, curves.rot6d, first, last, handles)
     return _timed(functools.partial(_ik_chunk, ik_params, ik_fn=ik_fn, key_blend_frames=key_blend_frames), inputs, chunk)
 
 
@@ -459,13 +462,13 @@ def sample_chain_curves(
 
 @functools.partial(jax.jit, static_argnames=("ik_fn", "key_blend_frames"))
 def _chain_ik_chunk(ik_params, inputs, *, ik_fn, key_blend_frames) -> Pose:
-    positions, rot6d, keys = inputs
+    positions, rot6d, keys, handles = inputs
 
-    def one(p, r, k):
+    def one(p, r, k, h):
         windows = WindowCurves(None, p, r)  # pose_from_chain_curves reads the dense trajectories only
-        return pose_from_chain_curves(ik_fn, ik_params, windows, k, keep_keyframes=True, key_blend_frames=key_blend_frames)
+        return pose_from_chain_curves(ik_fn, ik_params, windows, k, keep_keyframes=True, key_blend_frames=key_blend_frames, handles=h)
 
-    return jax.vmap(one)(positions, rot6d, keys)
+    return jax.vmap(one)(positions, rot6d, keys, handles)
 
 
 def solve_chain_curves(
@@ -474,14 +477,16 @@ def solve_chain_curves(
     curves: WindowCurves,
     truth: Pose,
     *,
+    handles: Handles | None = None,
     key_blend_frames: int = KEY_BLEND_FRAMES,
     chunk: int = 128,
 ) -> tuple[Pose, IKTiming]:
     """:func:`solve_window_curves` for chains: one IK over each chain's joined frames
     (curves ``(chains, windows, …)`` of :func:`sample_chain_curves`), each window blended to
     its two keys from ``truth``; ``(poses (chains, frames, …), timing)``, the timing per
-    chain (``windows_run`` counts chains)."""
-    inputs = (curves.positions, curves.rot6d, chain_keys(truth, curves.positions.shape[1]))
+    chain (``windows_run`` counts chains). ``handles`` ``(chains, windows, handles)`` at
+    window frames, pinned for the IK; ``None``: none."""
+    inputs = (curves.positions, curves.rot6d, chain_keys(truth, curves.positions.shape[1]), handles)
     return _timed(functools.partial(_chain_ik_chunk, ik_params, ik_fn=ik_fn, key_blend_frames=key_blend_frames), inputs, chunk)
 
 

@@ -24,7 +24,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float, Shaped
 
 from bezmotion.xla_options import call_with_inference_options
 from bezmotion.bezier import BezierLayout, reconstruct_dense, tangent_from_velocity
@@ -39,7 +39,7 @@ from bezmotion.bmm.sampling import (
 from bezmotion.diffusion.projection import project_onto_handles
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, solve_frames, targets_from_pose
-from bezmotion.pipeline.key_blend import blend_to_keys
+from bezmotion.ik.key_blend import blend_to_keys
 from bezmotion.pipeline.transfer import Transfer, curves_to_target, floor_anchor, orientations_to_source_space, to_source_space
 
 
@@ -164,6 +164,13 @@ def _window_in_target(
     return WindowCurves(curves, positions, rot6d)
 
 
+def pinned_frames(handles: Handles, num_frames: int) -> Bool[Array, "frames 6"]:
+    """``(frames, 6)``: which characteristic joint is held by a (valid) handle at each frame
+    of a window or chain (``handles`` unbatched, at its frames), for ``IKTargets.pinned``."""
+    hit = (handles.frame[:, None] == jnp.arange(num_frames)[None, :]) & handles.valid[:, None]  # (handles, frames)
+    return jnp.any(hit[:, :, None] & (handles.joint[:, None, None] == jnp.arange(6)), axis=0)
+
+
 def pose_from_curves(
     ik_fn: IKFn,
     ik_params: Any,
@@ -173,13 +180,19 @@ def pose_from_curves(
     *,
     keep_keyframes: bool,
     key_blend_frames: int = 0,
+    handles: Handles | None = None,
 ) -> Pose:
     """The second half of :func:`inbetween_traced`: IK of every frame of ``window``'s dense
-    trajectories, then (``keep_keyframes``) the given keys blended in. ``(frames, …)`` poses."""
-    pose = solve_frames(ik_fn, ik_params, IKTargets(window.positions, window.rot6d))
-    if keep_keyframes:
-        pose = blend_to_keys(pose, start, end, key_blend_frames)
-    return pose
+    trajectories, with (``keep_keyframes``) the given keys joined in
+    (:func:`~bezmotion.ik.protocol.solve_frames`). ``(frames, …)`` poses.
+
+    ``handles`` (unbatched): the IK is told which targets they hold (``IKTargets.pinned``),
+    so one that weighs its targets hits them first."""
+    pinned = None if handles is None else pinned_frames(handles, window.positions.shape[0])
+    return solve_frames(
+        ik_fn, ik_params, IKTargets(window.positions, window.rot6d, pinned),
+        keys=(start, end) if keep_keyframes else None, key_blend_frames=key_blend_frames,
+    )  # fmt: skip
 
 
 def inbetween_traced(
@@ -212,7 +225,9 @@ def inbetween_traced(
         bmm, character, start, end, handles, transfer, key,
         steps=steps, guidance=guidance, foot_lock=foot_lock, key_orientations=key_orientations, key_velocity=key_velocity,
     )  # fmt: skip
-    pose = pose_from_curves(ik_fn, ik_params, window, start, end, keep_keyframes=keep_keyframes, key_blend_frames=key_blend_frames)
+    pose = pose_from_curves(
+        ik_fn, ik_params, window, start, end, keep_keyframes=keep_keyframes, key_blend_frames=key_blend_frames, handles=handles
+    )  # fmt: skip
     return InbetweenResult(pose, *window)
 
 
@@ -279,7 +294,7 @@ def inbetween(
         (rather than their IK reconstruction), so the window joins its neighbours exactly.
       key_blend_frames: with ``keep_keyframes``, the keys' difference from the IK's pose
         fades out over this many frames after the start and before the end
-        (:func:`~bezmotion.pipeline.key_blend.blend_to_keys`), so no joint pops next to a
+        (:func:`~bezmotion.ik.key_blend.blend_to_keys`), so no joint pops next to a
         key; 0 replaces the two frames alone (the behaviour before the blend).
       key_orientations: the start and end poses' global orientations of the six joints are
         conditions of the BMM, overwritten like their positions (``sample_curves``'s
@@ -347,7 +362,7 @@ class ChainResult(NamedTuple):
     rot6d: Float[Array, "frames 6 6"]
 
 
-def join_windows(x: Float[Array, "windows window_frames ..."]) -> Float[Array, "frames ..."]:
+def join_windows(x: Shaped[Array, "windows window_frames ..."]) -> Shaped[Array, "frames ..."]:
     """Per-window frames of a chain → the chain's frames, each shared key once (window
     ``i``'s last frame is window ``i + 1``'s first; the earlier window's is kept)."""
     return jnp.concatenate([x[:, :-1].reshape(-1, *x.shape[2:]), x[-1, -1:]])
@@ -414,6 +429,7 @@ def pose_from_chain_curves(
     *,
     keep_keyframes: bool,
     key_blend_frames: int = 0,
+    handles: Handles | None = None,
 ) -> Pose:
     """:func:`pose_from_curves` for a chain: one IK over the chain's joined frames, then
     (``keep_keyframes``) each window's frames blended to its two keys.
@@ -422,13 +438,17 @@ def pose_from_chain_curves(
       windows: the chain's curves stage (:func:`chain_curves_traced`), batched
         ``(keys − 1, …)``; only its dense ``positions`` and ``rot6d`` are read.
       keys: :class:`~bezmotion.ik.protocol.Pose` of every key, batched ``(keys, …)``.
+      handles: each window's handles ``(keys − 1, handles)`` at its own frames, pinned
+        for the IK (:func:`pose_from_curves`); ``None``: none.
     Returns:
       ``((keys − 1)·(window_frames − 1) + 1, …)`` poses, the given keys exactly at the key
       frames with ``keep_keyframes``.
     """
     positions, rot6d = join_windows(windows.positions), join_windows(windows.rot6d)
+    frames = windows.positions.shape[1]
+    pinned = None if handles is None else join_windows(jax.vmap(lambda h: pinned_frames(h, frames))(handles))
     # One IK over the whole chain (an IK that smooths over time sees across the keys).
-    pose = solve_frames(ik_fn, ik_params, IKTargets(positions, rot6d))
+    pose = solve_frames(ik_fn, ik_params, IKTargets(positions, rot6d, pinned))
     if keep_keyframes:
         # Each window's frames blended to its two keys: the fades of neighbouring windows
         # meet only at their shared key, where both put that key exactly.
@@ -464,7 +484,7 @@ def inbetween_chain_traced(
         steps=steps, guidance=guidance, foot_lock=foot_lock, coupled=coupled, key_orientations=key_orientations,
     )  # fmt: skip
     pose = pose_from_chain_curves(
-        ik_fn, ik_params, windows, keys, keep_keyframes=keep_keyframes, key_blend_frames=key_blend_frames
+        ik_fn, ik_params, windows, keys, keep_keyframes=keep_keyframes, key_blend_frames=key_blend_frames, handles=handles
     )
     return ChainResult(pose, windows.curves, join_windows(windows.positions), join_windows(windows.rot6d))
 

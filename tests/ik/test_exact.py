@@ -179,3 +179,48 @@ def test_bad_settings(bandai):
         exact_ik(rig_ik, bandai.params.inner, bandai.character, position_wieght=1.0)
     with pytest.raises(ValueError, match="joint limits for 3 joints"):
         exact_ik(rig_ik, bandai.params.inner, bandai.character, limits=JointLimits.unlimited(3))
+
+
+def test_pinned_targets_weigh_handle_weight_more(bandai):
+    """A pinned target's (a handle's) position residual counts ``handle_weight`` times as much
+    as the others': the cost of a pose missing the right hand by 3 cm and the head by 2 cm."""
+    truth = jax.tree.map(lambda x: x[0], bandai.truth)
+    targets = targets_from_pose(bandai.character, truth)
+    position = targets.position.at[3].add(jnp.asarray([3.0, 0.0, 0.0])).at[1].add(jnp.asarray([0.0, 2.0, 0.0]))
+    free = len(exact_module._free_joints(bandai.character))
+    params = dataclasses.replace(bandai.params, handle_weight=7.0)
+
+    def cost(pinned) -> float:
+        problem = exact_module._Problem(truth, position, exact_module.quat_from_rot6d(targets.rot6d), pinned, jnp.asarray(0.0))
+        return float(exact_module._evaluate(params, problem, jnp.zeros((free, 3)), jnp.zeros(3))[-1])
+
+    w = params.position_weight**2
+    assert cost(jnp.zeros(6, bool)) == pytest.approx(w * (9.0 + 4.0), rel=1e-4)
+    assert cost(jnp.zeros(6, bool).at[3].set(True)) == pytest.approx(w * (49.0 * 9.0 + 4.0), rel=1e-4)
+
+
+def test_window_solve_joins_the_keys_and_holds_their_neighbours(bandai):
+    """With keys, the window solve puts them at the ends exactly, and the key hold trades a
+    frame next to a key reaching its target for staying near the key: the right hand's
+    target 20 cm up at frame 1 of 8 consecutive mocap frames is reached without the hold
+    by turning the arm; the harder the hold, the less frame 1 turns away from the key."""
+    motion = read_bvh(DEMO_CLIP)
+    window = slice(10, 18)
+    truth = pose_from_motion(bandai.character, jnp.asarray(motion.quat_local[window]), jnp.asarray(motion.pos_local[window]))
+    targets = targets_from_pose(bandai.character, truth)
+    targets = targets._replace(position=targets.position.at[1, 3].add(jnp.asarray([0.0, 20.0, 0.0])))
+    keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
+    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, iterations=10)  # the pipeline's
+    solve = jax.jit(lambda p, t: fn.solve_window_with_residual(p, t, keys, 6))
+
+    def turn_next_to_start_deg(result) -> float:
+        return float(jnp.max(exact_module._angle_between(result.pose.quat_local[0], result.pose.quat_local[1])) * 180 / np.pi)
+
+    free, default, hard = (solve(dataclasses.replace(params, key_hold_weight=w), targets) for w in (0.0, params.key_hold_weight, 1e5))
+    for result in (free, default, hard):
+        np.testing.assert_array_equal(np.asarray(result.pose.quat_local[0]), np.asarray(keys[0].quat_local))
+        np.testing.assert_array_equal(np.asarray(result.pose.root_pos[-1]), np.asarray(keys[1].root_pos))
+    assert float(free.position_error[1, 3]) < 0.01  # without the hold, frame 1 reaches the jump
+    turns = [turn_next_to_start_deg(r) for r in (free, default, hard)]
+    assert turns[0] > turns[1] > turns[2] and turns[2] < 0.5 * turns[0], turns
+    assert float(hard.position_error[1, 3]) > 5.0  # held hard, it stays near the key

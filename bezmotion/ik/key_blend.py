@@ -11,16 +11,25 @@ same fraction of the difference. The fraction falls from 1 at the key to 0 after
 ``frames`` frames along a half cosine, so the correction starts and ends with zero speed.
 With ``frames`` ≤ the control stride (6), frames holding handles (multiples of the
 stride) are untouched.
+
+:func:`bezmotion.ik.protocol.solve_frames` applies it: after a per-frame IK, or, for an
+IK that solves whole windows (:class:`~bezmotion.ik.exact.ExactIKFn`), to the poses it
+starts from, so that its solve hits the targets (handles on any frame included) from
+poses already joined to the keys.
 """
 
 from __future__ import annotations
+
+from typing import TYPE_CHECKING
 
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
 from bezmotion.geometry.rotations import quat_conjugate, quat_identity, quat_mul, slerp
-from bezmotion.ik.protocol import Pose
+
+if TYPE_CHECKING:  # protocol.solve_frames blends keys: no import cycle at run time
+    from bezmotion.ik.protocol import Pose
 
 
 def key_blend_weights(num_frames: int, frames: int) -> tuple[np.ndarray, np.ndarray]:
@@ -59,8 +68,8 @@ def blend_to_keys(pose: Pose, start: Pose, end: Pose, frames: int) -> Pose:
             + w_start[:, None] * (start.root_pos - pose.root_pos[0])
             + w_end[:, None] * (end.root_pos - pose.root_pos[-1])
         )
-        pose = Pose(root, quat)
-    return Pose(
-        pose.root_pos.at[0].set(start.root_pos).at[-1].set(end.root_pos),
-        pose.quat_local.at[0].set(start.quat_local).at[-1].set(end.quat_local),
+        pose = pose._replace(root_pos=root, quat_local=quat)
+    return pose._replace(
+        root_pos=pose.root_pos.at[0].set(start.root_pos).at[-1].set(end.root_pos),
+        quat_local=pose.quat_local.at[0].set(start.quat_local).at[-1].set(end.quat_local),
     )
