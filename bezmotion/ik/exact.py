@@ -52,12 +52,17 @@ through :func:`bezmotion.ik.protocol.solve_frames`, which also hands it
   near them (``key_hold_weight``, fading over the blend's frames). Where the curves next
   to a key are hard to reach exactly, an unheld solve swings whole arms for the last
   centimetres and the joint turns tens of degrees in the frame after the key (a pop);
-  Bandai-Namco validation, 100 windows: key pop 41.8° → 20.7° (the mocap's 26.2°);
 - the **handles** (``IKTargets.pinned``): their position rows weigh ``handle_weight``
-  times more, so where the six targets conflict the unpinned joints give way. It helps
-  little today (handles error 0.220 → 0.215 cm on the same windows): most remaining misses
-  are targets beyond the body's reach, where Gauss–Newton's linearisation keeps turning
-  joints (which cannot lengthen a limb) instead of moving the hips.
+  times more, so where the six targets conflict the unpinned joints give way. Alone it
+  helps little (handles error 0.220 → 0.215 cm): most misses that remain are targets
+  beyond the body's reach, where Gauss–Newton's linearisation keeps turning joints
+  (which cannot lengthen a limb) instead of moving the hips.
+
+Bandai-Namco validation, 100 windows, bundled models (``python experiments/pipeline_eval.py
+--ik exact --windows 100``), before the key hold, the handle weights and the adaptive trust
+region (``max_turn``) → with them: handles 0.220 → 0.121 cm in distribution and 4.02 →
+2.46 cm OOD, key pop 41.6° → 17.1° (the mocap's own 26.2°), foot skating 0.147 → 0.140,
+MPJPE 3.14 → 3.17 cm.
 """
 
 from __future__ import annotations
@@ -93,7 +98,8 @@ _SMALL_ANGLE = 1e-4  # rad: below this the exp/log maps use their Taylor series
 # cost (the inner IK's pose is already close), from _DAMPING_FIRST up after a refused step.
 # The position rows' curvature is ~position_weight² · (lever arm, ~10–100 cm)² ≈ 1e6–1e8.
 _DAMPING_FIRST, _DAMPING_UP, _DAMPING_DOWN = 1e3, 10.0, 0.1
-_MAX_TURN = 0.2  # rad: the most any joint turns in one step
+# The trust region (ExactIKParams.max_turn) after a taken step and after a refused one.
+_RADIUS_GROW, _RADIUS_SHRINK = 2.0, 0.25
 
 
 # ------------------------------------------------------------------------------ rotations
@@ -263,6 +269,12 @@ class ExactIKParams:
         curves near a key are hard to reach exactly, the frames next to it stay near the
         key instead of swinging every joint for the last centimetres (a pop); pinned
         handles there still win (``position_weight · handle_weight`` per cm).
+      max_turn: the trust region, rad: the most any joint turns in one step; it shrinks
+        4× after a refused step and grows back 2× after a taken one. Long steps suit a
+        close start (a learned IK's): near a straight limb the linearisation is poor but
+        its direction good (Bandai-Namco validation, 100 windows, against 0.2: handles
+        0.215 → 0.121 cm ID, 3.98 → 2.46 cm OOD). From a far start (the rig's) 0.2 ends
+        nearer the target orientations (long steps settle ~1.5° off them in 14 steps).
       smoothing: weight of each neighbouring frame in the window solve's temporal filter
         (0: none; 0.5 at most; the frame itself keeps ``1 - 2·smoothing``, or
         ``1 - smoothing`` at the window's ends).
@@ -277,7 +289,8 @@ class ExactIKParams:
     position_weight: Float[Array, ""] | float = 100.0
     hips_position_scale: Float[Array, ""] | float = 1.0
     handle_weight: Float[Array, ""] | float = 10.0
-    key_hold_weight: Float[Array, ""] | float = 300.0
+    key_hold_weight: Float[Array, ""] | float = 10000.0
+    max_turn: Float[Array, ""] | float = 1.0
     rotation_weight: Float[Array, ""] | float = 20.0
     prior_weight: Float[Array, ""] | float = 1.0
     root_weight: Float[Array, ""] | float = 0.05
@@ -520,7 +533,7 @@ def _levenberg_marquardt(params: ExactIKParams, problem: _Problem, iterations: i
     evaluated = _evaluate(params, problem, delta, root_delta)
 
     def step(carry, proximal):
-        delta, root_delta, damping, evaluated = carry
+        delta, root_delta, damping, radius, evaluated = carry
         zero = (jnp.zeros_like(delta), jnp.zeros_like(root_delta))
         anchor = jax.tree.map(lambda a, b: jnp.where(proximal, a, b), (delta, root_delta), zero)
         current = evaluated[-1] + _prior_cost(params, problem, delta, root_delta, anchor)
@@ -528,7 +541,9 @@ def _levenberg_marquardt(params: ExactIKParams, problem: _Problem, iterations: i
         ok = jnp.all(jnp.isfinite(move_free)) & jnp.all(jnp.isfinite(move_root))
         # A trust region on the largest joint turn: far from the solution the linearised
         # step overshoots (a refused step costs a whole iteration); a shortened one descends.
-        scale = jnp.minimum(1.0, _MAX_TURN / jnp.maximum(jnp.max(safe_norm(move_free)), 1e-12))
+        # It shrinks after a refused step and grows back after a taken one: near a straight
+        # limb the right steps are long (the linearisation is poor but its direction good).
+        scale = jnp.minimum(1.0, radius / jnp.maximum(jnp.max(safe_norm(move_free)), 1e-12))
         move_free, move_root = scale * move_free, scale * move_root
         new_delta = delta + jnp.where(ok, move_free, 0.0)
         new_root = root_delta + jnp.where(ok, move_root, 0.0)
@@ -537,10 +552,12 @@ def _levenberg_marquardt(params: ExactIKParams, problem: _Problem, iterations: i
         pick = lambda a, b: jax.tree.map(lambda x, y: jnp.where(better, x, y), a, b)  # noqa: E731
         delta, root_delta, evaluated = pick((new_delta, new_root, candidate), (delta, root_delta, evaluated))
         damping = jnp.where(better, damping * _DAMPING_DOWN, jnp.maximum(damping * _DAMPING_UP, _DAMPING_FIRST))
-        return (delta, root_delta, damping, evaluated), None
+        radius = jnp.where(better, jnp.minimum(radius * _RADIUS_GROW, params.max_turn), radius * _RADIUS_SHRINK)
+        return (delta, root_delta, damping, radius, evaluated), None
 
     proximal = jnp.arange(iterations) >= iterations // 2
-    (delta, root_delta, _, evaluated), _ = jax.lax.scan(step, (delta, root_delta, jnp.zeros((), dtype), evaluated), proximal)
+    init = (delta, root_delta, jnp.zeros((), dtype), jnp.asarray(params.max_turn, dtype), evaluated)
+    (delta, root_delta, _, _, evaluated), _ = jax.lax.scan(step, init, proximal)
     return delta, root_delta, evaluated[-1]
 
 

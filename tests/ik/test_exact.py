@@ -59,7 +59,8 @@ def _bent(character: Character, quat: np.ndarray, pos: np.ndarray, seed: int) ->
 def _case(character: Character, preset: str, quat: np.ndarray, pos: np.ndarray, seed: int) -> Case:
     truth = _bent(character, quat, pos, seed)
     rig = make_rig(character, preset)
-    fn, params = exact_ik(rig_ik, rig, character, iterations=10)  # from the rig: far from the targets
+    # From the rig: far from the targets, where short steps (0.2 rad) also meet the orientations.
+    fn, params = exact_ik(rig_ik, rig, character, iterations=10, max_turn=0.2)
     return Case(character, truth, fn, params, _with_residual(fn))
 
 
@@ -152,7 +153,9 @@ def test_composes_with_learned_ik_and_window_solve(bandai):
     """On top of the learned IK (the bundled model), through the window solve the pipeline uses."""
     model = load_ik_model(BUNDLED_IK)
     limits = JointLimits.load(BUNDLED_IK / "joint_limits.json", bandai.character)
-    fn, params = exact_ik(protores_ik_fn, model, bandai.character, limits=limits, iterations=10)
+    # Bent poses (every joint up to 17° off the corpus pose) are far from what a learned IK
+    # gives: 14 steps of the default trust region meet them to 10 µm (10 steps: 20 µm).
+    fn, params = exact_ik(protores_ik_fn, model, bandai.character, limits=limits, iterations=14)
     targets = targets_from_pose(bandai.character, bandai.truth)
     result = jax.jit(fn.solve_window_with_residual)(params, targets)
     assert float(jnp.max(result.position_error)) < REACH_TOL_CM
