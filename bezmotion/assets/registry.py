@@ -150,6 +150,7 @@ REGISTRY: Mapping[str, ModelEntry] = {
             "--min-snr-gamma 0 --off-grid-handles 0.5 --batch-size 256 --learning-rate 2e-4 --lr-schedule cosine --warmup-steps 500 "
             "--steps 12000 --eval-windows 1000 --table6-steps 10",
             "python experiments/train_ik.py --corpus lafan1 --config paper --steps 20000 --out-dir ~/.cache/bezmotion/runs/ik_lafan1_paper",
+            "python experiments/joint_limits.py --corpus lafan1 --out ~/.cache/bezmotion/runs/ik_lafan1_paper/model/joint_limits.json",
         ),
         metrics=(
             "written by its commands: results/bmm_lafan1_paper_cosine.json and <cache>/runs/ik_lafan1_paper/training.json. "
