@@ -22,7 +22,9 @@ runs on those same dense trajectories, the start and end poses blended in over
 ``--key-blend`` frames. ``learned``: the bundled / given learned IK; ``refined``: it plus
 the rig's exact two-bone limbs; ``rig``: the analytic rig alone; ``exact``: the learned
 IK then the exact damped least-squares stage (:mod:`bezmotion.ik.exact`) with the joint
-limits stored beside the IK model; ``exact_refined``: the same on top of ``refined``.
+limits stored beside the IK model, told the keys (it starts from poses joined to them
+and holds the frames next to them) and the handles (pinned: hit first where the targets
+conflict); ``exact_refined``: the same on top of ``refined``.
 ``--exact NAME=VALUE`` (repeatable) sets an :class:`~bezmotion.ik.exact.ExactIKParams`
 field of both exact IKs, e.g. ``--exact iterations=20 --exact hips_position_scale=0.3``.
 
