@@ -274,7 +274,7 @@ class ExactIKParams:
         close start (a learned IK's): near a straight limb the linearisation is poor but
         its direction good (Bandai-Namco validation, 100 windows, against 0.2: handles
         0.215 → 0.121 cm ID, 3.98 → 2.46 cm OOD). From a far start (the rig's) 0.2 ends
-        nearer the target orientations (long steps settle ~1.5° off them in 14 steps).
+        nearer the target orientations (long steps settle ~1.4° off them in 14 steps).
       smoothing: weight of each neighbouring frame in the window solve's temporal filter
         (0: none; 0.5 at most; the frame itself keeps ``1 - 2·smoothing``, or
         ``1 - smoothing`` at the window's ends).

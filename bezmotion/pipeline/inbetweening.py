@@ -168,7 +168,7 @@ def pinned_frames(handles: Handles, num_frames: int) -> Bool[Array, "frames 6"]:
     """``(frames, 6)``: which characteristic joint is held by a (valid) handle at each frame
     of a window or chain (``handles`` unbatched, at its frames), for ``IKTargets.pinned``."""
     hit = (handles.frame[:, None] == jnp.arange(num_frames)[None, :]) & handles.valid[:, None]  # (handles, frames)
-    return jnp.any(hit[:, :, None] & (handles.joint[:, None, None] == jnp.arange(6)), axis=0)
+    return jnp.any(hit[:, :, None] & (handles.joint[:, None, None] == jnp.arange(len(CHARACTERISTIC_JOINTS))), axis=0)
 
 
 def pose_from_curves(
