@@ -94,10 +94,15 @@ from bezmotion.linalg import cholesky_solve
 # A joint without limits: a range wider than any rotation's logarithm (|log| ≤ π).
 _UNLIMITED = 1e3
 _SMALL_ANGLE = 1e-4  # rad: below this the exp/log maps use their Taylor series
-# Levenberg damping (added to the prior's Hessian, per rad²): none while steps lower the
-# cost (the inner IK's pose is already close), from _DAMPING_FIRST up after a refused step.
-# The position rows' curvature is ~position_weight² · (lever arm, ~10–100 cm)² ≈ 1e6–1e8.
-_DAMPING_FIRST, _DAMPING_UP, _DAMPING_DOWN = 1e3, 10.0, 0.1
+# Levenberg–Marquardt damping, relative to each unknown's own curvature (the diagonal of
+# JᵀW²J: a hand's position rows weigh a shoulder turn by its ~50 cm lever, the hips' by a
+# few cm): none while steps lower the cost (the inner IK's pose is already close), from
+# _DAMPING_FIRST up after a refused step, so a refused step's successor is a short,
+# gradient-like one in every unknown alike, the hips' translation included.
+_DAMPING_FIRST, _DAMPING_UP, _DAMPING_DOWN = 1.0, 10.0, 0.1
+# Row weights below this count as this (a zero weight, e.g. rotation_weight=0, would put 1/0
+# on the dual system's diagonal).
+_MIN_ROW_WEIGHT_SQ = 1e-12
 # The trust region (ExactIKParams.max_turn) after a taken step and after a refused one.
 _RADIUS_GROW, _RADIUS_SHRINK = 2.0, 0.25
 
@@ -270,11 +275,11 @@ class ExactIKParams:
         key instead of swinging every joint for the last centimetres (a pop); pinned
         handles there still win (``position_weight · handle_weight`` per cm).
       max_turn: the trust region, rad: the most any joint turns in one step; it shrinks
-        4× after a refused step and grows back 2× after a taken one. Long steps suit a
-        close start (a learned IK's): near a straight limb the linearisation is poor but
-        its direction good (Bandai-Namco validation, 100 windows, against 0.2: handles
-        0.215 → 0.121 cm ID, 3.98 → 2.46 cm OOD). From a far start (the rig's) 0.2 ends
-        nearer the target orientations (long steps settle ~1.4° off them in 14 steps).
+        4× after a refused step and grows back 2× after a taken one. Each step tries it two
+        ways (the whole step shortened, and each joint clipped) and keeps the better. Long
+        steps suit a close start (a learned IK's): near a straight limb the linearisation
+        is poor but its direction good. From a far start (the rig's) 0.2 ends nearer the
+        target orientations (long steps settle ~1.4° off them in 14 steps).
       smoothing: weight of each neighbouring frame in the window solve's temporal filter
         (0: none; 0.5 at most; the frame itself keeps ``1 - 2·smoothing``, or
         ``1 - smoothing`` at the window's ends).
@@ -463,7 +468,7 @@ def _step(params: ExactIKParams, problem: _Problem, delta: Array, root_delta: Ar
     in float32 would bury the prior under the rounding of the (large-weight) position rows;
     the dual form never adds the two, and ``W⁻²`` only regularises ``μ`` (a position weight
     → ∞ makes the step the exact constrained one).
-    Levenberg damping adds ``damping · I`` to ``D``.
+    Levenberg–Marquardt damping adds ``damping · diag(JᵀW²J)`` to ``D`` (each unknown's own curvature).
     """
     character = params.character
     rot, pos, rel, e_pos, e_rot, _ = evaluated
@@ -487,19 +492,27 @@ def _step(params: ExactIKParams, problem: _Problem, delta: Array, root_delta: Ar
     jac_free = jnp.concatenate([jnp.moveaxis(j_pos, -1, 1).reshape(18, n_free, 3), jnp.moveaxis(j_rot, -1, 1).reshape(18, n_free, 3)])
     jac_root = jnp.concatenate([(scale[:, :, None] * jnp.eye(3, dtype=dtype)).reshape(18, 3), jnp.zeros((18, 3), dtype)])
     res = jnp.concatenate([e_pos.reshape(-1), e_rot.reshape(-1)])
-    row_weight_sq = jnp.concatenate(
-        [jnp.full(18, params.position_weight**2, dtype), jnp.full(18, params.rotation_weight**2, dtype)]
+    row_weight_sq = jnp.maximum(
+        jnp.concatenate([jnp.full(18, params.position_weight**2, dtype), jnp.full(18, params.rotation_weight**2, dtype)]),
+        _MIN_ROW_WEIGHT_SQ,
     )
+    # Marquardt's scaling: the damping of each unknown in proportion to its curvature.
+    curvature = jnp.einsum("r,rfa->fa", row_weight_sq, jac_free * jac_free)  # (free, 3)
+    root_curvature = params.position_weight**2 * jnp.sum(scale * scale)  # each root axis alike
 
     excess, d_excess = _limit_terms(params, problem.start.quat_local, delta, jacobian=True)
     d_excess_t = jnp.swapaxes(d_excess, -1, -2)
     hold, hold_root = _hold_weights(params, problem)
-    blocks = (params.prior_weight**2 + hold**2 + damping) * jnp.eye(3, dtype=dtype) + params.limit_weight**2 * (d_excess_t @ d_excess)
+    blocks = (
+        (params.prior_weight**2 + hold**2) * jnp.eye(3, dtype=dtype)
+        + damping * curvature[..., None] * jnp.eye(3, dtype=dtype)
+        + params.limit_weight**2 * (d_excess_t @ d_excess)
+    )
     block_grad = (
         params.prior_weight**2 * (delta - anchor[0]) + hold**2 * delta
         + params.limit_weight**2 * jnp.einsum("fab,fb->fa", d_excess_t, excess)
     )  # fmt: skip
-    root_block = (params.root_weight**2 + hold_root**2 + damping) * jnp.ones(3, dtype)
+    root_block = (params.root_weight**2 + hold_root**2 + damping * root_curvature) * jnp.ones(3, dtype)
     root_grad = params.root_weight**2 * (root_delta - anchor[1]) + hold_root**2 * root_delta
 
     inv_blocks = _inverse_3x3(blocks)
@@ -539,16 +552,30 @@ def _levenberg_marquardt(params: ExactIKParams, problem: _Problem, iterations: i
         current = evaluated[-1] + _prior_cost(params, problem, delta, root_delta, anchor)
         move_free, move_root = _step(params, problem, delta, root_delta, evaluated, damping, anchor)
         ok = jnp.all(jnp.isfinite(move_free)) & jnp.all(jnp.isfinite(move_root))
-        # A trust region on the largest joint turn: far from the solution the linearised
-        # step overshoots (a refused step costs a whole iteration); a shortened one descends.
-        # It shrinks after a refused step and grows back after a taken one: near a straight
-        # limb the right steps are long (the linearisation is poor but its direction good).
-        scale = jnp.minimum(1.0, radius / jnp.maximum(jnp.max(safe_norm(move_free)), 1e-12))
-        move_free, move_root = scale * move_free, scale * move_root
-        new_delta = delta + jnp.where(ok, move_free, 0.0)
-        new_root = root_delta + jnp.where(ok, move_root, 0.0)
-        candidate = _evaluate(params, problem, new_delta, new_root)
-        better = ok & (candidate[-1] + _prior_cost(params, problem, new_delta, new_root, anchor) <= current)
+        # The trust region: no joint turns more than ``radius`` in one step (far from the
+        # solution the linearised step overshoots, and a refused step costs an iteration).
+        # Two shapes of it are tried and the lower cost kept: the whole step shortened until
+        # its largest turn fits (its direction kept: what a far start, the rig's, needs),
+        # and each joint's turn clipped on its own (near a straight limb or a twist axis
+        # the linearisation asks one joint for tens of radians, and shortening everything
+        # by that froze the hips' translation the targets needed). The translation, linear
+        # in the positions, is never shortened. The region shrinks after a refused step and
+        # grows back after a taken one: near a straight limb the right steps are long.
+        turns = safe_norm(move_free)
+        clipped = move_free * jnp.minimum(1.0, radius / jnp.maximum(turns, 1e-12))[..., None]
+        shortened = move_free * jnp.minimum(1.0, radius / jnp.maximum(jnp.max(turns), 1e-12))
+
+        def attempt(move):
+            new_delta = delta + jnp.where(ok, move, 0.0)
+            new_root = root_delta + jnp.where(ok, move_root, 0.0)
+            candidate = _evaluate(params, problem, new_delta, new_root)
+            return new_delta, new_root, candidate, candidate[-1] + _prior_cost(params, problem, new_delta, new_root, anchor)
+
+        by_joint, whole = attempt(clipped), attempt(shortened)
+        new_delta, new_root, candidate, new_cost = jax.tree.map(
+            lambda a, b: jnp.where(by_joint[-1] <= whole[-1], a, b), by_joint, whole
+        )
+        better = ok & (new_cost <= current)
         pick = lambda a, b: jax.tree.map(lambda x, y: jnp.where(better, x, y), a, b)  # noqa: E731
         delta, root_delta, evaluated = pick((new_delta, new_root, candidate), (delta, root_delta, evaluated))
         damping = jnp.where(better, damping * _DAMPING_DOWN, jnp.maximum(damping * _DAMPING_UP, _DAMPING_FIRST))

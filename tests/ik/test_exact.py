@@ -154,8 +154,8 @@ def test_composes_with_learned_ik_and_window_solve(bandai):
     model = load_ik_model(BUNDLED_IK)
     limits = JointLimits.load(BUNDLED_IK / "joint_limits.json", bandai.character)
     # Bent poses (every joint up to 17° off the corpus pose) are far from what a learned IK
-    # gives: 14 steps of the default trust region meet them to 10 µm (10 steps: 20 µm).
-    fn, params = exact_ik(protores_ik_fn, model, bandai.character, limits=limits, iterations=14)
+    # gives: 20 steps meet them to 10 µm (14 steps: 45 µm; the pipeline's 6 stop at ~2 mm).
+    fn, params = exact_ik(protores_ik_fn, model, bandai.character, limits=limits, iterations=20)
     targets = targets_from_pose(bandai.character, bandai.truth)
     result = jax.jit(fn.solve_window_with_residual)(params, targets)
     assert float(jnp.max(result.position_error)) < REACH_TOL_CM
@@ -200,6 +200,35 @@ def test_pinned_targets_weigh_handle_weight_more(bandai):
     w = params.position_weight**2
     assert cost(jnp.zeros(6, bool)) == pytest.approx(w * (9.0 + 4.0), rel=1e-4)
     assert cost(jnp.zeros(6, bool).at[3].set(True)) == pytest.approx(w * (49.0 * 9.0 + 4.0), rel=1e-4)
+
+
+def test_pinned_target_moves_the_hips_when_the_limbs_cannot_reach(bandai):
+    """The head's target 12 cm above it, pinned, on 8 corpus frames: the spine cannot stretch,
+    so only translating the hips (and the legs' targets yielding) reaches it. The least-squares
+    split at handle_weight 10 leaves the head under 1 cm off with the hips ~11 cm up. (With one
+    trust-region factor for the whole step, the hips stayed within 0.3 cm and the head 11.8 cm
+    off: the linearised step asked a twist axis for tens of radians and froze everything.)"""
+    targets = targets_from_pose(bandai.character, bandai.truth)
+    head = 1
+    raised = targets._replace(
+        position=targets.position.at[:, head, 1].add(12.0), pinned=jnp.zeros((FRAMES, 6), bool).at[:, head].set(True)
+    )
+    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character)  # the pipeline's settings
+    result = _with_residual(fn)(params, raised)
+    assert float(jnp.max(result.position_error[:, head])) < 1.0
+    hips_rise = result.pose.root_pos[:, 1] - jax.vmap(protores_ik_fn, in_axes=(None, 0))(params.inner, raised).root_pos[:, 1]
+    assert float(jnp.min(hips_rise)) > 8.0
+
+
+def test_zero_rotation_weight_solves_positions_only(bandai):
+    """``rotation_weight=0`` drops the orientation rows (a 1/0 on the dual system's diagonal
+    used to make every step NaN, so the solve silently returned the inner IK's pose)."""
+    targets = targets_from_pose(bandai.character, bandai.truth)
+    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, rotation_weight=0.0, iterations=14)
+    result = _with_residual(fn)(params, targets)
+    start = jax.vmap(protores_ik_fn, in_axes=(None, 0))(params.inner, targets)
+    assert np.all(np.isfinite(result.pose.quat_local))
+    assert float(jnp.max(result.position_error)) < 0.01 < float(jnp.max(exact_module._errors(bandai.character, start, targets)[0]))
 
 
 def test_window_solve_joins_the_keys_and_holds_their_neighbours(bandai):
