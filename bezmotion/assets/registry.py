@@ -156,7 +156,7 @@ REGISTRY: Mapping[str, ModelEntry] = {
             "written by its commands: results/bmm_lafan1_paper_cosine.json and <cache>/runs/ik_lafan1_paper/training.json. "
             "The GPU run: 1,000 subject-5 windows, curves before IK, 10 DDIM steps: dense six-joint error 9.83 cm "
             "(reference 11.47; 0.86x), skating 0.102 (reference 0.067; 0.029 with foot lock), handles hit exactly; "
-            "IK (22 M): validation MPJPE 2.33 cm from the six joints; after the exact IK, 300 windows: handles 0.25 / 1.16 cm ID / OOD (the paper: 0.89 / 1.71)"
+            "IK (22 M): validation MPJPE 2.33 cm from the six joints; after the exact IK, 100 windows: handles 0.056 / 0.58 cm ID / OOD (the paper: 0.89 / 1.71)"
         ),
         metrics_file="results/bmm_lafan1_paper_cosine.json",
     ),
