@@ -53,16 +53,16 @@ through :func:`bezmotion.ik.protocol.solve_frames`, which also hands it
   to a key are hard to reach exactly, an unheld solve swings whole arms for the last
   centimetres and the joint turns tens of degrees in the frame after the key (a pop);
 - the **handles** (``IKTargets.pinned``): their position rows weigh ``handle_weight``
-  times more, so where the six targets conflict the unpinned joints give way. Alone it
-  helps little (handles error 0.220 → 0.215 cm): most misses that remain are targets
-  beyond the body's reach, where Gauss–Newton's linearisation keeps turning joints
-  (which cannot lengthen a limb) instead of moving the hips.
+  times more, so where the six targets conflict the unpinned joints give way: a handle
+  beyond the limb's reach moves the hips, which Levenberg–Marquardt does only with its
+  damping scaled to each unknown's curvature and a trust region that never shortens the
+  hips' translation (see ``_levenberg_marquardt``).
 
 Bandai-Namco validation, 100 windows, bundled models (``python experiments/pipeline_eval.py
---ik exact --windows 100``), before the key hold, the handle weights and the adaptive trust
-region (``max_turn``) → with them: handles 0.220 → 0.121 cm in distribution and 4.02 →
-2.46 cm OOD, key pop 41.6° → 17.1° (the mocap's own 26.2°), foot skating 0.147 → 0.140,
-MPJPE 3.14 → 3.17 cm.
+--windows 100``): handles 0.017 cm in distribution and 0.64 cm OOD (0.121 / 2.46 with one
+trust-region factor for the whole step and absolute damping; 0.220 / 4.02 before the
+handle weights, the key hold and ``max_turn``), key pop 17.1° (41.6° without the key hold;
+the mocap's own 26.2°), foot skating 0.140, MPJPE 3.15 cm.
 """
 
 from __future__ import annotations
@@ -278,8 +278,8 @@ class ExactIKParams:
         4× after a refused step and grows back 2× after a taken one. Each step tries it two
         ways (the whole step shortened, and each joint clipped) and keeps the better. Long
         steps suit a close start (a learned IK's): near a straight limb the linearisation
-        is poor but its direction good. From a far start (the rig's) 0.2 ends nearer the
-        target orientations (long steps settle ~1.4° off them in 14 steps).
+        is poor but its direction good. From a far start (the rig's) use 0.2: on the
+        tests' bent poses it meets the targets to 8 µm in 14 steps, where 1.0 leaves 2.9 cm.
       smoothing: weight of each neighbouring frame in the window solve's temporal filter
         (0: none; 0.5 at most; the frame itself keeps ``1 - 2·smoothing``, or
         ``1 - smoothing`` at the window's ends).
@@ -565,14 +565,15 @@ def _levenberg_marquardt(params: ExactIKParams, problem: _Problem, iterations: i
         clipped = move_free * jnp.minimum(1.0, radius / jnp.maximum(turns, 1e-12))[..., None]
         shortened = move_free * jnp.minimum(1.0, radius / jnp.maximum(jnp.max(turns), 1e-12))
 
+        new_root = root_delta + jnp.where(ok, move_root, 0.0)
+
         def attempt(move):
             new_delta = delta + jnp.where(ok, move, 0.0)
-            new_root = root_delta + jnp.where(ok, move_root, 0.0)
             candidate = _evaluate(params, problem, new_delta, new_root)
-            return new_delta, new_root, candidate, candidate[-1] + _prior_cost(params, problem, new_delta, new_root, anchor)
+            return new_delta, candidate, candidate[-1] + _prior_cost(params, problem, new_delta, new_root, anchor)
 
         by_joint, whole = attempt(clipped), attempt(shortened)
-        new_delta, new_root, candidate, new_cost = jax.tree.map(
+        new_delta, candidate, new_cost = jax.tree.map(
             lambda a, b: jnp.where(by_joint[-1] <= whole[-1], a, b), by_joint, whole
         )
         better = ok & (new_cost <= current)
