@@ -386,24 +386,27 @@ class _Problem(NamedTuple):
     hold: Array  # () per rad: how hard the frame is held at its start pose (next to a key)
 
 
-def _limit_terms(params: ExactIKParams, start_quat: Array, delta: Array, jacobian: bool):
-    """Per free joint: the limits' excess ``(free, 3)`` and, optionally, its Jacobian ``(free, 3, 3)``.
-
-    The excess is how far (rad, per axis) the joint's rotation ``start ⊗ exp(δ)``, as the
-    rotation vector ``ρ = log(center⁻¹ ⊗ start ⊗ exp(δ))``, lies outside ``[lower, upper]``.
-    Its Jacobian is analytic: ``exp(δ + dδ) ≈ exp(δ) ⊗ exp(J_r(δ) dδ)`` and
-    ``log(R ⊗ exp(ε)) ≈ log(R) + J_r⁻¹(ρ) ε``, so ``dρ/dδ = J_r⁻¹(ρ) J_r(δ)`` on the axes
-    outside their range (a quarter of the solve's time went to ``jax.jacfwd`` of the maps).
-    """
+def _limit_excess(params: ExactIKParams, start_quat: Array, delta: Array) -> tuple[Array, Array]:
+    """Per free joint: how far (rad, per axis) its rotation lies outside its limits ``(free, 3)``,
+    and that rotation as ``ρ = log(center⁻¹ ⊗ start ⊗ exp(δ))`` ``(free, 3)``."""
     free = _free_joints(params.character)
     limits = params.limits
-    lower, upper = limits.lower[free], limits.upper[free]
     rel = _quat_log(quat_mul(quat_conjugate(limits.center[free]), quat_mul(start_quat[free], _quat_exp(delta))))
-    excess = jnp.maximum(rel - upper, 0.0) + jnp.minimum(rel - lower, 0.0)
-    if not jacobian:
-        return excess, None
-    outside = ((rel > upper) | (rel < lower)).astype(delta.dtype)[..., None]
-    return excess, outside * (_right_jacobian_inverse(rel) @ _right_jacobian(delta))
+    excess = jnp.maximum(rel - limits.upper[free], 0.0) + jnp.minimum(rel - limits.lower[free], 0.0)
+    return excess, rel
+
+
+def _limit_jacobian(params: ExactIKParams, rel: Array, delta: Array) -> Array:
+    """``(free, 3, 3)``: the Jacobian of :func:`_limit_excess`'s excess with respect to ``δ``.
+
+    Analytic: ``exp(δ + dδ) ≈ exp(δ) ⊗ exp(J_r(δ) dδ)`` and ``log(R ⊗ exp(ε)) ≈ log(R) +
+    J_r⁻¹(ρ) ε``, so ``dρ/dδ = J_r⁻¹(ρ) J_r(δ)`` on the axes outside their range (a quarter
+    of the solve's time went to ``jax.jacfwd`` of the maps). ``rel`` is the excess' ``ρ``,
+    so the logarithm is not taken twice.
+    """
+    free = _free_joints(params.character)
+    outside = ((rel > params.limits.upper[free]) | (rel < params.limits.lower[free])).astype(delta.dtype)[..., None]
+    return outside * (_right_jacobian_inverse(rel) @ _right_jacobian(delta))
 
 
 def _evaluate(params: ExactIKParams, problem: _Problem, delta: Array, root_delta: Array):
@@ -418,13 +421,13 @@ def _evaluate(params: ExactIKParams, problem: _Problem, delta: Array, root_delta
     rel = quat_mul(quat_global[idx], quat_conjugate(problem.target_quat))
     rel = jnp.where(rel[..., :1] < 0.0, -rel, rel)
     e_rot = 2.0 * rel[..., 1:]
-    excess, _ = _limit_terms(params, problem.start.quat_local, delta, jacobian=False)
+    excess, limit_rel = _limit_excess(params, problem.start.quat_local, delta)
     cost = (
         params.position_weight**2 * jnp.sum(e_pos * e_pos)
         + params.rotation_weight**2 * jnp.sum(e_rot * e_rot)
         + params.limit_weight**2 * jnp.sum(excess * excess)
     )
-    return rot, pos_global, rel, e_pos, e_rot, cost
+    return rot, pos_global, rel, e_pos, e_rot, excess, limit_rel, cost
 
 
 def _inverse_3x3(m: Float[Array, "*batch 3 3"]) -> Float[Array, "*batch 3 3"]:
@@ -471,7 +474,7 @@ def _step(params: ExactIKParams, problem: _Problem, delta: Array, root_delta: Ar
     Levenberg–Marquardt damping adds ``damping · diag(JᵀW²J)`` to ``D`` (each unknown's own curvature).
     """
     character = params.character
-    rot, pos, rel, e_pos, e_rot, _ = evaluated
+    rot, pos, rel, e_pos, e_rot, excess, limit_rel, _ = evaluated
     free = _free_joints(character)
     idx = np.asarray(character.characteristic)
     n_free = len(free)
@@ -500,7 +503,7 @@ def _step(params: ExactIKParams, problem: _Problem, delta: Array, root_delta: Ar
     curvature = jnp.einsum("r,rfa->fa", row_weight_sq, jac_free * jac_free)  # (free, 3)
     root_curvature = params.position_weight**2 * jnp.sum(scale * scale)  # each root axis alike
 
-    excess, d_excess = _limit_terms(params, problem.start.quat_local, delta, jacobian=True)
+    d_excess = _limit_jacobian(params, limit_rel, delta)
     d_excess_t = jnp.swapaxes(d_excess, -1, -2)
     hold, hold_root = _hold_weights(params, problem)
     blocks = (
