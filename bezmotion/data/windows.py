@@ -80,7 +80,7 @@ def face_forward_at_frame(
 def foot_contacts(
     pos_global: Float[Array, "*batch frames joints 3"],
     joints: tuple[int, ...],
-    threshold: float = 0.02,
+    threshold: float | Float[Array, ""] = 0.02,
 ) -> Bool[Array, "*batch frames contact_joints"]:
     """Contact labels: a joint is in contact when its squared per-frame displacement is
     below ``threshold`` (cm²). The last frame repeats the one before it (LaFAN1 rule).

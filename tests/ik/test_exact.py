@@ -257,3 +257,33 @@ def test_window_solve_joins_the_keys_and_holds_their_neighbours(bandai):
     turns = [turn_next_to_start_deg(r) for r in (free, default, hard)]
     assert turns[0] > turns[1] > turns[2] and turns[2] < 0.5 * turns[0], turns
     assert float(hard.position_error[1, 3]) > 5.0  # held hard, it stays near the key
+
+
+def test_planted_feet_marks_still_foot_targets_only():
+    """A foot target moving less than ``plant_step`` cm to the next frame is planted (the last
+    frame repeats the one before); hips, head and hands never are."""
+    position = jnp.zeros((4, 6, 3)).at[:, 5, 0].set(jnp.asarray([0.0, 1.0, 1.1, 5.0]))  # right foot: still, then moving
+    position = position.at[:, 3, 0].set(0.0)  # a still hand stays unplanted
+    planted = np.asarray(exact_module.planted_feet(position, 0.5))
+    np.testing.assert_array_equal(planted[:, 4], [True, True, True, True])
+    np.testing.assert_array_equal(planted[:, 5], [False, True, False, False])
+    assert not planted[:, :4].any()
+
+
+def test_planted_feet_hold_their_targets_against_a_handle(bandai):
+    """The head's target 12 cm up, pinned, on 8 consecutive frames of the demo clip: reaching
+    it lifts the hips and the feet give way. Planted feet (``plant_weight``) keep their targets
+    closer, and the head gives up some of its reach instead."""
+    motion = read_bvh(DEMO_CLIP)
+    truth = pose_from_motion(bandai.character, jnp.asarray(motion.quat_local[10:18]), jnp.asarray(motion.pos_local[10:18]))
+    targets = targets_from_pose(bandai.character, truth)
+    head, feet = 1, [4, 5]
+    raised = targets._replace(
+        position=targets.position.at[:, head, 1].add(12.0), pinned=jnp.zeros((FRAMES, 6), bool).at[:, head].set(True)
+    )
+    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, plant_step=100.0)  # every foot planted
+    solve = jax.jit(fn.solve_window_with_residual)
+    loose, planted = (solve(dataclasses.replace(params, plant_weight=w), raised) for w in (1.0, 10.0))
+    feet_loose, feet_planted = (float(jnp.mean(r.position_error[:, feet])) for r in (loose, planted))
+    assert feet_loose > 2.0 and feet_planted < 0.5 * feet_loose, (feet_loose, feet_planted)
+    assert float(jnp.mean(planted.position_error[:, head])) > float(jnp.mean(loose.position_error[:, head]))
