@@ -103,7 +103,6 @@ beside the JSON.
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from pathlib import Path
 from typing import NamedTuple
@@ -118,7 +117,7 @@ from bezmotion.bmm.sampling import Handles, load_model
 from bezmotion.data.corpus import Corpus, motion_clips
 from bezmotion.data.curves import CurveDataset, curve_dataset
 from bezmotion.data.sources import load_corpus
-from bezmotion.ik.exact import ExactIKParams, JointLimits, exact_ik
+from bezmotion.ik.exact import JointLimits, exact_ik, exact_settings
 from bezmotion.ik.protocol import Pose, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik
@@ -189,23 +188,7 @@ class Options:
             raise ValueError(f"--segments {self.segments}: must be ≥ 1 (windows per chain; 1 = single windows)")
         if self.key_velocities and self.segments > 1:
             raise ValueError(f"--key-velocities is for single windows, not --segments {self.segments}")
-        exact_settings(self)  # raises on a malformed or unknown setting
-
-
-def exact_settings(args: Options) -> dict[str, float | int]:
-    """``--exact NAME=VALUE`` as ExactIKParams keyword arguments (ints for the static counts)."""
-    fields = {f.name: f for f in dataclasses.fields(ExactIKParams)}
-    settings = {}
-    for item in args.exact:
-        name, sep, value = item.partition("=")
-        if not sep or name not in fields or name in ("inner", "character", "limits"):
-            known = sorted(set(fields) - {"inner", "character", "limits"})
-            raise ValueError(f"--exact {item}: expected NAME=VALUE with NAME one of {known}")
-        try:
-            settings[name] = int(value) if fields[name].metadata.get("static") else float(value)
-        except ValueError:
-            raise ValueError(f"--exact {item}: {value!r} is not a number") from None
-    return settings
+        exact_settings(self.exact)  # raises on a malformed or unknown setting
 
 
 def model_path(args: Options, what: str) -> Path:
@@ -242,7 +225,7 @@ def build_iks(args: Options, ik_model, rig) -> tuple[dict[str, tuple], bool]:
             limits = JointLimits.load(path, character)
         elif args.joint_limits:
             raise FileNotFoundError(f"--joint-limits {path}: no such file")
-    settings = exact_settings(args)
+    settings = exact_settings(args.exact)
     makers = {
         "learned": lambda: (protores_ik_fn, ik_model),
         "refined": lambda: (protores_refined_ik_fn, (ik_model, rig)),
@@ -441,7 +424,7 @@ def main(argv: list[str] | None = None) -> dict:
             "handle_frames": args.handle_frames, "steps": args.steps, "key_blend_frames": args.key_blend,
             "key_velocities": args.key_velocities,
             "chunk": args.chunk, "seed": args.seed, "sample_seed": args.sample_seed, "segments": k,
-            "exact": exact_settings(args),
+            "exact": exact_settings(args.exact),
             "rows": np.asarray(items.rows).tolist(),
         },  # fmt: skip
         "ik": {name: {"compile_s": r.pop("compile_s"), **r} for name, r in ik_results.items()},

@@ -76,7 +76,7 @@ from bezmotion.data.curves import CurveDataset, curve_dataset
 from bezmotion.data.sources import default_source, load_corpus
 from bezmotion.evaluation.motion_features import load_motion_features, motion_features
 from bezmotion.evaluation.naturalness import diversity, frechet_distance, gaussian_fit, multimodality
-from bezmotion.ik.exact import JointLimits, exact_ik
+from bezmotion.ik.exact import JointLimits, exact_ik, exact_settings
 from bezmotion.ik.protocol import Pose, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn
 from bezmotion.io import write_results
@@ -125,6 +125,7 @@ class Options:
     minus_ik_b: tuple[str, ...] = option((), repeat=True, metavar="CORPUS=PATH", help="a saved BMM⁻ᴵᴷ⁻ᴮ (default <cache>/runs/ablation_minus_ik_b_<corpus>_cpu/model)")
     condmdi_g: tuple[str, ...] = option((), repeat=True, metavar="CORPUS=PATH", help="a saved CondMDIᴳ (default <cache>/runs/ablation_condmdi_g_<corpus>_cpu/model)")
     ik: tuple[str, ...] = option(IKS, choices=IKS, help="IKs after the BMM: learned (row bmm), exact (row bmm_exact)")
+    exact: tuple[str, ...] = option((), repeat=True, metavar="NAME=VALUE", help="an ExactIKParams setting of the exact IK (e.g. plant_weight=1); may repeat")
     rows: tuple[str, ...] = option(ROWS, choices=ROWS, help="rows evaluated (default all; the others are taken from --merge, or null)")
     merge: str | None = option(None, help="an earlier table1 JSON of the same windows and settings: its rows (and Table 6) fill the rows not evaluated here")
     windows: int = option(1000, help="validation windows (the paper: 3k on LaFAN1; 0 = all)")
@@ -144,6 +145,7 @@ class Options:
             per_corpus(self, name)  # raises on a malformed or unknown CORPUS=PATH
         if self.windows < 0 or self.steps < 1 or self.chunk < 1 or self.exact_chunk < 1:
             raise ValueError("--windows must be ≥ 0, --steps, --chunk and --exact-chunk ≥ 1")
+        exact_settings(self.exact)  # raises on a malformed or unknown setting
         if any(s < 1 for s in self.table6_steps):
             raise ValueError(f"--table6-steps must be ≥ 1, got {list(self.table6_steps)}")
         if self.mm_conditions < 1 or self.mm_samples < 2 or self.diversity_pairs < 1:
@@ -385,7 +387,7 @@ def build_iks(args: Options, ik_path: Path, ik_model) -> dict:
     if "exact" in args.ik:
         limits_file = ik_path / "joint_limits.json"
         limits = JointLimits.load(limits_file, ik_model.character) if limits_file.exists() else None
-        iks["exact"] = exact_ik(protores_ik_fn, ik_model, ik_model.character, limits=limits)
+        iks["exact"] = exact_ik(protores_ik_fn, ik_model, ik_model.character, limits=limits, **exact_settings(args.exact))
     return iks
 
 

@@ -715,6 +715,27 @@ class ExactIKFn:
         return ExactIKResult(pose, *_errors(params.character, pose, targets))
 
 
+def exact_settings(items: tuple[str, ...] | list[str], flag: str = "--exact") -> dict[str, float | int]:
+    """``NAME=VALUE`` strings (a command line's ``--exact`` options) as :func:`exact_ik`
+    keyword arguments: floats, ints for the static counts.
+
+    Raises:
+      ValueError: naming the item, for a malformed one, an unknown NAME or a non-number.
+    """
+    fields = {f.name: f for f in dataclasses.fields(ExactIKParams)}
+    settable = sorted(set(fields) - {"inner", "character", "limits"})
+    settings: dict[str, float | int] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        if not sep or name not in settable:
+            raise ValueError(f"{flag} {item}: expected NAME=VALUE with NAME one of {settable}")
+        try:
+            settings[name] = int(value) if fields[name].metadata.get("static") else float(value)
+        except ValueError:
+            raise ValueError(f"{flag} {item}: {value!r} is not a number") from None
+    return settings
+
+
 def exact_ik(
     inner_fn: IKFn,
     inner_params: Any,

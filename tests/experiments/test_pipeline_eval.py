@@ -155,7 +155,7 @@ def test_exact_settings_are_checked(experiment, capsys, setting, message):
 
 def test_exact_settings_reach_the_exact_ik(experiment):
     args = experiment.parse_options(experiment.Options, ["--out", "x.json", "--exact", "iterations=3", "--exact", "rotation_weight=2.5"])
-    assert experiment.exact_settings(args) == {"iterations": 3, "rotation_weight": 2.5}
+    assert experiment.exact_settings(args.exact) == {"iterations": 3, "rotation_weight": 2.5}
 
 
 def test_segments_evaluate_chains_of_windows(experiment, long_clips, monkeypatch, tmp_path):

@@ -135,7 +135,10 @@ def test_table1_missing_models_are_null_rows_naming_their_command(experiment, mo
                          "--features", str(tmp_path / "none"), "--rows", "mocap", "--merge", str(out), "--windows", "1", "--no-progress"])
 
 
-@pytest.mark.parametrize("flags", [["--bmm", "amass=x"], ["--condmdi-g", "nowhere"], ["--mm-samples", "1"], ["--table6-steps", "0"], ["--rows", "nothing"]])
+@pytest.mark.parametrize(
+    "flags",
+    [["--bmm", "amass=x"], ["--condmdi-g", "nowhere"], ["--mm-samples", "1"], ["--table6-steps", "0"], ["--rows", "nothing"], ["--exact", "speed=3"]],
+)
 def test_table1_bad_options_exit_through_the_parser(experiment, flags, capsys):
     with pytest.raises(SystemExit) as exit_:
         experiment.main(["--out", "x.json", *flags])
