@@ -270,8 +270,10 @@ class ExactIKParams:
         (nearly) still, relative to the others' (1: like any target). Where a handle on the
         hips or head cannot be met with the feet where the curves put them, the unpinned
         joints give way, and a foot that gives way while its target stands still slides.
-        A trade: on 100 Bandai-Namco windows with OOD handles, 1 / 5 / 10 gave foot skating
-        0.254 / 0.235 / 0.219 and handles 0.64 / 0.77 / 0.98 cm (in distribution unchanged).
+        A trade, so off by default (1): on 100 Bandai-Namco windows with OOD handles, 1 / 5 /
+        10 gave foot skating 0.254 / 0.235 / 0.219 and handles 0.64 / 0.77 / 0.98 cm (in
+        distribution unchanged); on Table 1's 300 windows, 5 moves the OOD handles from
+        0.92 to 1.12 cm (``experiments/table1.py --exact plant_weight=5``).
       plant_step: cm per frame: a foot target moving less than this to the next frame
         stands still (0.25: 7.5 cm/s at 30 fps, the skating metric's speed).
       rotation_weight: per unit of ortho6D difference of their orientations (≈ per rad).
@@ -305,7 +307,7 @@ class ExactIKParams:
     hips_position_scale: Float[Array, ""] | float = 1.0
     handle_weight: Float[Array, ""] | float = 10.0
     key_hold_weight: Float[Array, ""] | float = 10000.0
-    plant_weight: Float[Array, ""] | float = 5.0
+    plant_weight: Float[Array, ""] | float = 1.0
     plant_step: Float[Array, ""] | float = 0.25
     max_turn: Float[Array, ""] | float = 1.0
     rotation_weight: Float[Array, ""] | float = 20.0
