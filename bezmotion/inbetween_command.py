@@ -109,7 +109,8 @@ class InbetweenOptions:
     ik: str = option(
         "auto", choices=("auto", *IK_CHOICES),
         help="auto (default): refined when the learned IK fits the skeleton, else rig; refined: learned IK then "
-        "exact two-bone limbs; learned: the learned IK alone; rig: analytic, any skeleton, no training",
+        "exact two-bone limbs; learned: the learned IK alone; rig: analytic, any skeleton, no training; "
+        "exact: the learned IK then a least-squares solve onto all six curves (hips and head too)",
     )  # fmt: skip
     model: str = option(
         "bandai_namco", metavar="NAME|PATH", help="the BMM: a pretrained model's name (bandai_namco, default; bezmotion models lists them) or a saved BMM's folder"

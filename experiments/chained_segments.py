@@ -37,7 +37,7 @@ from bezmotion.data.sources import load_corpus
 from bezmotion.io import write_results
 from bezmotion.metrics import chain_velocity_jumps, distribution_summary
 from bezmotion.options import option, options, parse_options
-from bezmotion.pipeline.inbetweening import join_windows
+from bezmotion.data.windows import join_windows
 
 
 @options

@@ -141,7 +141,8 @@ from bezmotion.pipeline.evaluation import (
     window_poses,
     window_shifts,
 )
-from bezmotion.pipeline.inbetweening import KEY_BLEND_FRAMES, WindowCurves, join_windows
+from bezmotion.data.windows import join_windows
+from bezmotion.pipeline.inbetweening import KEY_BLEND_FRAMES, WindowCurves
 from _common import window_labels
 
 CORPORA = ("bandai_namco", "lafan1")

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Shaped
 
 from bezmotion.geometry.rotations import quat_conjugate, quat_mul, quat_rotate
 
@@ -90,3 +90,26 @@ def foot_contacts(
     step_sq = jnp.sum((p[..., 1:, :, :] - p[..., :-1, :, :]) ** 2, axis=-1)
     contact = step_sq < threshold
     return jnp.concatenate([contact, contact[..., -1:, :]], axis=-2)
+
+
+def join_windows(x: Shaped[Array, "windows window_frames ..."]) -> Shaped[Array, "frames ..."]:
+    """Per-window frames of a chain → the chain's frames, each shared key once (window
+    ``i``'s last frame is window ``i + 1``'s first; the earlier window's is kept)."""
+    return jnp.concatenate([x[:, :-1].reshape(-1, *x.shape[2:]), x[-1, -1:]])
+
+
+def split_windows(x: Float[Array, "frames ..."], windows: int) -> Float[Array, "windows window_frames ..."]:
+    """A chain's frames → its windows' frames, the inverse of :func:`join_windows`: each
+    shared key twice (window ``i``'s last frame and window ``i + 1``'s first).
+
+    Args:
+      x: ``(frames, …)`` with ``frames = windows·(window_frames − 1) + 1``.
+      windows: how many windows the chain has (``≥ 1``).
+    Raises:
+      ValueError: ``windows < 1``, or ``frames`` not a chain of that many equal windows.
+    """
+    frames = x.shape[0]
+    if windows < 1 or (frames - 1) % windows or frames < 2:
+        raise ValueError(f"{frames} frames are not a chain of {windows} windows ((window frames − 1)·windows + 1)")
+    length = (frames - 1) // windows + 1
+    return x[np.arange(windows)[:, None] * (length - 1) + np.arange(length)]

@@ -89,7 +89,7 @@ from bezmotion.geometry.rotations import (
     quat_normalize,
     safe_norm,
 )
-from bezmotion.ik.key_blend import blend_to_keys, key_blend_weights
+from bezmotion.ik.key_blend import blend_to_chain_keys, chain_key_blend_weights, key_chain
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, pose_fk
 from bezmotion.linalg import cholesky_solve
 
@@ -685,14 +685,14 @@ class ExactIKFn:
         return ExactIKResult(pose, *_errors(params.character, pose, targets))
 
     def solve_window(
-        self, params: ExactIKParams, targets: IKTargets, keys: tuple[Pose, Pose] | None = None, key_blend_frames: int = 0
+        self, params: ExactIKParams, targets: IKTargets, keys: tuple[Pose, Pose] | Pose | None = None, key_blend_frames: int = 0
     ) -> Pose:
         """A window ``(frames, …)``: the inner IK's poses smoothed over time, then solved per
         frame (the :func:`~bezmotion.ik.protocol.solve_frames` protocol)."""
         return self.solve_window_with_residual(params, targets, keys, key_blend_frames).pose
 
     def solve_window_with_residual(
-        self, params: ExactIKParams, targets: IKTargets, keys: tuple[Pose, Pose] | None = None, key_blend_frames: int = 0
+        self, params: ExactIKParams, targets: IKTargets, keys: tuple[Pose, Pose] | Pose | None = None, key_blend_frames: int = 0
     ) -> ExactIKResult:
         """:meth:`solve_window` with what is left of each target, per frame.
 
@@ -700,20 +700,24 @@ class ExactIKFn:
         towards) are joined to the keys first (:func:`~bezmotion.ik.key_blend.blend_to_keys`
         over ``key_blend_frames``), and the keys replace the first and last frame: the
         frames next to a key start from nearly the key's pose, so they leave it no faster
-        than the targets move (no pop), and the solve still hits every target there.
+        than the targets move (no pop), and the solve still hits every target there. A
+        chain's keys (batched ``(K + 1, …)``, ``targets`` of ``K·(W − 1) + 1`` frames) join
+        each window to its own two keys and hold the frames on both sides of every key.
         """
         pose = jax.vmap(self.inner, in_axes=(None, 0))(params.inner, targets)
         hold = jnp.zeros(pose.root_pos.shape[0], pose.root_pos.dtype)
         if keys is not None:
-            hold = params.key_hold_weight * jnp.asarray(np.maximum(*key_blend_weights(hold.shape[0], key_blend_frames)), hold.dtype)
+            keys = key_chain(keys)  # (start, end), or a chain's keys
+            weights = chain_key_blend_weights(hold.shape[0], keys.root_pos.shape[0] - 1, key_blend_frames)
+            hold = params.key_hold_weight * jnp.asarray(weights, hold.dtype)
         planted = planted_feet(targets.position, params.plant_step)
         for _ in range(params.window_passes):
             start = _smooth(pose, params.smoothing)
             if keys is not None:
-                start = blend_to_keys(start, *keys, key_blend_frames)
+                start = blend_to_chain_keys(start, keys, key_blend_frames)
             pose = jax.vmap(lambda s, t, h, p: _solve(params, s, t, params.iterations, h, p))(start, targets, hold, planted)
         if keys is not None:
-            pose = blend_to_keys(pose, *keys, 0)
+            pose = blend_to_chain_keys(pose, keys, 0)
         return ExactIKResult(pose, *_errors(params.character, pose, targets))
 
 

@@ -22,10 +22,12 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from bezmotion.data.windows import join_windows, split_windows
 from bezmotion.geometry.rotations import quat_conjugate, quat_identity, quat_mul, slerp
 
 if TYPE_CHECKING:  # protocol.solve_frames blends keys: no import cycle at run time
@@ -73,3 +75,34 @@ def blend_to_keys(pose: Pose, start: Pose, end: Pose, frames: int) -> Pose:
         root_pos=pose.root_pos.at[0].set(start.root_pos).at[-1].set(end.root_pos),
         quat_local=pose.quat_local.at[0].set(start.quat_local).at[-1].set(end.quat_local),
     )
+
+
+def key_chain(keys: tuple[Pose, Pose] | Pose) -> Pose:
+    """Keys as one :class:`Pose` batched ``(keys, …)``: a ``(start, end)`` pair stacked, a
+    chain's batched keys as they are."""
+    if isinstance(keys, tuple) and not hasattr(keys, "_fields"):
+        return jax.tree.map(lambda *k: jnp.stack(k), *keys)
+    return keys
+
+
+def chain_key_blend_weights(num_frames: int, num_windows: int, frames: int) -> np.ndarray:
+    """``(num_frames,)``: each frame's share of its nearest key's correction in a chain of
+    ``num_windows`` equal windows (the larger of :func:`key_blend_weights`' two, per window)."""
+    weights = np.maximum(*key_blend_weights((num_frames - 1) // num_windows + 1, frames))
+    return np.concatenate([np.tile(weights[:-1], num_windows), weights[-1:]])
+
+
+def blend_to_chain_keys(pose: Pose, keys: tuple[Pose, Pose] | Pose, frames: int) -> Pose:
+    """:func:`blend_to_keys` for a chain: ``pose`` ``(K·(W − 1) + 1, …)``, every window of
+    ``W`` frames joined to its two keys of ``keys`` (batched ``(K + 1, …)``, or a
+    ``(start, end)`` pair for one window).
+
+    Raises:
+      ValueError: the frames are not ``len(keys) − 1`` equal windows.
+    """
+    chain = key_chain(keys)
+    num_windows = chain.root_pos.shape[0] - 1
+    windows = jax.tree.map(lambda a: split_windows(a, num_windows), pose)
+    starts, ends = (jax.tree.map(lambda a, s=s: a[s], chain) for s in (slice(None, -1), slice(1, None)))
+    blended = jax.vmap(lambda p, s, e: blend_to_keys(p, s, e, frames))(windows, starts, ends)
+    return jax.tree.map(join_windows, blended)

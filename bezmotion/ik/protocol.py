@@ -31,7 +31,7 @@ from bezmotion.data.bvh import BvhMotion
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS, characteristic_indices
 from bezmotion.geometry.rotations import quat_identity, rot6d_from_quat
 from bezmotion.geometry.skeleton import Skeleton, forward_kinematics, inverse_kinematics
-from bezmotion.ik.key_blend import blend_to_keys
+from bezmotion.ik.key_blend import blend_to_chain_keys
 
 
 class IKTargets(NamedTuple):
@@ -177,7 +177,7 @@ def pose_from_global(character: Character, quat_global: Float[Array, "*batch joi
 
 
 def solve_frames(
-    ik_fn: IKFn, params: Any, targets: IKTargets, *, keys: tuple[Pose, Pose] | None = None, key_blend_frames: int = 0
+    ik_fn: IKFn, params: Any, targets: IKTargets, *, keys: tuple[Pose, Pose] | Pose | None = None, key_blend_frames: int = 0
 ) -> Pose:
     """Poses of a window of frames: ``targets`` are ``(frames, 6, …)``.
 
@@ -189,13 +189,16 @@ def solve_frames(
     Args:
       keys: the ``(start, end)`` key poses (unbatched) to put at the first and last frame,
         joined to the in-between over ``key_blend_frames`` frames
-        (:func:`~bezmotion.ik.key_blend.blend_to_keys`); ``None``: the IK's own poses there.
+        (:func:`~bezmotion.ik.key_blend.blend_to_keys`); or, for a chain of windows joined
+        (``targets`` of ``K·(W − 1) + 1`` frames), its ``K + 1`` keys batched in one
+        :class:`Pose`, each window joined to its own two
+        (:func:`~bezmotion.ik.key_blend.blend_to_chain_keys`); ``None``: the IK's own poses there.
     """
     window = getattr(ik_fn, "solve_window", None)
     if window is not None:
         return window(params, targets, keys=keys, key_blend_frames=key_blend_frames)
     pose = jax.vmap(ik_fn, in_axes=(None, 0))(params, targets)
-    return pose if keys is None else blend_to_keys(pose, *keys, key_blend_frames)
+    return pose if keys is None else blend_to_chain_keys(pose, keys, key_blend_frames)
 
 
 def targets_from_pose(character: Character, pose: Pose) -> IKTargets:

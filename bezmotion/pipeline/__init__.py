@@ -24,6 +24,7 @@ from bezmotion.pipeline.evaluation import (
 from bezmotion.pipeline.export import default_channels, pose_to_bvh
 from bezmotion.pipeline.gltf import GlbContents, read_glb, validate_glb, write_glb
 from bezmotion.pipeline.preview import write_preview
+from bezmotion.data.windows import join_windows, split_windows
 from bezmotion.pipeline.inbetweening import (
     ChainResult,
     InbetweenResult,
@@ -33,11 +34,9 @@ from bezmotion.pipeline.inbetweening import (
     inbetween_chain,
     inbetween_chain_traced,
     inbetween_traced,
-    join_windows,
     key_velocities,
     pose_from_chain_curves,
     pose_from_curves,
-    split_windows,
     window_curves_traced,
 )
 from bezmotion.pipeline.transfer import (

@@ -45,9 +45,9 @@ from bezmotion.pipeline.inbetweening import (
     key_velocities,
     pose_from_chain_curves,
     pose_from_curves,
-    split_windows,
     window_curves_traced,
 )
+from bezmotion.data.windows import split_windows
 from bezmotion.pipeline.transfer import Transfer
 from bezmotion.metrics import handles_error
 from jaxtyping import Array, Float
@@ -450,7 +450,7 @@ def sample_chain_curves(
         Appendix D.1); with the same ``keys`` both start from the same noise.
     Returns:
       :class:`~bezmotion.pipeline.inbetweening.WindowCurves` batched ``(chains, windows, …)``
-      (per window; :func:`~bezmotion.pipeline.inbetweening.join_windows` joins a chain).
+      (per window; :func:`~bezmotion.data.windows.join_windows` joins a chain).
     """
     transfer = Transfer.identity() if transfer is None else transfer
     run = functools.partial(

@@ -38,8 +38,8 @@ from bezmotion.bmm.sampling import (
 )
 from bezmotion.diffusion.projection import project_onto_handles
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
+from bezmotion.data.windows import join_windows
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, solve_frames, targets_from_pose
-from bezmotion.ik.key_blend import blend_to_keys
 from bezmotion.pipeline.transfer import Transfer, curves_to_target, floor_anchor, orientations_to_source_space, to_source_space
 
 
@@ -362,29 +362,6 @@ class ChainResult(NamedTuple):
     rot6d: Float[Array, "frames 6 6"]
 
 
-def join_windows(x: Shaped[Array, "windows window_frames ..."]) -> Shaped[Array, "frames ..."]:
-    """Per-window frames of a chain → the chain's frames, each shared key once (window
-    ``i``'s last frame is window ``i + 1``'s first; the earlier window's is kept)."""
-    return jnp.concatenate([x[:, :-1].reshape(-1, *x.shape[2:]), x[-1, -1:]])
-
-
-def split_windows(x: Float[Array, "frames ..."], windows: int) -> Float[Array, "windows window_frames ..."]:
-    """A chain's frames → its windows' frames, the inverse of :func:`join_windows`: each
-    shared key twice (window ``i``'s last frame and window ``i + 1``'s first).
-
-    Args:
-      x: ``(frames, …)`` with ``frames = windows·(window_frames − 1) + 1``.
-      windows: how many windows the chain has (``≥ 1``).
-    Raises:
-      ValueError: ``windows < 1``, or ``frames`` not a chain of that many equal windows.
-    """
-    frames = x.shape[0]
-    if windows < 1 or (frames - 1) % windows or frames < 2:
-        raise ValueError(f"{frames} frames are not a chain of {windows} windows ((window frames − 1)·windows + 1)")
-    length = (frames - 1) // windows + 1
-    return x[np.arange(windows)[:, None] * (length - 1) + np.arange(length)]
-
-
 def chain_curves_traced(
     bmm: BezierMotionModel,
     character: Character,
@@ -447,17 +424,13 @@ def pose_from_chain_curves(
     positions, rot6d = join_windows(windows.positions), join_windows(windows.rot6d)
     frames = windows.positions.shape[1]
     pinned = None if handles is None else join_windows(jax.vmap(lambda h: pinned_frames(h, frames))(handles))
-    # One IK over the whole chain (an IK that smooths over time sees across the keys).
-    pose = solve_frames(ik_fn, ik_params, IKTargets(positions, rot6d, pinned))
-    if keep_keyframes:
-        # Each window's frames blended to its two keys: the fades of neighbouring windows
-        # meet only at their shared key, where both put that key exactly.
-        num_windows = windows.positions.shape[0]
-        blend = functools.partial(blend_to_keys, frames=key_blend_frames)
-        starts, ends = (jax.tree.map(lambda a, s=s: a[s], keys) for s in (slice(None, -1), slice(1, None)))
-        per_window = jax.vmap(blend)(jax.tree.map(lambda a: split_windows(a, num_windows), pose), starts, ends)
-        pose = jax.tree.map(join_windows, per_window)
-    return pose
+    # One IK over the whole chain (an IK that smooths over time sees across the keys), each
+    # window joined to its two keys: the fades of neighbouring windows meet only at their
+    # shared key, where both put that key exactly. An IK that solves whole windows (the
+    # exact one) starts from poses already joined to the keys and holds their neighbours.
+    return solve_frames(
+        ik_fn, ik_params, IKTargets(positions, rot6d, pinned), keys=keys if keep_keyframes else None, key_blend_frames=key_blend_frames
+    )
 
 
 def inbetween_chain_traced(

@@ -9,7 +9,7 @@ import pytest
 from bezmotion.geometry.rotations import quat_from_axis_angle
 from bezmotion.ik.protocol import Pose
 from bezmotion.metrics import key_pop_deg, rotation_change_deg
-from bezmotion.ik.key_blend import blend_to_keys, key_blend_weights
+from bezmotion.ik.key_blend import blend_to_chain_keys, blend_to_keys, chain_key_blend_weights, key_blend_weights
 
 
 def _about_y(degrees: np.ndarray) -> jnp.ndarray:
@@ -43,3 +43,28 @@ def test_blend_joins_keys_and_leaves_handle_frames():
     assert w_start[0] == 1.0 and w_start[6] == 0.0 and w_end[-1] == 1.0 and w_end[-7] == 0.0
     with pytest.raises(ValueError, match="-1"):
         blend_to_keys(ik, start, end, -1)
+
+
+def test_chain_blend_joins_every_window_to_its_own_keys():
+    """A chain of 3 windows (91 frames): every key exactly at its frame, each window faded
+    to its own two keys (the middle window's frames equal a one-window blend of them), and
+    a (start, end) pair gives the one-window blend itself."""
+    frames, windows = 91, 3
+    ik = Pose(jnp.zeros((frames, 3)), jnp.stack([_about_y(np.zeros(frames))] * 2, axis=1))
+    keys = Pose(
+        jnp.asarray([[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 3.0], [4.0, 0.0, 0.0]]),
+        jnp.stack([jnp.stack([_about_y(np.asarray(a)), _about_y(np.asarray(0.0))]) for a in (20.0, -30.0, 10.0, 5.0)]),
+    )
+    chain = blend_to_chain_keys(ik, keys, 6)
+    for k, frame in enumerate(range(0, frames, 30)):
+        np.testing.assert_allclose(np.asarray(chain.quat_local[frame]), np.asarray(keys.quat_local[k]), atol=1e-6)
+        np.testing.assert_allclose(np.asarray(chain.root_pos[frame]), np.asarray(keys.root_pos[k]), atol=1e-6)
+    key = lambda k: Pose(keys.root_pos[k], keys.quat_local[k])  # noqa: E731
+    middle = blend_to_keys(Pose(ik.root_pos[30:61], ik.quat_local[30:61]), key(1), key(2), 6)
+    np.testing.assert_allclose(np.asarray(chain.quat_local[30:61]), np.asarray(middle.quat_local), atol=1e-6)
+    one = blend_to_chain_keys(Pose(ik.root_pos[:31], ik.quat_local[:31]), (key(0), key(1)), 6)
+    np.testing.assert_allclose(np.asarray(one.quat_local), np.asarray(chain.quat_local[:31]), atol=1e-6)
+    weights = chain_key_blend_weights(frames, windows, 6)
+    assert weights.shape == (frames,) and weights[[0, 30, 60, 90]].tolist() == [1.0] * 4 and weights[6:25].max() == 0.0
+    with pytest.raises(ValueError, match="not a chain of 4 windows"):
+        blend_to_chain_keys(ik, Pose(jnp.zeros((5, 3)), jnp.zeros((5, 2, 4))), 6)
