@@ -71,6 +71,7 @@ from bezmotion.pipeline.authoring import (
     bvh_fk_error_cm,
     check_ik_model,
     check_output,
+    ik_model_joint_limits,
     load_profile,
     make_ik,
     make_transfer,
@@ -446,10 +447,11 @@ def plan(args: InbetweenOptions) -> Plan:
         transfer = make_transfer(source, target_profile(recognised, [start_motion, end_motion]))
 
     ik = args.ik
-    ik_model = None
+    ik_model = ik_folder = None
     if ik != "rig":
         try:
-            ik_model = load_ik_model(resolve_ik_model(args.ik_model))
+            ik_folder = resolve_ik_model(args.ik_model)
+            ik_model = load_ik_model(ik_folder)
         except (FileNotFoundError, ValueError, TypeError) as error:
             raise _error("--ik-model", args.ik_model, error) from None
         if ik == "auto":
@@ -459,7 +461,9 @@ def plan(args: InbetweenOptions) -> Plan:
             except ValueError:
                 ik, ik_model = "rig", None
     try:
-        ik_fn, ik_params = make_ik(ik, recognised, rest_quat_local=np.asarray(start.quat_local), ik_model=ik_model)
+        # The exact IK's soft joint limits: those measured beside the learned IK, if any.
+        limits = ik_model_joint_limits(ik_folder, character) if ik == "exact" else None
+        ik_fn, ik_params = make_ik(ik, recognised, rest_quat_local=np.asarray(start.quat_local), ik_model=ik_model, limits=limits)
     except ValueError as error:
         raise ValueError(f"--ik {ik}: the learned IK {args.ik_model} does not fit this skeleton: {error}") from None
 

@@ -63,6 +63,9 @@ JSON); ``--segments 1`` (the default) is the single-window evaluation.
 - ``mpjpe_cm`` (every joint and frame against the mocap window), ``foot_skating_ratio``;
 - ``key_pop_deg``: the largest per-frame joint rotation change at frames 0→1 and 29→30
   (chains: of every window, so both sides of every key);
+- ``rotation_change_deg``: per frame pair, the largest joint rotation change, averaged over
+  frames and windows (jitter: the mocap's own is beside it), and ``max_rotation_change_deg``
+  the largest anywhere;
 - ``ik_ms_per_window``: steady-state IK time per window (the compiled IK, every call
   waited for, ``--chunk`` windows per call, padding of the last chunk counted), beside
   ``compile_s`` once per IK (the warm-up call that compiles it, in distribution; the OOD
@@ -346,7 +349,8 @@ CHAIN_METRICS = {
     "mpjpe_cm": "every joint and frame of the chain (each shared key once) against the mocap",
     "foot_skating_ratio": "over each chain's frames",
     "key_pop_deg": "largest per-frame rotation change at each window's first and last frame pair: both sides of every key",
-    "max_rotation_change_deg": "over each chain's frames (mocap)",
+    "max_rotation_change_deg": "over each chain's frames",
+    "rotation_change_deg": "each frame pair's largest joint turn, averaged over each chain's frames",
     "dense_error_cm": "the curves' windows joined, every chain frame",
     "ik_ms_per_chain": "steady-state IK time per chain (one IK over its joined frames), --chunk // K chains per call",
 }
@@ -474,7 +478,7 @@ def format_report(r: dict) -> str:
         f"Pipeline on {r['source']}: {items}, handles on {s['handle_frames']} frames, {s['steps']} DDIM steps, "
         f"key blend {s['key_blend_frames']} frames{'; the keys’ velocities given to the curves' if s.get('key_velocities') else ''}; the curves sampled once, every IK on the same curves ({r['seconds']:.0f} s).",
         f"Mocap: foot skating {m['foot_skating_ratio']:.4f}, key pop {m['key_pop_deg']:.2f}°, "
-        f"largest per-frame change {m['max_rotation_change_deg']:.2f}°.",
+        f"largest per-frame change {m['max_rotation_change_deg']:.2f}° (mean of each frame's largest {m['rotation_change_deg']:.2f}°).",
     ]
     if seg is not None:
         jump = seg["boundary_velocity_jump_cm_per_frame"]
@@ -494,15 +498,16 @@ def format_report(r: dict) -> str:
         ]
     lines += [
         "",
-        f"| IK | handles ID (cm) | OOD (cm) | max ID / OOD (cm) | unreachable ID / OOD | MPJPE ID (cm) | skating ID | key pop ID / OOD (°) | IK ms/{per} | compile (s) |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        f"| IK | handles ID (cm) | OOD (cm) | max ID / OOD (cm) | unreachable ID / OOD | MPJPE ID (cm) | skating ID | key pop ID / OOD (°) | turn per frame ID, mean / max (°) | IK ms/{per} | compile (s) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, x in r["ik"].items():
         i, o = x["id"], x["ood"]
         lines.append(
             f"| {name} | {i['handles_error_cm']:.4f} | {o['handles_error_cm']:.4f} | {i['handles_error_max_cm']:.2f} / {o['handles_error_max_cm']:.2f} | "
             f"{i['unreachable_fraction']:.3f} / {o['unreachable_fraction']:.3f} | {i['mpjpe_cm']:.3f} | {i['foot_skating_ratio']:.4f} | "
-            f"{i['key_pop_deg']:.2f} / {o['key_pop_deg']:.2f} | {i[f'ik_ms_per_{per}']:.1f} | {x['compile_s']:.1f} |"
+            f"{i['key_pop_deg']:.2f} / {o['key_pop_deg']:.2f} | {i['rotation_change_deg']:.2f} / {i['max_rotation_change_deg']:.1f} | "
+            f"{i[f'ik_ms_per_{per}']:.1f} | {x['compile_s']:.1f} |"
         )
     lines += [
         "",

@@ -561,7 +561,7 @@ def window_pose_metrics(
 ) -> dict[str, np.ndarray]:
     """Per-window figures of poses ``(windows, frames, …)`` after IK, for :func:`summarize_windows`:
     each handle's distance from the IK'd skeleton's joint (``handle_error``, ``handle_valid``),
-    MPJPE, foot skating, key pop, and (given ``chains``) ``handle_unreachable``: the handle is
+    MPJPE, foot skating, key pop, per-frame joint turns (:func:`_turn_figures`), and (given ``chains``) ``handle_unreachable``: the handle is
     farther from its chain's root *in the IK'd pose at that frame* than the chain's length
     plus :data:`HANDLE_MISS_CM` (a hand beyond the arm's reach from the shoulder the IK
     chose; hips handles never). Such a handle is necessarily missed by more than
@@ -589,6 +589,7 @@ def _pose_figures(config, character, pose, truth, handles, chains, windows) -> d
         "mpjpe": jnp.mean(jnp.linalg.norm(pos - true_pos, axis=-1), axis=(-2, -1)),
         "skating": _per_window(lambda f: foot_skating_ratio(f, config.fps, floor_height=config.floor_height), feet),
         "key_pop": _key_pop(pose.quat_local, windows),
+        **_turn_figures(pose.quat_local),
     }
     if chains is not None:
         root = jnp.asarray(chains.root)[handles.joint]
@@ -651,8 +652,17 @@ def _mocap_figures(config, character, truth, windows) -> dict[str, Array]:
     return {
         "skating": _per_window(lambda f: foot_skating_ratio(f, config.fps, floor_height=config.floor_height), feet),
         "key_pop": _key_pop(truth.quat_local, windows),
-        "max_rotation_change": jnp.max(rotation_change_deg(truth.quat_local), axis=(-2, -1)),
+        **_turn_figures(truth.quat_local),
     }
+
+
+def _turn_figures(quat_local: Array) -> dict[str, Array]:
+    """Per item ``(items, frames, joints, 4)``: the largest per-frame joint rotation change
+    anywhere (``max_rotation_change``, degrees) and its mean over the frame pairs
+    (``rotation_change``: how much the most-turning joint turns per frame on average, where
+    a pose that jitters from frame to frame stands out against the mocap's)."""
+    change = jnp.max(rotation_change_deg(quat_local), axis=-1)  # (items, frames - 1)
+    return {"max_rotation_change": jnp.max(change, axis=-1), "rotation_change": jnp.mean(change, axis=-1)}
 
 
 def summarize_windows(per_window: Mapping[str, np.ndarray], select: np.ndarray | None = None) -> dict[str, Any]:
@@ -683,4 +693,6 @@ def summarize_windows(per_window: Mapping[str, np.ndarray], select: np.ndarray |
     for key, name in (("key_pop", "key_pop_deg"), ("max_rotation_change", "max_rotation_change_deg")):
         if key in w:
             out[name] = float(w[key].max())
+    if "rotation_change" in w:
+        out["rotation_change_deg"] = float(w["rotation_change"].mean())
     return out

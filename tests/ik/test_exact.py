@@ -59,8 +59,10 @@ def _bent(character: Character, quat: np.ndarray, pos: np.ndarray, seed: int) ->
 def _case(character: Character, preset: str, quat: np.ndarray, pos: np.ndarray, seed: int) -> Case:
     truth = _bent(character, quat, pos, seed)
     rig = make_rig(character, preset)
-    # From the rig: far from the targets, where short steps (0.2 rad) also meet the orientations.
-    fn, params = exact_ik(rig_ik, rig, character, iterations=10, max_turn=0.2)
+    # From the rig: far from the targets, where short steps (0.2 rad) also meet the orientations,
+    # and a light prior (the default, 50, holds a learned IK's near pose: from the rig's it
+    # leaves ~1 cm after 10 steps).
+    fn, params = exact_ik(rig_ik, rig, character, iterations=10, max_turn=0.2, prior_weight=1.0)
     return Case(character, truth, fn, params, _with_residual(fn))
 
 
@@ -195,7 +197,8 @@ def test_pinned_targets_weigh_handle_weight_more(bandai):
     params = dataclasses.replace(bandai.params, handle_weight=7.0)
 
     def cost(pinned) -> float:
-        problem = exact_module._Problem(truth, position, exact_module.quat_from_rot6d(targets.rot6d), pinned, jnp.asarray(0.0))
+        scale = exact_module._position_scale(params, pinned, jnp.zeros(6, bool), jnp.float32)
+        problem = exact_module._Problem(truth, position, exact_module.quat_from_rot6d(targets.rot6d), scale, jnp.asarray(0.0))
         return float(exact_module._evaluate(params, problem, jnp.zeros((free, 3)), jnp.zeros(3))[-1])
 
     w = params.position_weight**2
