@@ -1,13 +1,14 @@
 """Benchmark: the exact IK stage (bezmotion.ik.exact) per 31-frame window, jit-compiled.
 
 Times the window solve the pipeline uses (``ExactIKFn.solve_window``: the inner IK's
-poses, smoothed over time, then the Levenberg–Marquardt solve per frame) on the bundled
+poses, smoothed over time, then the Levenberg–Marquardt solve per frame, ``window_passes`` times) on the bundled
 Bandai-Namco demo clip's first 31 frames, with the right hand's targets raised 15 cm on
 frames 12–17, and the inner IKs alone for comparison: compile time and steady-state
 milliseconds per window separately, one window (latency) and ``--batch`` windows vmapped
 (throughput), with the machine and library versions.
 
     python benchmarks/ik_exact.py --repeats 20 --out ik_exact.json
+    python benchmarks/ik_exact.py --repeats 20 --exact window_passes=1 --out ik_exact_one_pass.json   # half the solves
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import numpy as np
 from _timing import machine_info, report, time_jitted
 from bezmotion.assets import BUNDLED_IK, DEMO_CLIP
 from bezmotion.data.bvh import read_bvh
-from bezmotion.ik.exact import JointLimits, exact_ik
+from bezmotion.ik.exact import JointLimits, exact_ik, exact_settings
 from bezmotion.ik.protocol import Character, pose_from_motion, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik
@@ -34,6 +35,7 @@ class Options:
     repeats: int = option(20, help="timed repeats; the median is reported")
     batch: int = option(16, help="windows per vmapped call for the throughput figure")
     iterations: int | None = option(None, help="Levenberg-Marquardt steps (default: ExactIKParams')")
+    exact: tuple[str, ...] = option((), repeat=True, metavar="NAME=VALUE", help="an ExactIKParams setting (e.g. window_passes=1); may repeat")
     out: str | None = option(None, help="write the result as JSON to this file (atomically)")
 
 
@@ -48,7 +50,7 @@ def main(argv: list[str] | None = None) -> dict:
     model = load_ik_model(BUNDLED_IK)
     rig = make_rig(character, "bandai_namco", rest_quat_local=np.asarray(truth.quat_local[0]))
     limits = JointLimits.load(BUNDLED_IK / "joint_limits.json", character)
-    settings = {} if args.iterations is None else {"iterations": args.iterations}
+    settings = exact_settings(args.exact) | ({} if args.iterations is None else {"iterations": args.iterations})
     options_ = dict(inference_compiler_options()) or None
     inners = {"learned": (protores_ik_fn, model), "refined": (protores_refined_ik_fn, (model, rig)), "rig": (rig_ik, rig)}
     rows = {}
@@ -68,7 +70,7 @@ def main(argv: list[str] | None = None) -> dict:
             }
             print(f"{label}: compile {rows[label]['compile_s']:.1f} s, {rows[label]['ms_per_window']:.2f} ms/window "
                   f"(min {rows[label]['ms_per_window_min']:.2f}), batched {rows[label][f'ms_per_window_batched_{args.batch}']:.2f}", flush=True)  # fmt: skip
-    result = {"benchmark": "ik_exact", "frames": 31, "batch": args.batch, "rows": rows, "machine": machine_info()}
+    result = {"benchmark": "ik_exact", "frames": 31, "batch": args.batch, "settings": settings, "rows": rows, "machine": machine_info()}
     summary = {k: {m: v for m, v in r.items() if m not in ("single", "batched")} for k, r in rows.items()}
     return report(result, summary, args.out)
 
