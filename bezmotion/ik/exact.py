@@ -31,7 +31,7 @@ step count keeps a batch of frames in lock step. On the demo window (31 frames) 
 measured ~8 ms against optimistix's 263 ms at the same accuracy; with the joint limits'
 Jacobian in closed form, 7.3 ms from the rig's pose and 8.0 ms from the learned IK's
 (``python benchmarks/ik_exact.py --repeats 20``, 2-core CPU, 2026-11-26; the issue's aim
-is 5 ms). What is left is spread over small ops: each of the 6 steps costs ~0.9 ms, of
+is 5 ms); the default two window passes take 14.6 ms (2026-11-27). What is left is spread over small ops: each of the 6 steps costs ~0.9 ms, of
 which the 36 × 36 Cholesky solve (108 sequential loop steps, no LAPACK: see
 ``bezmotion.linalg``) takes ~0.3 ms. Gradients pass through the unrolled steps.
 
