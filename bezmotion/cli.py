@@ -1,6 +1,6 @@
 """The ``bezmotion`` command line.
 
-    bezmotion demo [--out DIR] [--joint J --frame F --offset X Y Z] [--ik learned|rig] [--channels clip]
+    bezmotion demo [--out DIR] [--joint J --frame F --offset X Y Z] [--ik exact|refined|learned|rig] [--channels clip]
     bezmotion inbetween CLIP.bvh --frames 0 30 [--handle JOINT@FRAME=X,Y,Z …] [--out out.bvh|out.glb|DIR]
     bezmotion inbetween --start A.bvh@F --end B.bvh@G [--handles FILE] [--samples N] [--ik rig] [--mapping MAP.json]
     bezmotion models [--check | --write-manifest]   # the pretrained models: bundled or not, size, data, licence, retraining
@@ -36,8 +36,9 @@ class DemoOptions:
         (0.0, 25.0, 0.0), metavar=("X", "Y", "Z"), help="how far the handle moves the joint from the mocap (cm; default 0 25 0)"
     )
     ik: str = option(
-        "refined", choices=IK_CHOICES,
-        help="refined: the learned IK then exact two-bone limbs (default); learned: the learned IK alone; rig: analytic, no data",
+        "exact", choices=IK_CHOICES,
+        help="exact: the learned IK then a least-squares solve onto all six curves (default); refined: the learned IK then "
+        "exact two-bone limbs; learned: the learned IK alone; rig: analytic, no data",
     )  # fmt: skip
     steps: int = option(10, help="DDIM steps (default 10)")
     seed: int = 0

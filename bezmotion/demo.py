@@ -114,7 +114,7 @@ def demo(
     joint: str = "right_hand",
     frame: int = 12,
     offset: tuple[float, float, float] = (0.0, 25.0, 0.0),
-    ik: str = "refined",
+    ik: str = "exact",
     steps: int = 10,
     seed: int = 0,
     bmm_dir: str | Path = "bandai_namco",
@@ -129,10 +129,10 @@ def demo(
       out: output folder (created).
       joint, frame, offset: the handle: ``joint`` (a characteristic joint) is moved by
         ``offset`` (cm) from where the mocap has it at ``frame`` (any frame in 1…29).
-      ik: ``"refined"`` (default: the bundled learned IK, then exact two-bone arms and legs),
-        ``"learned"`` (the learned IK alone), ``"rig"`` (analytic, no data) or ``"exact"``
-        (the learned IK, then a whole-body least-squares solve onto all six targets, with
-        the joint limits stored beside the IK model).
+      ik: ``"exact"`` (default: the learned IK, then a whole-body least-squares solve onto
+        all six targets, with the joint limits stored beside the IK model), ``"refined"``
+        (the bundled learned IK, then exact two-bone arms and legs), ``"learned"`` (the
+        learned IK alone) or ``"rig"`` (analytic, no data).
       steps, seed: DDIM steps and PRNG seed of the sampler.
       bmm_dir, bmm_corpus: the BMM — a pretrained model's name (:mod:`bezmotion.assets.registry`,
         ``bezmotion models``) or a saved BMM's folder — and the corpus it was trained on (one

@@ -31,8 +31,10 @@ End Sites and frame rate).
 ``--mapping MAP.json`` (:func:`bezmotion.pipeline.authoring.read_mapping`). A BMM
 trained on another skeleton drives it through a transfer (BMM §5.2) with the character's
 bundled profile, or for other skeletons a profile measured on the input files' frames.
-``--ik auto`` (default) takes the learned IK refined by exact limbs when the learned IK
-was trained on this skeleton, else the analytic rig, which needs no training.
+``--ik auto`` (default) takes the exact IK (the learned IK, then a least-squares solve that
+puts all six joints on their curves, handles on the hips and head included, without
+popping at the keys) when the learned IK was trained on this skeleton, else the analytic
+rig, which needs no training.
 
 **Output.** ``--out x.bvh`` / ``x.glb`` / ``x.gif``: that file (``x_0.bvh``, ``x_1.bvh``, …
 with ``--samples N``); ``--out FOLDER``: ``inbetween.bvh``, ``inbetween.glb``,
@@ -109,7 +111,7 @@ class InbetweenOptions:
     steps: int = option(10, metavar="N", help="DDIM steps (default 10)")
     ik: str = option(
         "auto", choices=("auto", *IK_CHOICES),
-        help="auto (default): refined when the learned IK fits the skeleton, else rig; refined: learned IK then "
+        help="auto (default): exact when the learned IK fits the skeleton, else rig; refined: learned IK then "
         "exact two-bone limbs; learned: the learned IK alone; rig: analytic, any skeleton, no training; "
         "exact: the learned IK then a least-squares solve onto all six curves (hips and head too)",
     )  # fmt: skip
@@ -457,7 +459,7 @@ def plan(args: InbetweenOptions) -> Plan:
         if ik == "auto":
             try:
                 check_ik_model(ik_model, character)
-                ik = "refined"
+                ik = "exact"
             except ValueError:
                 ik, ik_model = "rig", None
     try:

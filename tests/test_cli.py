@@ -30,8 +30,8 @@ def test_demo_runs_and_its_curves_pass_through_the_handle(demo_run):
     assert summary["frames"] == 31 and summary["joints"] == 22 and summary["steps"] == 2
     assert summary["curve_handle_error_cm"] == 0.0  # overwrite: the handle, bit for bit
     # The handle moves the right hand 25 cm above the mocap; the default IK (learned, then
-    # exact two-bone limbs) puts the hand on it.
-    assert summary["ik"] == "refined"
+    # the exact whole-body solve) puts the hand on it.
+    assert summary["ik"] == "exact"
     assert summary["joint_moved_cm"] > 20.0
     assert summary["full_body_handle_error_cm"] < 1e-2
 
