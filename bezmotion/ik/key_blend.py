@@ -87,7 +87,13 @@ def key_chain(keys: tuple[Pose, Pose] | Pose) -> Pose:
 
 def chain_key_blend_weights(num_frames: int, num_windows: int, frames: int) -> np.ndarray:
     """``(num_frames,)``: each frame's share of its nearest key's correction in a chain of
-    ``num_windows`` equal windows (the larger of :func:`key_blend_weights`' two, per window)."""
+    ``num_windows`` equal windows (the larger of :func:`key_blend_weights`' two, per window).
+
+    Raises:
+      ValueError: ``num_frames`` is not a chain of ``num_windows`` equal windows.
+    """
+    if num_windows < 1 or num_frames < 2 or (num_frames - 1) % num_windows:
+        raise ValueError(f"{num_frames} frames are not a chain of {num_windows} windows ((window frames − 1)·windows + 1)")
     weights = np.maximum(*key_blend_weights((num_frames - 1) // num_windows + 1, frames))
     return np.concatenate([np.tile(weights[:-1], num_windows), weights[-1:]])
 

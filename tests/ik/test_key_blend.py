@@ -68,3 +68,5 @@ def test_chain_blend_joins_every_window_to_its_own_keys():
     assert weights.shape == (frames,) and weights[[0, 30, 60, 90]].tolist() == [1.0] * 4 and weights[6:25].max() == 0.0
     with pytest.raises(ValueError, match="not a chain of 4 windows"):
         blend_to_chain_keys(ik, Pose(jnp.zeros((5, 3)), jnp.zeros((5, 2, 4))), 6)
+    with pytest.raises(ValueError, match="91 frames are not a chain of 4 windows"):
+        chain_key_blend_weights(frames, 4, 6)
