@@ -92,9 +92,8 @@ def chain_key_blend_weights(num_frames: int, num_windows: int, frames: int) -> n
     Raises:
       ValueError: ``num_frames`` is not a chain of ``num_windows`` equal windows.
     """
-    if num_windows < 1 or num_frames < 2 or (num_frames - 1) % num_windows:
-        raise ValueError(f"{num_frames} frames are not a chain of {num_windows} windows ((window frames − 1)·windows + 1)")
-    weights = np.maximum(*key_blend_weights((num_frames - 1) // num_windows + 1, frames))
+    window_frames = split_windows(jnp.zeros(num_frames), num_windows).shape[1]  # raises for a non-chain
+    weights = np.maximum(*key_blend_weights(window_frames, frames))
     return np.concatenate([np.tile(weights[:-1], num_windows), weights[-1:]])
 
 
