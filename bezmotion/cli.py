@@ -22,7 +22,7 @@ from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.demo import demo
 from bezmotion.inbetween_command import InbetweenOptions, run_inbetween
 from bezmotion.options import add_options, option, options, options_from
-from bezmotion.pipeline.authoring import CHANNEL_CHOICES, IK_CHOICES
+from bezmotion.pipeline.authoring import CHANNEL_CHOICES, FOOT_LOCK_HELP, IK_CHOICES
 
 
 @options
@@ -53,6 +53,7 @@ class DemoOptions:
         "default", choices=CHANNEL_CHOICES,
         help="BVH channels: default (positions on the root and hips, rotations elsewhere) or clip (the clip's own layout)",
     )  # fmt: skip
+    foot_lock: bool = option(True, help=FOOT_LOCK_HELP)
 
 
 INBETWEEN_EXAMPLES = """examples:
@@ -101,7 +102,7 @@ def main(argv: list[str] | None = None) -> int:
             demo(
                 args.out, joint=args.joint, frame=args.frame, offset=tuple(args.offset), ik=args.ik, steps=args.steps,
                 seed=args.seed, bmm_dir=args.bmm, bmm_corpus=args.bmm_corpus, ik_dir=args.ik_model,
-                channels=args.channels,
+                channels=args.channels, foot_lock=args.foot_lock,
             )  # fmt: skip
         elif parsed.command == "inbetween":
             run_inbetween(options_from(p_inbetween, InbetweenOptions, parsed))

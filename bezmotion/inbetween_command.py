@@ -67,6 +67,7 @@ from bezmotion.options import option, options
 from bezmotion.pipeline import inbetween, key_velocities, pose_to_bvh
 from bezmotion.pipeline.authoring import (
     CHANNEL_CHOICES,
+    FOOT_LOCK_HELP,
     IK_CHOICES,
     RecognisedCharacter,
     ResultFiles,
@@ -136,6 +137,7 @@ class InbetweenOptions:
     key_velocities: bool = option(
         False, help="the curves leave and reach the keys at the clip's own velocities (from the frame before the start and the one after the end)"
     )
+    foot_lock: bool = option(True, help=FOOT_LOCK_HELP)
     no_preview: bool = option(False, help="with --out FOLDER: no preview.gif (drawing it takes a few seconds)")
     no_progress: bool = option(False, help="no progress lines on stderr")
 
@@ -510,7 +512,7 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
         result = inbetween(
             p.bmm, p.ik_fn, p.ik_params, character, p.start, p.end, p.handles,
             key=jax.random.fold_in(jax.random.key(args.seed), k), transfer=p.transfer, steps=args.steps,
-            key_orientations=not args.key_positions_only, key_velocity=p.key_velocity,
+            key_orientations=not args.key_positions_only, key_velocity=p.key_velocity, foot_lock=args.foot_lock,
         )  # fmt: skip
         jax.block_until_ready(result)
         seconds = time.perf_counter() - t0
@@ -545,6 +547,7 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
         "fps": p.start_motion.nominal_fps,
         "ik": p.ik,
         "steps": args.steps,
+        "foot_lock": args.foot_lock,
         "seed": args.seed,
         "transfer": p.transfer is not None,
         "handles": p.handle_records,

@@ -95,7 +95,7 @@ With ``--segments K`` (K > 1) ``windows`` is chains × K, ``curves`` also holds
 
     "segments": {"k": K, "chains": n, "frames_per_chain": 30·K + 1, "key_frames": […],
       "boundary_velocity_jump_cm_per_frame": {"coupled": {mean, p95, max, count}, "independent": {…},
-        "mocap": {…}, "mocap_at_shared_keys": {…}, "ood": {"coupled", "independent"},
+        "coupled_other_frames": {…}, "mocap": {…}, "mocap_at_shared_keys": {…}, "ood": {"coupled", "independent"},
         "after_ik": {"<ik>": {"id", "ood"}}, "where": …},
       "metrics": {<how each figure is taken over a chain>}, "not_computed": {<figure>: why}}
 
@@ -175,6 +175,9 @@ class Options:
     steps: int = option(10, help="DDIM steps")
     key_velocities: bool = option(
         False, help="give the curves the keys' velocities too (from the clip: frames 0→1 and 29→30; single windows only)"
+    )
+    foot_lock: bool = option(
+        False, help="lock the curves' feet on their predicted contacts before any IK (sample_curves(foot_lock=True))"
     )
     key_blend: int = option(KEY_BLEND_FRAMES, help="frames over which the start / end poses are blended in (0: replace the two frames)")
     chunk: int = option(10, help="windows per compiled call, chains: chunk // K (large chunks of the exact IK have hung XLA)")
@@ -305,11 +308,12 @@ def sample_items(args: Options, bmm, character, items: Items, cond: str, keys: j
     if args.segments == 1:
         return sample_window_curves(
             bmm, character, items.truth, items.handles[cond], keys,
-            steps=args.steps, with_key_velocities=args.key_velocities, chunk=args.chunk,
+            steps=args.steps, with_key_velocities=args.key_velocities, chunk=args.chunk, foot_lock=args.foot_lock,
         )  # fmt: skip
     return sample_chain_curves(
-        bmm, character, items.truth, items.handles[cond], keys, coupled=coupled, steps=args.steps, chunk=chain_chunk(args)
-    )
+        bmm, character, items.truth, items.handles[cond], keys,
+        coupled=coupled, steps=args.steps, chunk=chain_chunk(args), foot_lock=args.foot_lock,
+    )  # fmt: skip
 
 
 def joined(args: Options, curves: WindowCurves) -> WindowCurves:
@@ -408,7 +412,11 @@ def main(argv: list[str] | None = None) -> dict:
             curve_windows.setdefault("bmm_independent", {})[cond] = window_curve_metrics(
                 config, independent.positions, items.metric_handles[cond], true_targets.position, independent.rot6d, true_targets.rot6d
             )
-            jumps[cond] = {"coupled": jumps_at_keys(dense.positions, k), "independent": jumps_at_keys(independent.positions, k)}
+            jumps[cond] = {
+                "coupled": jumps_at_keys(dense.positions, k), "independent": jumps_at_keys(independent.positions, k),
+                # the same curves between the keys: is a shared key rougher than the rest of the motion?
+                "coupled_other_frames": distribution_summary(chain_velocity_jumps(dense.positions, k).other_frames),
+            }  # fmt: skip
             print(f"{cond}: velocity jump at the shared keys {jumps[cond]}", flush=True)
         for name, (fn, params) in iks.items():
             pose, timing = solve_items(args, fn, params, curves, truth, items.handles[cond])
@@ -427,7 +435,7 @@ def main(argv: list[str] | None = None) -> dict:
         "settings": {
             "bmm": str(model_path(args, "bmm")), "ik_model": str(model_path(args, "ik_model")), "joint_limits": limited,
             "handle_frames": args.handle_frames, "steps": args.steps, "key_blend_frames": args.key_blend,
-            "key_velocities": args.key_velocities,
+            "key_velocities": args.key_velocities, "foot_lock": args.foot_lock,
             "chunk": args.chunk, "seed": args.seed, "sample_seed": args.sample_seed, "segments": k,
             "exact": exact_settings(args.exact),
             "rows": np.asarray(items.rows).tolist(),
@@ -445,6 +453,7 @@ def main(argv: list[str] | None = None) -> dict:
                 "where": "‖(p[b+1] − p[b]) − (p[b] − p[b−1])‖ of the six joints: the curves before IK (in distribution) "
                 "and the IK'd chains at the K − 1 shared keys; mocap: every inner frame of the same chains",
                 "coupled": jumps["id"]["coupled"], "independent": jumps["id"]["independent"],
+                "coupled_other_frames": jumps["id"]["coupled_other_frames"],
                 "mocap": distribution_summary(mocap_jumps.all_frames),
                 "mocap_at_shared_keys": distribution_summary(mocap_jumps.at_shared_keys),
                 "ood": jumps["ood"], "after_ik": after_ik,
@@ -476,7 +485,8 @@ def format_report(r: dict) -> str:
     per, items = ("window", f"{r['windows']} windows") if seg is None else ("chain", f"{seg['chains']} chains of {seg['k']} windows")
     lines = [
         f"Pipeline on {r['source']}: {items}, handles on {s['handle_frames']} frames, {s['steps']} DDIM steps, "
-        f"key blend {s['key_blend_frames']} frames{'; the keys’ velocities given to the curves' if s.get('key_velocities') else ''}; the curves sampled once, every IK on the same curves ({r['seconds']:.0f} s).",
+        f"key blend {s['key_blend_frames']} frames{'; the keys’ velocities given to the curves' if s.get('key_velocities') else ''}"
+        f"{'; feet locked on their predicted contacts' if s.get('foot_lock') else ''}; the curves sampled once, every IK on the same curves ({r['seconds']:.0f} s).",
         f"Mocap: foot skating {m['foot_skating_ratio']:.4f}, key pop {m['key_pop_deg']:.2f}°, "
         f"largest per-frame change {m['max_rotation_change_deg']:.2f}° (mean of each frame's largest {m['rotation_change_deg']:.2f}°).",
     ]
@@ -492,6 +502,7 @@ def format_report(r: dict) -> str:
             "|---|---|---|---|---|",
             row("coupled curves, at shared keys", jump["coupled"]),
             row("independent curves (D.1), at shared keys", jump["independent"]),
+            *([row("coupled curves, every other frame", jump["coupled_other_frames"])] if "coupled_other_frames" in jump else []),
             *(row(f"after IK ({name}), at shared keys", x["id"]) for name, x in jump["after_ik"].items()),
             row("mocap, all frames", jump["mocap"]),
             row("mocap, at the shared keys", jump["mocap_at_shared_keys"]),

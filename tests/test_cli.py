@@ -31,7 +31,7 @@ def test_demo_runs_and_its_curves_pass_through_the_handle(demo_run):
     assert summary["curve_handle_error_cm"] == 0.0  # overwrite: the handle, bit for bit
     # The handle moves the right hand 25 cm above the mocap; the default IK (learned, then
     # the exact whole-body solve) puts the hand on it.
-    assert summary["ik"] == "exact"
+    assert summary["ik"] == "exact" and summary["foot_lock"] is True  # the defaults
     assert summary["joint_moved_cm"] > 20.0
     assert summary["full_body_handle_error_cm"] < 1e-2
 

@@ -102,6 +102,7 @@ def test_two_samples_are_two_different_motions(run):
     # a hundred times above rounding.
     assert np.abs(a - b).max() > 0.1  # cm
     assert [s["sample"] for s in summary["samples"]] == [0, 1]
+    assert summary["foot_lock"] is True  # the default
     assert sorted(p.name for p in out.iterdir()) == [
         "inbetween_0.bvh", "inbetween_0.glb", "inbetween_1.bvh", "inbetween_1.glb", "summary.json"
     ]  # fmt: skip
@@ -314,3 +315,21 @@ def test_key_velocities_come_from_the_frames_around_the_keys(tmp_path):
     pos = fk_positions(read_bvh(DEMO_CLIP))[:, six]
     np.testing.assert_allclose(np.asarray(p.key_velocity), np.stack([pos[5] - pos[4], pos[36] - pos[35]]), atol=1e-3)
     assert plan(parse_options(InbetweenOptions, [str(DEMO_CLIP), "--frames", "5", "35", *FAST])).key_velocity is None
+
+
+@pytest.mark.parametrize("flag, locked", [([], True), (["--no-foot-lock"], False), (["--foot-lock"], True)])
+def test_foot_lock_reaches_the_pipeline(flag, locked, tmp_path, monkeypatch):
+    """``--foot-lock`` (the default) and ``--no-foot-lock`` (the paper's curves) reach :func:`inbetween`."""
+    import bezmotion.inbetween_command as command
+
+    class Called(Exception):
+        pass
+
+    def inbetween(*args, **kwargs):
+        raise Called(kwargs["foot_lock"])
+
+    monkeypatch.setattr(command, "inbetween", inbetween)
+    args = parse_options(InbetweenOptions, [str(DEMO_CLIP), "--frames", "0", "30", *FAST, *flag, "--out", str(tmp_path / "x.bvh")])
+    with pytest.raises(Called) as called:
+        command.run_inbetween(args)
+    assert called.value.args == (locked,)

@@ -52,6 +52,14 @@ a least-squares solve of the whole body onto all six targets (:mod:`bezmotion.ik
 CHANNEL_CHOICES = ("default", "clip")
 """BVH channels: positions on the root and the hips only, or the clip's own layout."""
 
+FOOT_LOCK_HELP = (
+    "hold each foot still while the BMM predicts it planted (default; ours, not the paper's: "
+    "--no-foot-lock for the paper's curves)"
+)
+"""The commands' ``--foot-lock`` help. On by default there: the paper's curves skate (0.138
+of Bandai-Namco validation frames, the mocap 0.110), locked ones 0.070, and every IK skates
+less on them (``experiments/pipeline_eval.py --foot-lock``)."""
+
 
 # ------------------------------------------------------------------------------ models
 
@@ -398,6 +406,7 @@ def write_result(path: str | os.PathLike, result: ResultFiles) -> None:
 
 __all__ = [
     "CHANNEL_CHOICES",
+    "FOOT_LOCK_HELP",
     "IK_CHOICES",
     "WRITERS",
     "RecognisedCharacter",

@@ -112,6 +112,28 @@ def test_every_ik_on_the_same_curves_and_windows_independent_of_their_count(expe
         jax.tree.map(lambda a, b: np.testing.assert_allclose(a, np.asarray(b)[:2], atol=1e-3), small, large)
 
 
+def test_foot_lock_locks_the_curves_every_ik_is_given(experiment, clips, monkeypatch, tmp_path):
+    monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path / "cache"))
+    seen = []
+
+    def sample(*args, **kwargs):
+        seen.append(kwargs["foot_lock"])
+        return real_sample(*args, **kwargs)
+
+    real_sample = experiment.sample_window_curves
+    monkeypatch.setattr(experiment, "sample_window_curves", sample)
+    common = ["--bvh-dir", str(clips), "--steps", "2", "--chunk", "4", "--windows", "2", "--ik", "rig"]
+    out = tmp_path / "locked.json"
+    locked = experiment.main(["--out", str(out), "--foot-lock", *common])
+    plain = experiment.main(["--out", str(tmp_path / "plain.json"), *common])
+    assert seen == [True, True, False, False]  # both conditions' curves, then the plain run's
+    assert locked["settings"]["foot_lock"] and not plain["settings"]["foot_lock"]
+    assert "feet locked on their predicted contacts" in out.with_suffix(".md").read_text()
+    # Locking moves the feet (the walk has contacts), so the curves differ; handles still hold.
+    assert locked["curves"]["bmm"]["id"]["dense_error_cm"] != plain["curves"]["bmm"]["id"]["dense_error_cm"]
+    assert locked["curves"]["bmm"]["id"]["handles_error_cm"] < 1e-3
+
+
 def test_per_window_draws_do_not_depend_on_the_number_of_windows(experiment, clips, monkeypatch, tmp_path):
     monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path / "cache"))
     args = experiment.parse_options(experiment.Options, ["--out", "x.json", "--bvh-dir", str(clips)])
@@ -179,6 +201,7 @@ def test_segments_evaluate_chains_of_windows(experiment, long_clips, monkeypatch
         assert variant["mean"] <= variant["p95"] <= variant["max"]
     assert jump["coupled"]["count"] == jump["independent"]["count"] == 2 * 1 * 6  # chains × shared keys × joints
     assert jump["mocap"]["count"] == 2 * 59 * 6  # every inner frame of the same chains
+    assert jump["coupled_other_frames"]["count"] == 2 * 58 * 6  # the same curves' inner frames but the key
     # The other metrics over the chains' frames; the handles moved into each chain's frame.
     for cond in ("id", "ood"):
         after = r["ik"]["rig"][cond]
