@@ -76,7 +76,7 @@ from bezmotion.data.curves import CurveDataset, curve_dataset
 from bezmotion.data.sources import default_source, load_corpus
 from bezmotion.evaluation.motion_features import load_motion_features, motion_features
 from bezmotion.evaluation.naturalness import diversity, frechet_distance, gaussian_fit, multimodality
-from bezmotion.ik.exact import JointLimits, exact_ik, exact_settings
+from bezmotion.ik.exact import exact_ik, exact_settings
 from bezmotion.ik.protocol import Pose, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn
 from bezmotion.io import write_results
@@ -91,6 +91,7 @@ from bezmotion.pipeline.evaluation import (
     window_pose_metrics,
     window_poses,
 )
+from bezmotion.pipeline.authoring import ik_model_joint_limits
 from bezmotion.pipeline.inbetweening import WindowCurves
 from bezmotion.pipeline.transfer import CharacterProfile
 from _common import runs_dir
@@ -385,8 +386,7 @@ def build_iks(args: Options, ik_path: Path, ik_model) -> dict:
     if "learned" in args.ik:
         iks["learned"] = (protores_ik_fn, ik_model)
     if "exact" in args.ik:
-        limits_file = ik_path / "joint_limits.json"
-        limits = JointLimits.load(limits_file, ik_model.character) if limits_file.exists() else None
+        limits = ik_model_joint_limits(ik_path, ik_model.character)
         iks["exact"] = exact_ik(protores_ik_fn, ik_model, ik_model.character, limits=limits, **exact_settings(args.exact))
     return iks
 
