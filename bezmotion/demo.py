@@ -28,7 +28,7 @@ import numpy as np
 from bezmotion.io import atomic_write_text, save_figure
 from bezmotion.assets import DEMO_CLIP, DEMO_CLIP_ATTRIBUTION
 from bezmotion.data.bvh import read_bvh
-from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
+from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, FEET
 from bezmotion.ik.protocol import Character, Pose, pose_fk
 from bezmotion.ik.protores import load_ik_model
 from bezmotion.pipeline import InbetweenResult, full_body_handles_error, inbetween, pose_to_bvh
@@ -109,6 +109,17 @@ def _resolve(flag: str, name_or_path: str | Path, resolve: Callable[[str | Path]
         raise ValueError(f"{flag} {name_or_path}: {error}") from None
 
 
+def ground_slide_cm(
+    feet_pos: np.ndarray, ground: np.ndarray, *, height: float = 5.0
+) -> np.ndarray:
+    """``(2,)`` how far (cm) each foot travels horizontally (X, Z) between frames on which it
+    is within ``height`` cm of its ``ground`` height (``(2,)``, e.g. its lowest in the mocap):
+    a planted foot's slide. ``feet_pos``: ``(frames, 2, 3)`` cm, +Y up."""
+    low = feet_pos[..., 1] < ground + height
+    step = np.linalg.norm((feet_pos[1:] - feet_pos[:-1])[..., [0, 2]], axis=-1)
+    return (step * (low[1:] & low[:-1])).sum(axis=0)
+
+
 def demo(
     out: Path,
     *,
@@ -146,7 +157,7 @@ def demo(
         carry the clip's OFFSETs and End Sites and its whole frame rate.
       foot_lock: hold each foot still while the BMM says it is planted
         (:func:`~bezmotion.bmm.foot_lock.lock_feet`; ours, not the paper's): on the demo the
-        left foot slides 2.6 cm on the ground instead of 17.3 (the mocap 3.9).
+        left foot slides 2.6 cm on the ground instead of 17.3 (the mocap 3.9; the summary's ``ground_slide_cm``).
     """
     if ik not in IK_CHOICES:
         raise ValueError(f"--ik must be one of {IK_CHOICES}, got {ik!r}")
@@ -215,6 +226,8 @@ def demo(
     write_result(paths["ground_truth"], ResultFiles(character, truth_motion, None, bmm.config.stride))
     _plot(paths["png"], character, result, truth, handle_pos, j, frame)
     _, pos = pose_fk(character, result.pose)
+    feet = np.asarray(character.characteristic)[np.asarray(FEET)]
+    ground = np.asarray(true_pos)[:, feet, 1].min(axis=0)
     summary = {
         "clip": clip.name,
         "frames": frames,
@@ -227,6 +240,11 @@ def demo(
         "curve_handle_error_cm": float(np.linalg.norm(np.asarray(result.positions[frame, j]) - handle_pos)),
         "full_body_handle_error_cm": float(full_body_handles_error(character, result.pose, handles, bmm.config.stride)),
         "joint_moved_cm": float(np.linalg.norm(np.asarray(pos[frame, character.characteristic[j]] - true_pos[frame, character.characteristic[j]]))),
+        # How far each foot slides along the ground (near its lowest mocap height), the mocap's beside it.
+        "ground_slide_cm": {
+            which: dict(zip(("left_foot", "right_foot"), ground_slide_cm(np.asarray(p[:, feet], np.float64), ground).round(2).tolist(), strict=True))
+            for which, p in (("inbetween", pos), ("mocap", true_pos))
+        },
         "bvh_fk_error_cm": bvh_fk_error_cm(paths["inbetween"], character, result.pose),
         "first_call_s": first_call_s,
         "second_call_s": second_call_s,

@@ -34,6 +34,8 @@ def test_demo_runs_and_its_curves_pass_through_the_handle(demo_run):
     assert summary["ik"] == "exact" and summary["foot_lock"] is True  # the defaults
     assert summary["joint_moved_cm"] > 20.0
     assert summary["full_body_handle_error_cm"] < 1e-2
+    slide = summary["ground_slide_cm"]
+    assert set(slide) == {"inbetween", "mocap"} and all(set(v) == {"left_foot", "right_foot"} for v in slide.values())
 
 
 def test_demo_bvh_reads_back_and_matches_the_pipeline(demo_run):
@@ -129,3 +131,16 @@ def test_demo_rejects_an_unknown_channel_layout(tmp_path):
     with pytest.raises(ValueError, match=r"--channels must be one of \('default', 'clip'\), got 'all'"):
         demo(tmp_path / "out", channels="all")
     assert not (tmp_path / "out").exists()
+
+
+def test_ground_slide_counts_only_travel_near_the_ground():
+    from bezmotion.demo import ground_slide_cm
+
+    # Left foot: 1 cm per frame along X on the ground, then lifted 10 cm and moved on;
+    # right foot: still on the ground, then 2 cm along Z at 4 cm height (within 5 cm).
+    feet = np.zeros((6, 2, 3))
+    feet[:, 0, 0] = np.arange(6.0)
+    feet[3:, 0, 1] = 10.0
+    feet[4:, 1, 2] = 2.0
+    feet[:, 1, 1] = 4.0
+    np.testing.assert_allclose(ground_slide_cm(feet, np.zeros(2)), [2.0, 2.0])
