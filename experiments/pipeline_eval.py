@@ -5,6 +5,7 @@
     python experiments/pipeline_eval.py --corpus lafan1 --out lafan1.json   # LaFAN1's registered models, trained here
     python experiments/pipeline_eval.py --corpus lafan1 --bmm runs/bmm/model --ik-model runs/ik/model --out lafan1.json
     python experiments/pipeline_eval.py --corpus bandai_namco --windows 20 --segments 3 --ik exact --out chains.json
+    python experiments/pipeline_eval.py --corpus bandai_namco --ik refined exact --foot-lock --out locked.json   # feet locked first
 
 **Windows.** The validation split of the corpus (Bandai-Namco: every 10th take; LaFAN1:
 subject 5), or with ``--bvh-dir`` every ``*.bvh`` of a folder of the corpus's skeleton (a
