@@ -96,7 +96,7 @@ With ``--segments K`` (K > 1) ``windows`` is chains × K, ``curves`` also holds
 
     "segments": {"k": K, "chains": n, "frames_per_chain": 30·K + 1, "key_frames": […],
       "boundary_velocity_jump_cm_per_frame": {"coupled": {mean, p95, max, count}, "independent": {…},
-        "coupled_other_frames": {…}, "mocap": {…}, "mocap_at_shared_keys": {…}, "ood": {"coupled", "independent"},
+        "coupled_other_frames": {…}, "coupled_inner_control_frames": {…}, "mocap": {…}, "mocap_at_shared_keys": {…}, "ood": {"coupled", "independent"},
         "after_ik": {"<ik>": {"id", "ood"}}, "where": …},
       "metrics": {<how each figure is taken over a chain>}, "not_computed": {<figure>: why}}
 
@@ -349,6 +349,15 @@ def jumps_at_keys(positions: jax.Array, k: int) -> dict:
     return distribution_summary(chain_velocity_jumps(positions, k).at_shared_keys)
 
 
+def jumps_at_inner_controls(positions: jax.Array, k: int, stride: int) -> dict:
+    """Velocity jump summary (cm/frame) of ``(chains, frames, 6, 3)`` at the control frames
+    inside the windows (multiples of ``stride``, keys excluded)."""
+    frames = positions.shape[-3]
+    window = (frames - 1) // k
+    inner = np.asarray([f for f in range(1, frames - 1) if f % stride == 0 and f % window])
+    return distribution_summary(chain_velocity_jumps(positions, k).all_frames[..., inner - 1, :])
+
+
 CHAIN_METRICS = {
     "handles_error_cm": "every window's handles, at their chain frames, against the IK'd chain",
     "mpjpe_cm": "every joint and frame of the chain (each shared key once) against the mocap",
@@ -415,8 +424,10 @@ def main(argv: list[str] | None = None) -> dict:
             )
             jumps[cond] = {
                 "coupled": jumps_at_keys(dense.positions, k), "independent": jumps_at_keys(independent.positions, k),
-                # the same curves between the keys: is a shared key rougher than the rest of the motion?
+                # the same curves between the keys: is a shared key rougher than the rest of the motion,
+                # and than the joins inside a window (C¹ too, so their acceleration jumps as well)?
                 "coupled_other_frames": distribution_summary(chain_velocity_jumps(dense.positions, k).other_frames),
+                "coupled_inner_control_frames": jumps_at_inner_controls(dense.positions, k, dataset.layout.stride),
             }  # fmt: skip
             print(f"{cond}: velocity jump at the shared keys {jumps[cond]}", flush=True)
         for name, (fn, params) in iks.items():
@@ -455,6 +466,7 @@ def main(argv: list[str] | None = None) -> dict:
                 "and the IK'd chains at the K − 1 shared keys; mocap: every inner frame of the same chains",
                 "coupled": jumps["id"]["coupled"], "independent": jumps["id"]["independent"],
                 "coupled_other_frames": jumps["id"]["coupled_other_frames"],
+                "coupled_inner_control_frames": jumps["id"]["coupled_inner_control_frames"],
                 "mocap": distribution_summary(mocap_jumps.all_frames),
                 "mocap_at_shared_keys": distribution_summary(mocap_jumps.at_shared_keys),
                 "ood": jumps["ood"], "after_ik": after_ik,
@@ -504,6 +516,8 @@ def format_report(r: dict) -> str:
             row("coupled curves, at shared keys", jump["coupled"]),
             row("independent curves (D.1), at shared keys", jump["independent"]),
             *([row("coupled curves, every other frame", jump["coupled_other_frames"])] if "coupled_other_frames" in jump else []),
+            *([row("coupled curves, control frames inside the windows", jump["coupled_inner_control_frames"])]
+              if "coupled_inner_control_frames" in jump else []),
             *(row(f"after IK ({name}), at shared keys", x["id"]) for name, x in jump["after_ik"].items()),
             row("mocap, all frames", jump["mocap"]),
             row("mocap, at the shared keys", jump["mocap_at_shared_keys"]),

@@ -202,6 +202,7 @@ def test_segments_evaluate_chains_of_windows(experiment, long_clips, monkeypatch
     assert jump["coupled"]["count"] == jump["independent"]["count"] == 2 * 1 * 6  # chains × shared keys × joints
     assert jump["mocap"]["count"] == 2 * 59 * 6  # every inner frame of the same chains
     assert jump["coupled_other_frames"]["count"] == 2 * 58 * 6  # the same curves' inner frames but the key
+    assert jump["coupled_inner_control_frames"]["count"] == 2 * 8 * 6  # frames 6, 12, 18, 24, 36, 42, 48, 54
     # The other metrics over the chains' frames; the handles moved into each chain's frame.
     for cond in ("id", "ood"):
         after = r["ik"]["rig"][cond]
