@@ -115,6 +115,7 @@ import jax
 import numpy as np
 
 from bezmotion.assets.registry import REGISTRY, resolve_folder
+from bezmotion.bezier import BezierLayout
 from bezmotion.bmm.evaluation import EvalSet, dense_positions, floor_height_from, make_eval_set, reference_curves
 from bezmotion.bmm.features import HANDLE_FRAMES
 from bezmotion.bmm.sampling import Handles, load_model
@@ -349,12 +350,11 @@ def jumps_at_keys(positions: jax.Array, k: int) -> dict:
     return distribution_summary(chain_velocity_jumps(positions, k).at_shared_keys)
 
 
-def jumps_at_inner_controls(positions: jax.Array, k: int, stride: int) -> dict:
+def jumps_at_inner_controls(positions: jax.Array, k: int, layout: BezierLayout) -> dict:
     """Velocity jump summary (cm/frame) of ``(chains, frames, 6, 3)`` at the control frames
-    inside the windows (multiples of ``stride``, keys excluded)."""
-    frames = positions.shape[-3]
-    window = (frames - 1) // k
-    inner = np.asarray([f for f in range(1, frames - 1) if f % stride == 0 and f % window])
+    inside each of the ``k`` windows (``layout``'s, keys excluded)."""
+    step = layout.num_frames - 1
+    inner = np.concatenate([w * step + layout.control_frames[1:-1] for w in range(k)])
     return distribution_summary(chain_velocity_jumps(positions, k).all_frames[..., inner - 1, :])
 
 
@@ -427,7 +427,7 @@ def main(argv: list[str] | None = None) -> dict:
                 # the same curves between the keys: is a shared key rougher than the rest of the motion,
                 # and than the joins inside a window (C¹ too, so their acceleration jumps as well)?
                 "coupled_other_frames": distribution_summary(chain_velocity_jumps(dense.positions, k).other_frames),
-                "coupled_inner_control_frames": jumps_at_inner_controls(dense.positions, k, dataset.layout.stride),
+                "coupled_inner_control_frames": jumps_at_inner_controls(dense.positions, k, dataset.layout),
             }  # fmt: skip
             print(f"{cond}: velocity jump at the shared keys {jumps[cond]}", flush=True)
         for name, (fn, params) in iks.items():
