@@ -109,9 +109,7 @@ def _resolve(flag: str, name_or_path: str | Path, resolve: Callable[[str | Path]
         raise ValueError(f"{flag} {name_or_path}: {error}") from None
 
 
-def ground_slide_cm(
-    feet_pos: np.ndarray, ground: np.ndarray, *, height: float = 5.0
-) -> np.ndarray:
+def ground_slide_cm(feet_pos: np.ndarray, ground: np.ndarray, *, height: float = 5.0) -> np.ndarray:
     """``(2,)`` how far (cm) each foot travels horizontally (X, Z) between frames on which it
     is within ``height`` cm of its ``ground`` height (``(2,)``, e.g. its lowest in the mocap):
     a planted foot's slide. ``feet_pos``: ``(frames, 2, 3)`` cm, +Y up."""
@@ -228,6 +226,7 @@ def demo(
     _, pos = pose_fk(character, result.pose)
     feet = np.asarray(character.characteristic)[np.asarray(FEET)]
     ground = np.asarray(true_pos)[:, feet, 1].min(axis=0)
+    slides = {which: ground_slide_cm(np.asarray(p[:, feet], np.float64), ground).round(2).tolist() for which, p in (("inbetween", pos), ("mocap", true_pos))}
     summary = {
         "clip": clip.name,
         "frames": frames,
@@ -241,10 +240,7 @@ def demo(
         "full_body_handle_error_cm": float(full_body_handles_error(character, result.pose, handles, bmm.config.stride)),
         "joint_moved_cm": float(np.linalg.norm(np.asarray(pos[frame, character.characteristic[j]] - true_pos[frame, character.characteristic[j]]))),
         # How far each foot slides along the ground (near its lowest mocap height), the mocap's beside it.
-        "ground_slide_cm": {
-            which: dict(zip(("left_foot", "right_foot"), ground_slide_cm(np.asarray(p[:, feet], np.float64), ground).round(2).tolist(), strict=True))
-            for which, p in (("inbetween", pos), ("mocap", true_pos))
-        },
+        "ground_slide_cm": {which: dict(zip(("left_foot", "right_foot"), cm, strict=True)) for which, cm in slides.items()},
         "bvh_fk_error_cm": bvh_fk_error_cm(paths["inbetween"], character, result.pose),
         "first_call_s": first_call_s,
         "second_call_s": second_call_s,

@@ -96,7 +96,8 @@ With ``--segments K`` (K > 1) ``windows`` is chains × K, ``curves`` also holds
 
     "segments": {"k": K, "chains": n, "frames_per_chain": 30·K + 1, "key_frames": […],
       "boundary_velocity_jump_cm_per_frame": {"coupled": {mean, p95, max, count}, "independent": {…},
-        "coupled_other_frames": {…}, "coupled_inner_control_frames": {…}, "mocap": {…}, "mocap_at_shared_keys": {…}, "ood": {"coupled", "independent"},
+        "coupled_other_frames": {…}, "coupled_inner_control_frames": {…}, "mocap": {…}, "mocap_at_shared_keys": {…},
+        "ood": {"coupled", "coupled_other_frames", "coupled_inner_control_frames", "independent"},
         "after_ik": {"<ik>": {"id", "ood"}}, "where": …},
       "metrics": {<how each figure is taken over a chain>}, "not_computed": {<figure>: why}}
 
@@ -350,12 +351,18 @@ def jumps_at_keys(positions: jax.Array, k: int) -> dict:
     return distribution_summary(chain_velocity_jumps(positions, k).at_shared_keys)
 
 
-def jumps_at_inner_controls(positions: jax.Array, k: int, layout: BezierLayout) -> dict:
-    """Velocity jump summary (cm/frame) of ``(chains, frames, 6, 3)`` at the control frames
-    inside each of the ``k`` windows (``layout``'s, keys excluded)."""
+def coupled_jumps(positions: jax.Array, k: int, layout: BezierLayout) -> dict:
+    """Velocity jump summaries (cm/frame) of coupled chains ``(chains, frames, 6, 3)``: at the
+    shared keys, at every other inner frame, and at the control frames inside each of the
+    ``k`` windows (``layout``'s, keys excluded: C¹ joins like the keys)."""
+    jumps = chain_velocity_jumps(positions, k)
     step = layout.num_frames - 1
     inner = np.concatenate([w * step + layout.control_frames[1:-1] for w in range(k)])
-    return distribution_summary(chain_velocity_jumps(positions, k).all_frames[..., inner - 1, :])
+    return {
+        "coupled": distribution_summary(jumps.at_shared_keys),
+        "coupled_other_frames": distribution_summary(jumps.other_frames),
+        "coupled_inner_control_frames": distribution_summary(jumps.all_frames[..., inner - 1, :]),
+    }
 
 
 CHAIN_METRICS = {
@@ -422,13 +429,9 @@ def main(argv: list[str] | None = None) -> dict:
             curve_windows.setdefault("bmm_independent", {})[cond] = window_curve_metrics(
                 config, independent.positions, items.metric_handles[cond], true_targets.position, independent.rot6d, true_targets.rot6d
             )
-            jumps[cond] = {
-                "coupled": jumps_at_keys(dense.positions, k), "independent": jumps_at_keys(independent.positions, k),
-                # the same curves between the keys: is a shared key rougher than the rest of the motion,
-                # and than the joins inside a window (C¹ too, so their acceleration jumps as well)?
-                "coupled_other_frames": distribution_summary(chain_velocity_jumps(dense.positions, k).other_frames),
-                "coupled_inner_control_frames": jumps_at_inner_controls(dense.positions, k, dataset.layout),
-            }  # fmt: skip
+            # The coupled curves between the keys too: is a shared key rougher than the rest of
+            # the motion, and than the joins inside a window?
+            jumps[cond] = {**coupled_jumps(dense.positions, k, dataset.layout), "independent": jumps_at_keys(independent.positions, k)}
             print(f"{cond}: velocity jump at the shared keys {jumps[cond]}", flush=True)
         for name, (fn, params) in iks.items():
             pose, timing = solve_items(args, fn, params, curves, truth, items.handles[cond])

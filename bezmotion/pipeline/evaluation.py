@@ -562,8 +562,8 @@ def window_pose_metrics(
     """Per-window figures of poses ``(windows, frames, …)`` after IK, for :func:`summarize_windows`:
     each handle's distance from the IK'd skeleton's joint (``handle_error``, ``handle_valid``),
     MPJPE, foot skating, key pop, per-frame joint turns (:func:`_turn_figures`), and (given
-    ``chains``) ``handle_unreachable``: the handle is farther from its chain's root *in the IK'd pose at that frame* than the chain's length
-    plus :data:`HANDLE_MISS_CM` (a hand beyond the arm's reach from the shoulder the IK
+    ``chains``) ``handle_unreachable``: the handle is farther from its chain's root *in the
+    IK'd pose at that frame* than the chain's length plus :data:`HANDLE_MISS_CM` (a hand beyond the arm's reach from the shoulder the IK
     chose; hips handles never). Such a handle is necessarily missed by more than
     :data:`HANDLE_MISS_CM`, so unreachable handles are a subset of the missed ones: the
     rest are misses the limb itself could have avoided. (The tolerance keeps handles at
