@@ -1,6 +1,6 @@
 """The ``bezmotion`` command line.
 
-    bezmotion demo [--out DIR] [--joint J --frame F --offset X Y Z] [--ik exact|refined|learned|rig] [--channels clip]
+    bezmotion demo [--out DIR] [--joint J --frame F --offset X Y Z] [--ik exact|refined|learned|rig] [--exact NAME=VALUE …] [--channels clip]
     bezmotion inbetween CLIP.bvh --frames 0 30 [--handle JOINT@FRAME=X,Y,Z …] [--out out.bvh|out.glb|DIR]
     bezmotion inbetween --start A.bvh@F --end B.bvh@G [--handles FILE] [--samples N] [--ik rig] [--mapping MAP.json]
     bezmotion models [--check | --write-manifest]   # the pretrained models: bundled or not, size, data, licence, retraining
@@ -22,7 +22,8 @@ from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.demo import demo
 from bezmotion.inbetween_command import InbetweenOptions, run_inbetween
 from bezmotion.options import add_options, option, options, options_from
-from bezmotion.pipeline.authoring import CHANNEL_CHOICES, FOOT_LOCK_HELP, IK_CHOICES
+from bezmotion.ik.exact import exact_settings
+from bezmotion.pipeline.authoring import CHANNEL_CHOICES, EXACT_HELP, FOOT_LOCK_HELP, IK_CHOICES
 
 
 @options
@@ -54,6 +55,7 @@ class DemoOptions:
         help="BVH channels: default (positions on the root and hips, rotations elsewhere) or clip (the clip's own layout)",
     )  # fmt: skip
     foot_lock: bool = option(True, help=FOOT_LOCK_HELP)
+    exact: tuple[str, ...] = option((), repeat=True, metavar="NAME=VALUE", help=EXACT_HELP)
 
 
 INBETWEEN_EXAMPLES = """examples:
@@ -102,7 +104,7 @@ def main(argv: list[str] | None = None) -> int:
             demo(
                 args.out, joint=args.joint, frame=args.frame, offset=tuple(args.offset), ik=args.ik, steps=args.steps,
                 seed=args.seed, bmm_dir=args.bmm, bmm_corpus=args.bmm_corpus, ik_dir=args.ik_model,
-                channels=args.channels, foot_lock=args.foot_lock,
+                channels=args.channels, foot_lock=args.foot_lock, exact_settings=exact_settings(args.exact),
             )  # fmt: skip
         elif parsed.command == "inbetween":
             run_inbetween(options_from(p_inbetween, InbetweenOptions, parsed))

@@ -18,7 +18,7 @@ from __future__ import annotations
 import functools
 import json
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -133,6 +133,7 @@ def demo(
     clip: Path = DEMO_CLIP,
     channels: str = "default",
     foot_lock: bool = True,
+    exact_settings: Mapping[str, float | int] | None = None,
 ) -> dict:
     """Run the demo; returns (and writes) its summary. See the module docstring.
 
@@ -156,6 +157,8 @@ def demo(
       foot_lock: hold each foot still while the BMM says it is planted
         (:func:`~bezmotion.bmm.foot_lock.lock_feet`; ours, not the paper's): on the demo the
         left foot slides 2.6 cm on the ground instead of 17.3 (the mocap 3.9; the summary's ``ground_slide_cm``).
+      exact_settings: :class:`~bezmotion.ik.exact.ExactIKParams` keywords of ``ik="exact"``
+        (``--exact NAME=VALUE``), e.g. ``{"plant_weight": 10.0}``.
     """
     if ik not in IK_CHOICES:
         raise ValueError(f"--ik must be one of {IK_CHOICES}, got {ik!r}")
@@ -183,7 +186,7 @@ def demo(
     # Joints the rig does not solve (clavicles, toes) keep the start pose's rotations.
     ik_fn, ik_params = make_ik(
         ik, recognised, rest_quat_local=np.asarray(truth.quat_local[0]), ik_model=None if ik_folder is None else load_ik_model(ik_folder),
-        limits=ik_model_joint_limits(ik_folder, character) if ik == "exact" else None,
+        limits=ik_model_joint_limits(ik_folder, character) if ik == "exact" else None, exact_settings=exact_settings,
     )  # fmt: skip
     _, true_pos = pose_fk(character, truth)
     j = CHARACTERISTIC_JOINTS.index(joint)
@@ -236,6 +239,7 @@ def demo(
         "steps": steps,
         "channels": channels,
         "foot_lock": foot_lock,
+        "exact": dict(exact_settings or {}),
         "curve_handle_error_cm": float(np.linalg.norm(np.asarray(result.positions[frame, j]) - handle_pos)),
         "full_body_handle_error_cm": float(full_body_handles_error(character, result.pose, handles, bmm.config.stride)),
         "joint_moved_cm": float(np.linalg.norm(np.asarray(pos[frame, character.characteristic[j]] - true_pos[frame, character.characteristic[j]]))),

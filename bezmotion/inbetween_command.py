@@ -60,6 +60,7 @@ import numpy as np
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, load_model
 from bezmotion.data.bvh import BvhMotion, read_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
+from bezmotion.ik.exact import exact_settings
 from bezmotion.ik.protocol import Pose, pose_fk
 from bezmotion.ik.protores import load_ik_model
 from bezmotion.io import atomic_write_text
@@ -67,6 +68,7 @@ from bezmotion.options import option, options
 from bezmotion.pipeline import inbetween, key_velocities, pose_to_bvh
 from bezmotion.pipeline.authoring import (
     CHANNEL_CHOICES,
+    EXACT_HELP,
     FOOT_LOCK_HELP,
     IK_CHOICES,
     RecognisedCharacter,
@@ -138,6 +140,7 @@ class InbetweenOptions:
         False, help="the curves leave and reach the keys at the clip's own velocities (from the frame before the start and the one after the end)"
     )
     foot_lock: bool = option(True, help=FOOT_LOCK_HELP)
+    exact: tuple[str, ...] = option((), repeat=True, metavar="NAME=VALUE", help=EXACT_HELP)
     no_preview: bool = option(False, help="with --out FOLDER: no preview.gif (drawing it takes a few seconds)")
     no_progress: bool = option(False, help="no progress lines on stderr")
 
@@ -450,6 +453,7 @@ def plan(args: InbetweenOptions) -> Plan:
             raise _error("--trained-on", trained_on, error) from None
         transfer = make_transfer(source, target_profile(recognised, [start_motion, end_motion]))
 
+    settings = exact_settings(args.exact)  # its errors name the item
     ik = args.ik
     ik_model = ik_folder = None
     if ik != "rig":
@@ -464,10 +468,15 @@ def plan(args: InbetweenOptions) -> Plan:
                 ik = "exact"
             except ValueError:
                 ik, ik_model = "rig", None
+    if settings and ik != "exact":
+        chose = f"--ik auto chose {ik} for this skeleton" if args.ik == "auto" else f"not of --ik {ik}"
+        raise ValueError(f"--exact {' '.join(args.exact)}: the settings of the exact IK, {chose}")
     try:
         # The exact IK's soft joint limits: those measured beside the learned IK, if any.
         limits = ik_model_joint_limits(ik_folder, character) if ik == "exact" else None
-        ik_fn, ik_params = make_ik(ik, recognised, rest_quat_local=np.asarray(start.quat_local), ik_model=ik_model, limits=limits)
+        ik_fn, ik_params = make_ik(
+            ik, recognised, rest_quat_local=np.asarray(start.quat_local), ik_model=ik_model, limits=limits, exact_settings=settings
+        )
     except ValueError as error:
         raise ValueError(f"--ik {ik}: the learned IK {args.ik_model} does not fit this skeleton: {error}") from None
 
@@ -548,6 +557,7 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
         "ik": p.ik,
         "steps": args.steps,
         "foot_lock": args.foot_lock,
+        "exact": exact_settings(args.exact),
         "seed": args.seed,
         "transfer": p.transfer is not None,
         "handles": p.handle_records,

@@ -31,7 +31,7 @@ def test_demo_runs_and_its_curves_pass_through_the_handle(demo_run):
     assert summary["curve_handle_error_cm"] == 0.0  # overwrite: the handle, bit for bit
     # The handle moves the right hand 25 cm above the mocap; the default IK (learned, then
     # the exact whole-body solve) puts the hand on it.
-    assert summary["ik"] == "exact" and summary["foot_lock"] is True  # the defaults
+    assert summary["ik"] == "exact" and summary["foot_lock"] is True and summary["exact"] == {}  # the defaults
     assert summary["joint_moved_cm"] > 20.0
     assert summary["full_body_handle_error_cm"] < 1e-2
     slide = summary["ground_slide_cm"]
@@ -120,6 +120,8 @@ def test_demo_prints_the_data_attribution(demo_run, capsys):
         (["--frame", "30"], "strictly between 0 and 30"),
         (["--steps", "0"], "--steps must be at least 1, got 0"),
         (["--bmm-corpus", "amass"], "--bmm-corpus must be one of"),
+        (["--exact", "nope=1"], "--exact nope=1: expected NAME=VALUE with NAME one of"),
+        (["--ik", "rig", "--exact", "plant_weight=10"], "--exact plant_weight=10.0: the settings of the exact IK, not of --ik rig"),
     ],
 )
 def test_demo_rejects_bad_arguments_with_a_clear_message(tmp_path, capsys, args, message):

@@ -102,7 +102,7 @@ def test_two_samples_are_two_different_motions(run):
     # a hundred times above rounding.
     assert np.abs(a - b).max() > 0.1  # cm
     assert [s["sample"] for s in summary["samples"]] == [0, 1]
-    assert summary["foot_lock"] is True  # the default
+    assert summary["foot_lock"] is True and summary["exact"] == {}  # the defaults
     assert sorted(p.name for p in out.iterdir()) == [
         "inbetween_0.bvh", "inbetween_0.glb", "inbetween_1.bvh", "inbetween_1.glb", "summary.json"
     ]  # fmt: skip
@@ -271,6 +271,9 @@ def _cases(tmp):
         "not a number": ([*keys, "--samples", "x"], "argument --samples: invalid int value: 'x'"),
         "unknown profile": ([*keys, "--trained-on", "amass"], "--trained-on amass: not a bundled profile"),
         "no keys": (["--handle", "head@12=+0,1,0"], "give the key poses"),
+        "unknown exact setting": ([*keys, "--ik", "exact", "--exact", "speed=3"], "--exact speed=3: expected NAME=VALUE with NAME one of"),
+        "exact setting not a number": ([*keys, "--ik", "exact", "--exact", "iterations=x"], "--exact iterations=x: 'x' is not a number"),
+        "exact settings for another IK": ([*keys, "--exact", "plant_weight=10"], "--exact plant_weight=10: the settings of the exact IK, not of --ik rig"),
         "key velocity before the clip": ([*keys, "--key-velocities"], f"--key-velocities: the start key is the first frame of {clip}"),
         "key velocity after the clip": (
             ["--start", f"{clip}@5", "--end", f"{clip}@39", "--key-velocities"], f"--key-velocities: the end key is the last frame (39) of {clip}@39"
@@ -333,3 +336,12 @@ def test_foot_lock_reaches_the_pipeline(flag, locked, tmp_path, monkeypatch):
     with pytest.raises(Called) as called:
         command.run_inbetween(args)
     assert called.value.args == (locked,)
+
+
+def test_exact_settings_reach_the_exact_ik(tmp_path):
+    """``--exact NAME=VALUE`` (repeatable) sets the exact IK's :class:`ExactIKParams`."""
+    argv = [str(DEMO_CLIP), "--frames", "0", "30", *FAST, "--ik", "exact", "--out", str(tmp_path / "x.bvh")]
+    p = plan(parse_options(InbetweenOptions, [*argv, "--exact", "plant_weight=10", "--exact", "iterations=3"]))
+    assert p.ik == "exact" and p.ik_params.plant_weight == 10.0 and p.ik_params.iterations == 3
+    default = plan(parse_options(InbetweenOptions, argv)).ik_params
+    assert default.plant_weight == 1.0 and default.iterations == 6

@@ -52,6 +52,13 @@ a least-squares solve of the whole body onto all six targets (:mod:`bezmotion.ik
 CHANNEL_CHOICES = ("default", "clip")
 """BVH channels: positions on the root and the hips only, or the clip's own layout."""
 
+EXACT_HELP = (
+    "an exact IK setting NAME=VALUE (ExactIKParams), repeatable: e.g. plant_weight=10 holds planted feet "
+    "harder, iterations=4 or window_passes=1 trades precision for speed"
+)
+"""The commands' ``--exact`` help (``bezmotion demo``, ``bezmotion inbetween``; parsed by
+:func:`~bezmotion.ik.exact.exact_settings`, as in ``experiments/pipeline_eval.py``)."""
+
 FOOT_LOCK_HELP = (
     "hold each foot still while the BMM predicts it planted (default; ours, not the paper's: "
     "--no-foot-lock for the paper's curves)"
@@ -293,6 +300,7 @@ def make_ik(
     rest_quat_local: np.ndarray | jax.Array,
     ik_model: ProtoResModel | None = None,
     limits: JointLimits | None = None,
+    exact_settings: Mapping[str, float | int] | None = None,
 ) -> tuple[IKFn, Any]:
     """``(ik_fn, ik_params)`` of an IK choice (:data:`IK_CHOICES`) for the clip's character.
 
@@ -304,9 +312,18 @@ def make_ik(
       ik_model: the learned IK (for ``"learned"``, ``"refined"`` and ``"exact"``), checked
         against the character (:func:`check_ik_model`).
       limits: joint limits for ``"exact"`` (:func:`ik_model_joint_limits`); default none.
+      exact_settings: :class:`~bezmotion.ik.exact.ExactIKParams` keywords for ``"exact"``
+        (:func:`~bezmotion.ik.exact.exact_settings` parses them from ``NAME=VALUE``); none
+        for the other IKs.
+    Raises:
+      ValueError: an unknown ``kind``, settings for an IK other than ``"exact"``, or a
+        learned IK that does not fit the character.
     """
     if kind not in IK_CHOICES:
         raise ValueError(f"must be one of {IK_CHOICES}, got {kind!r}")
+    if exact_settings and kind != "exact":
+        shown = " ".join(f"{k}={v}" for k, v in exact_settings.items())
+        raise ValueError(f"--exact {shown}: the settings of the exact IK, not of --ik {kind}")
     character = recognised.character
     if kind != "rig":
         if ik_model is None:
@@ -315,7 +332,7 @@ def make_ik(
         if kind == "learned":
             return protores_ik_fn, ik_model
         if kind == "exact":
-            return exact_ik(protores_ik_fn, ik_model, character, limits=limits)
+            return exact_ik(protores_ik_fn, ik_model, character, limits=limits, **dict(exact_settings or {}))
     rig = make_rig(character, recognised.rig_spec, rest_quat_local=np.asarray(rest_quat_local))
     return (rig_ik, rig) if kind == "rig" else (protores_refined_ik_fn, (ik_model, rig))
 
@@ -406,6 +423,7 @@ def write_result(path: str | os.PathLike, result: ResultFiles) -> None:
 
 __all__ = [
     "CHANNEL_CHOICES",
+    "EXACT_HELP",
     "FOOT_LOCK_HELP",
     "IK_CHOICES",
     "WRITERS",
