@@ -558,6 +558,7 @@ def window_pose_metrics(
     handles: Handles,
     chains: ReachChains | None = None,
     windows: int = 1,
+    curves: Float[Array, "windows frames 6 3"] | None = None,
 ) -> dict[str, np.ndarray]:
     """Per-window figures of poses ``(windows, frames, …)`` after IK, for :func:`summarize_windows`:
     each handle's distance from the IK'd skeleton's joint (``handle_error``, ``handle_valid``),
@@ -573,12 +574,18 @@ def window_pose_metrics(
     Chained segments: ``pose`` and ``truth`` ``(chains, frames, …)`` over the chains' joined
     frames, ``handles`` ``(chains, handles)`` at chain frames (:func:`chain_frame_handles`)
     and ``windows`` the windows per chain, whose key pop is the largest over every window's
-    first and last frame pair (every key, from both sides)."""
-    return _to_numpy(_pose_figures(config, character, pose, truth, handles, chains, windows))
+    first and last frame pair (every key, from both sides).
+
+    Given the ``curves`` the IK was given (the six joints' dense positions, cm), also how far
+    the IK'd six joints lie from them on every frame (``curve_error``: mean over frames and
+    joints; ``curve_error_max``): whether the whole body follows the curves, not only at the
+    handles. An IK that holds the frames next to a key near the key's pose misses the curves
+    there, and the body catches up with them in a jump a few frames later."""
+    return _to_numpy(_pose_figures(config, character, pose, truth, handles, chains, windows, curves))
 
 
 @functools.partial(jax.jit, static_argnames=("config", "windows"))
-def _pose_figures(config, character, pose, truth, handles, chains, windows) -> dict[str, Array]:
+def _pose_figures(config, character, pose, truth, handles, chains, windows, curves=None) -> dict[str, Array]:
     _, pos = pose_fk(character, pose)
     _, true_pos = pose_fk(character, truth)
     six = pos[..., np.asarray(character.characteristic), :]
@@ -591,6 +598,10 @@ def _pose_figures(config, character, pose, truth, handles, chains, windows) -> d
         "key_pop": _key_pop(pose.quat_local, windows),
         **_turn_figures(pose.quat_local),
     }
+    if curves is not None:
+        off = jnp.linalg.norm(six - curves, axis=-1)  # (windows, frames, 6)
+        out["curve_error"] = jnp.mean(off, axis=(-2, -1))
+        out["curve_error_max"] = jnp.max(off, axis=(-2, -1))
     if chains is not None:
         root = jnp.asarray(chains.root)[handles.joint]
         at_root = handles._replace(joint=jnp.maximum(root, 0))
@@ -686,6 +697,9 @@ def summarize_windows(per_window: Mapping[str, np.ndarray], select: np.ndarray |
     if "orientation" in w:
         out["orientation_error_deg"] = float(w["orientation"].mean())
         out["orientation_error_per_joint_deg"] = dict(zip(CHARACTERISTIC_JOINTS, map(float, w["orientation"].mean(axis=0))))
+    if "curve_error" in w:
+        out["curve_error_cm"] = float(w["curve_error"].mean())
+        out["curve_error_max_cm"] = float(w["curve_error_max"].max())
     if "mpjpe" in w:
         out["mpjpe_cm"] = float(w["mpjpe"].mean())
     if "skating" in w:

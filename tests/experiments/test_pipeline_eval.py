@@ -20,7 +20,10 @@ from bezmotion.bmm.evaluation import make_eval_set
 from bezmotion.data.bvh import read_bvh, write_bvh
 from helpers import assert_trees_identical, load_experiment
 
-METRICS = {"handles_error_cm", "handles_error_max_cm", "unreachable_fraction", "mpjpe_cm", "foot_skating_ratio", "key_pop_deg"}
+METRICS = {
+    "handles_error_cm", "handles_error_max_cm", "unreachable_fraction", "mpjpe_cm", "foot_skating_ratio", "key_pop_deg",
+    "curve_error_cm", "curve_error_max_cm",
+}  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -84,6 +87,7 @@ def test_every_ik_on_the_same_curves_and_windows_independent_of_their_count(expe
             assert METRICS | {"ik_ms_per_window", "handles_missed_fraction"} <= set(section[cond])
             assert section[cond]["unreachable_fraction"] <= section[cond]["handles_missed_fraction"]
             assert section[cond]["handles_error_cm"] <= section[cond]["handles_error_max_cm"]
+            assert 0.0 <= section[cond]["curve_error_cm"] <= section[cond]["curve_error_max_cm"]
     # The curves were sampled once per condition, and both IKs were given those very arrays.
     sampled, solved = recorded["sampled"], recorded["solved"]
     assert len(sampled) == 2 and len(solved) == 4

@@ -180,3 +180,24 @@ def test_key_velocities_from_the_clip_reach_the_curves_exactly(clip, bmm, evalua
     for w, s in zip(*np.nonzero(np.asarray(handles.valid))):
         got = np.asarray(given.positions)[w, int(handles.frame[w, s]), int(handles.joint[w, s])]
         np.testing.assert_allclose(got, np.asarray(handles.position)[w, s], atol=1e-3)
+
+
+def test_curve_error_is_how_far_the_six_joints_lie_from_their_curves(clip):
+    """``window_pose_metrics(..., curves=…)``: 0 on the pose's own six trajectories; moving one
+    joint's curve by 2 cm on one frame gives that as the largest, and 2 / (frames · 6) on average."""
+    from bezmotion.ik.protocol import pose_fk
+    from bezmotion.pipeline.evaluation import summarize_windows, window_pose_metrics
+
+    c = clip.character
+    pose = jax.tree.map(lambda x: jnp.stack([x[:FRAMES], x[5 : 5 + FRAMES]]), clip.pose)  # (2, 31, …)
+    six = np.asarray(pose_fk(c, pose)[1])[..., np.asarray(c.characteristic), :]
+    handles = Handles(jnp.zeros((2, 1), jnp.int32), jnp.zeros((2, 1), jnp.int32), jnp.zeros((2, 1, 3)), jnp.zeros((2, 1), bool))
+    config = PipelineMetricsConfig(STRIDE, 30.0, 0.0)
+    own = summarize_windows(window_pose_metrics(config, c, pose, pose, handles, curves=jnp.asarray(six)))
+    assert own["curve_error_cm"] < 1e-5 and own["curve_error_max_cm"] < 1e-4
+    moved = six.copy()
+    moved[1, 7, 3] += np.asarray([0.0, 2.0, 0.0], np.float32)  # the right hand of window 1, frame 7
+    w = window_pose_metrics(config, c, pose, pose, handles, curves=jnp.asarray(moved))
+    np.testing.assert_allclose(w["curve_error_max"], [0.0, 2.0], atol=1e-4)
+    np.testing.assert_allclose(w["curve_error"], [0.0, 2.0 / (FRAMES * 6)], atol=1e-5)
+    assert "curve_error" not in window_pose_metrics(config, c, pose, pose, handles)
