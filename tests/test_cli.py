@@ -36,6 +36,10 @@ def test_demo_runs_and_its_curves_pass_through_the_handle(demo_run):
     assert summary["full_body_handle_error_cm"] < 1e-2
     slide = summary["ground_slide_cm"]
     assert set(slide) == {"inbetween", "mocap"} and all(set(v) == {"left_foot", "right_foot"} for v in slide.values())
+    turns = summary["largest_turn_deg"]
+    assert set(turns) == {"inbetween", "mocap"} and all(0.0 < t["deg"] < 180.0 and 0 <= t["frames"][0] < 30 for t in turns.values())
+    off = summary["curve_error_max_cm"]
+    assert 0.0 <= off["cm"] < 50.0 and 0 <= off["frame"] <= 30
 
 
 def test_demo_bvh_reads_back_and_matches_the_pipeline(demo_run):
@@ -146,3 +150,17 @@ def test_ground_slide_counts_only_travel_near_the_ground():
     feet[4:, 1, 2] = 2.0
     feet[:, 1, 1] = 4.0
     np.testing.assert_allclose(ground_slide_cm(feet, np.zeros(2)), [2.0, 2.0])
+
+
+def test_largest_turn_names_the_joint_and_the_frames():
+    from bezmotion.demo import largest_turn
+    from bezmotion.ik.protocol import Character
+    from bezmotion.geometry.rotations import quat_from_axis_angle
+
+    character = Character.from_bvh(read_bvh(DEMO_CLIP), "bandai_namco")
+    quat = np.zeros((5, character.num_joints, 4), np.float32)
+    quat[..., 0] = 1.0
+    quat[3:, 7] = np.asarray(quat_from_axis_angle(np.asarray([0.0, 1.0, 0.0]), np.radians(30.0)))  # joint 7 turns 30° at 2 → 3
+    turn = largest_turn(character, quat)
+    assert turn["joint"] == character.skeleton.names[7] and turn["frames"] == [2, 3]
+    assert turn["deg"] == pytest.approx(30.0, abs=1e-3)
