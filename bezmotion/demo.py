@@ -23,7 +23,6 @@ from pathlib import Path
 from typing import Any
 
 import jax
-import jax.numpy as jnp
 import numpy as np
 
 from bezmotion.io import atomic_write_text, save_figure
@@ -31,9 +30,9 @@ from bezmotion.assets import DEMO_CLIP, DEMO_CLIP_ATTRIBUTION
 from bezmotion.data.bvh import read_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, FEET
 from bezmotion.ik.protocol import Character, Pose, pose_fk
-from bezmotion.metrics import rotation_change_deg
 from bezmotion.ik.protores import load_ik_model
 from bezmotion.pipeline import InbetweenResult, full_body_handles_error, inbetween, pose_to_bvh
+from bezmotion.pipeline.evaluation import curve_miss, largest_turn
 from bezmotion.pipeline.authoring import (
     CHANNEL_CHOICES,
     IK_CHOICES,
@@ -109,14 +108,6 @@ def _resolve(flag: str, name_or_path: str | Path, resolve: Callable[[str | Path]
         raise FileNotFoundError(f"{flag} {name_or_path}: {error}") from None
     except ValueError as error:
         raise ValueError(f"{flag} {name_or_path}: {error}") from None
-
-
-def largest_turn(character: Character, quat_local) -> dict[str, Any]:
-    """``{"deg", "joint", "frames"}``: the largest per-frame turn of any joint's local
-    rotation in ``quat_local`` ``(frames, joints, 4)``, that joint's name and the frame pair."""
-    change = np.asarray(rotation_change_deg(jnp.asarray(quat_local)))  # (frames - 1, joints)
-    frame, joint = np.unravel_index(int(change.argmax()), change.shape)
-    return {"deg": round(float(change[frame, joint]), 2), "joint": character.skeleton.names[joint], "frames": [int(frame), int(frame) + 1]}
 
 
 def ground_slide_cm(feet_pos: np.ndarray, ground: np.ndarray, *, height: float = 5.0) -> np.ndarray:
@@ -241,7 +232,6 @@ def demo(
     ground = np.asarray(true_pos)[:, feet, 1].min(axis=0)
     slides = {which: ground_slide_cm(np.asarray(p[:, feet], np.float64), ground).round(2).tolist() for which, p in (("inbetween", pos), ("mocap", true_pos))}
     turns = {which: largest_turn(character, q) for which, q in (("inbetween", result.pose.quat_local), ("mocap", truth.quat_local))}
-    off_curves = np.linalg.norm(np.asarray(pos)[:, np.asarray(character.characteristic)] - np.asarray(result.positions), axis=-1)
     summary = {
         "clip": clip.name,
         "frames": frames,
@@ -261,7 +251,7 @@ def demo(
         # catch-up shows here (the mocap's beside it).
         "largest_turn_deg": turns,
         # How far the IK'd six joints lie from their curves at worst, and at which frame.
-        "curve_error_max_cm": {"cm": round(float(off_curves.max()), 4), "frame": int(off_curves.max(axis=-1).argmax())},
+        "curve_error_max_cm": curve_miss(character, result.pose, result.positions),
         "bvh_fk_error_cm": bvh_fk_error_cm(paths["inbetween"], character, result.pose),
         "first_call_s": first_call_s,
         "second_call_s": second_call_s,

@@ -66,6 +66,7 @@ from bezmotion.ik.protores import load_ik_model
 from bezmotion.io import atomic_write_text
 from bezmotion.options import option, options
 from bezmotion.pipeline import inbetween, key_velocities, pose_to_bvh
+from bezmotion.pipeline.evaluation import curve_miss, largest_turn
 from bezmotion.pipeline.authoring import (
     CHANNEL_CHOICES,
     EXACT_HELP,
@@ -538,7 +539,13 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
             float(np.linalg.norm(pos[h["frame"], character.characteristic[CHARACTERISTIC_JOINTS.index(h["joint"])]] - np.asarray(h["position"])))
             for h in p.handle_records
         ]
-        entry: dict[str, Any] = {"sample": k, "seconds": seconds, "handle_errors_cm": errors, "files": {}}
+        entry: dict[str, Any] = {
+            "sample": k, "seconds": seconds, "handle_errors_cm": errors,
+            # Where the body jumps or leaves its curves (the demo reports the same).
+            "largest_turn_deg": largest_turn(character, result.pose.quat_local),
+            "curve_error_max_cm": curve_miss(character, result.pose, result.positions),
+            "files": {},
+        }  # fmt: skip
         for suffix, path in p.outputs[k].items():
             say(f"writing {path}")
             write_result(path, files)

@@ -153,7 +153,7 @@ def test_ground_slide_counts_only_travel_near_the_ground():
 
 
 def test_largest_turn_names_the_joint_and_the_frames():
-    from bezmotion.demo import largest_turn
+    from bezmotion.pipeline.evaluation import largest_turn
     from bezmotion.ik.protocol import Character
     from bezmotion.geometry.rotations import quat_from_axis_angle
 

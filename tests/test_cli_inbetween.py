@@ -103,6 +103,9 @@ def test_two_samples_are_two_different_motions(run):
     assert np.abs(a - b).max() > 0.1  # cm
     assert [s["sample"] for s in summary["samples"]] == [0, 1]
     assert summary["foot_lock"] is True and summary["exact"] == {}  # the defaults
+    for sample in summary["samples"]:  # where the body jumps or leaves its curves
+        assert set(sample["largest_turn_deg"]) == {"deg", "joint", "frames"} and sample["largest_turn_deg"]["deg"] > 0.0
+        assert sample["curve_error_max_cm"]["cm"] >= 0.0 and 0 <= sample["curve_error_max_cm"]["frame"] <= 30
     assert sorted(p.name for p in out.iterdir()) == [
         "inbetween_0.bvh", "inbetween_0.glb", "inbetween_1.bvh", "inbetween_1.glb", "summary.json"
     ]  # fmt: skip

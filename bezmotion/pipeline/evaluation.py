@@ -610,6 +610,24 @@ def _pose_figures(config, character, pose, truth, handles, chains, windows, curv
     return out
 
 
+def largest_turn(character: Character, quat_local: Float[Array | np.ndarray, "frames joints 4"]) -> dict[str, Any]:
+    """``{"deg", "joint", "frames"}`` for a summary: the largest per-frame turn of any joint's
+    local rotation in one motion ``(frames, joints, 4)``, that joint's name and the frame pair.
+    A pop at a key, or a jump where the body catches up with its curves, shows here."""
+    change = np.asarray(rotation_change_deg(jnp.asarray(quat_local)))  # (frames - 1, joints)
+    frame, joint = np.unravel_index(int(change.argmax()), change.shape)
+    return {"deg": round(float(change[frame, joint]), 2), "joint": character.skeleton.names[joint], "frames": [int(frame), int(frame) + 1]}
+
+
+def curve_miss(character: Character, pose: Pose, positions: Float[Array | np.ndarray, "frames 6 3"]) -> dict[str, Any]:
+    """``{"cm", "frame"}`` for a summary: how far one motion's six characteristic joints lie
+    from the curves they were given (``positions``, cm) at worst, and on which frame (the
+    per-window figures are :func:`window_pose_metrics`' ``curve_error``)."""
+    _, pos = pose_fk(character, pose)
+    off = np.linalg.norm(np.asarray(pos)[:, np.asarray(character.characteristic)] - np.asarray(positions), axis=-1)  # (frames, 6)
+    return {"cm": round(float(off.max()), 4), "frame": int(off.max(axis=-1).argmax())}
+
+
 def _angle_deg(rot6d_a: Array, rot6d_b: Array) -> Array:
     rel = quat_mul(quat_conjugate(quat_from_rot6d(rot6d_a)), quat_from_rot6d(rot6d_b))
     return jnp.degrees(2.0 * jnp.arctan2(jnp.linalg.norm(rel[..., 1:], axis=-1), jnp.abs(rel[..., 0])))

@@ -201,3 +201,9 @@ def test_curve_error_is_how_far_the_six_joints_lie_from_their_curves(clip):
     np.testing.assert_allclose(w["curve_error_max"], [0.0, 2.0], atol=1e-4)
     np.testing.assert_allclose(w["curve_error"], [0.0, 2.0 / (FRAMES * 6)], atol=1e-5)
     assert "curve_error" not in window_pose_metrics(config, c, pose, pose, handles)
+    # One motion's worst miss and its frame, for a summary.
+    from bezmotion.pipeline.evaluation import curve_miss
+
+    one = jax.tree.map(lambda x: x[1], pose)
+    assert curve_miss(c, one, jnp.asarray(six[1]))["cm"] < 1e-4
+    assert curve_miss(c, one, jnp.asarray(moved[1])) == {"cm": pytest.approx(2.0, abs=1e-3), "frame": 7}
