@@ -251,7 +251,7 @@ def demo(
         # catch-up shows here (the mocap's beside it).
         "largest_turn_deg": turns,
         # How far the IK'd six joints lie from their curves at worst, and at which frame.
-        "curve_error_max_cm": curve_miss(character, result.pose, result.positions),
+        "curve_error_max_cm": curve_miss(np.asarray(pos)[:, np.asarray(character.characteristic)], result.positions),
         "bvh_fk_error_cm": bvh_fk_error_cm(paths["inbetween"], character, result.pose),
         "first_call_s": first_call_s,
         "second_call_s": second_call_s,

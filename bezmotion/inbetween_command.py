@@ -543,7 +543,7 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
             "sample": k, "seconds": seconds, "handle_errors_cm": errors,
             # Where the body jumps or leaves its curves (the demo reports the same).
             "largest_turn_deg": largest_turn(character, result.pose.quat_local),
-            "curve_error_max_cm": curve_miss(character, result.pose, result.positions),
+            "curve_error_max_cm": curve_miss(pos[:, np.asarray(character.characteristic)], result.positions),
             "files": {},
         }  # fmt: skip
         for suffix, path in p.outputs[k].items():

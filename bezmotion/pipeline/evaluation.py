@@ -619,12 +619,13 @@ def largest_turn(character: Character, quat_local: Float[Array | np.ndarray, "fr
     return {"deg": round(float(change[frame, joint]), 2), "joint": character.skeleton.names[joint], "frames": [int(frame), int(frame) + 1]}
 
 
-def curve_miss(character: Character, pose: Pose, positions: Float[Array | np.ndarray, "frames 6 3"]) -> dict[str, Any]:
-    """``{"cm", "frame"}`` for a summary: how far one motion's six characteristic joints lie
-    from the curves they were given (``positions``, cm) at worst, and on which frame (the
-    per-window figures are :func:`window_pose_metrics`' ``curve_error``)."""
-    _, pos = pose_fk(character, pose)
-    off = np.linalg.norm(np.asarray(pos)[:, np.asarray(character.characteristic)] - np.asarray(positions), axis=-1)  # (frames, 6)
+def curve_miss(
+    joints: Float[Array | np.ndarray, "frames 6 3"], curves: Float[Array | np.ndarray, "frames 6 3"]
+) -> dict[str, Any]:
+    """``{"cm", "frame"}`` for a summary: how far one motion's six characteristic joints
+    (``joints``, cm, e.g. FK of the IK'd pose) lie from the curves they were given at worst,
+    and on which frame (the per-window figures are :func:`window_pose_metrics`' ``curve_error``)."""
+    off = np.linalg.norm(np.asarray(joints) - np.asarray(curves), axis=-1)  # (frames, 6)
     return {"cm": round(float(off.max()), 4), "frame": int(off.max(axis=-1).argmax())}
 
 
