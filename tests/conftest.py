@@ -117,3 +117,20 @@ def release_compiled_code():
     yield
     jax.clear_caches()
     gc.collect()
+
+
+# ------------------------------------------------------------------------ worker processes
+
+#: At most this many pytest-xdist workers (``-n auto``, pyproject's addopts): each holds
+#: ~2.5 GB while it compiles, and the suite is ~100 files, so more add memory, not speed.
+MAX_WORKERS = 4
+
+
+def pytest_xdist_auto_num_workers(config) -> int:
+    """``-n auto``: one worker per core this process may use, at most :data:`MAX_WORKERS`.
+
+    Each worker compiles on one core (XLA's CPU compiler is single-threaded per program),
+    so two cores halve the suite's time.
+    """
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    return max(1, min(cores, MAX_WORKERS))
