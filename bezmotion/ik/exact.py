@@ -49,7 +49,7 @@ through :func:`bezmotion.ik.protocol.solve_frames`, which also hands it
 
 - the **keys**: the start poses are joined to the key poses first
   (:func:`~bezmotion.ik.key_blend.blend_to_keys`) and the frames next to a key are held
-  near them (``key_hold_weight``, fading over the blend's frames). Where the curves next
+  near them (``key_hold_weight``, decaying by ``key_hold_decay`` a frame). Where the curves next
   to a key are hard to reach exactly, an unheld solve swings whole arms for the last
   centimetres and the joint turns tens of degrees in the frame after the key (a pop);
 - the **handles** (``IKTargets.pinned``): their position rows weigh ``handle_weight``
@@ -92,7 +92,7 @@ from bezmotion.geometry.rotations import (
     quat_normalize,
     safe_norm,
 )
-from bezmotion.ik.key_blend import blend_to_chain_keys, chain_key_blend_weights, key_chain
+from bezmotion.ik.key_blend import blend_to_chain_keys, key_chain, key_distances
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, pose_fk
 from bezmotion.linalg import cholesky_solve
 
@@ -290,17 +290,30 @@ class ExactIKParams:
       limit_weight: per radian beyond a joint's limits.
       key_hold_weight: with keys (:meth:`ExactIKFn.solve_window`), per radian of a joint's
         turn away from its start pose (the inner IK's, joined to the key) at the frame next
-        to a key, fading with the key blend's weights to 0 after ``key_blend_frames``: where
-        curves near a key are hard to reach exactly, the frames next to it stay near the
-        key instead of swinging every joint for the last centimetres (a pop); pinned
-        handles there still win (``position_weight · handle_weight`` per cm). A trade:
-        the held frames leave the curves, and the body catches up with them a few frames
-        later. On 100 Bandai-Namco windows (foot-locked curves, ``pipeline_eval.py
-        --foot-lock --exact key_hold_weight=…``), 10000 / 3000 / 1000 / 300 gave key pop
-        13.7 / 18.9 / 26.2 / 34.6° (the mocap's 26.2°), the six joints off their curves by
-        0.21 / 0.13 / 0.08 / 0.06 cm on average, foot skating 0.080 / 0.072 / 0.070 /
-        0.071; on the demo, the forearm's largest turn in a frame 28° / 20° / 14° / 14°
-        as it caught up near the end key. 3000 keeps the key pop well under the mocap's.
+        to a key (``key_hold_decay`` sets how it fades with the distance): where curves
+        near a key are hard to reach exactly, the frames next to it stay near the key
+        instead of swinging every joint for the last centimetres (a pop); pinned handles
+        there still win (``position_weight · handle_weight`` per cm). A trade: the held
+        frames leave the curves, and the body catches up with them later. On 100
+        Bandai-Namco windows (foot-locked curves, ``pipeline_eval.py --foot-lock --exact
+        key_hold_weight=…``, with the earlier fade: the key blend's cosine over 6 frames),
+        10000 / 3000 / 1000 / 300 gave key pop 13.7 / 18.9 / 26.2 / 34.6° (the mocap's
+        26.2°), the six joints off their curves by 0.21 / 0.13 / 0.08 / 0.06 cm on
+        average, foot skating 0.080 / 0.072 / 0.070 / 0.071; on the demo, the forearm's
+        largest turn in a frame 28° / 20° / 14° / 14° as it caught up near the end key.
+        3000 keeps the key pop well under the mocap's.
+      key_hold_decay: the hold ``d`` frames from the nearest key is ``key_hold_weight ·
+        key_hold_decay^(d − 1)``. A hold that ends within a few frames (the earlier cosine
+        fade over the key blend's 6 frames) releases the body where the curves have moved
+        on, and it catches up in one or two frames (the demo's forearm: 20° in one frame);
+        a slow decay spreads the catch-up, and far from the keys it pulls towards the
+        smoothed inner IK's pose more than ``prior_weight`` does. On the same 100 windows,
+        against the cosine fade: 0.6 / 0.75 / 0.85 gave the largest turn in one frame
+        40 / 66 / 31° in distribution (cosine 42°, the mocap's 32°) and 118 / 119 / 60°
+        OOD (cosine 160°), foot skating 0.070 / 0.070 / 0.069 and 0.099 OOD for all three
+        (cosine 0.072 / 0.101), MPJPE 3.007 / 2.993 / 2.965 cm (cosine 2.999), the six
+        joints off their curves by 0.12 / 0.17 / 0.27 cm (cosine 0.13), and on the demo
+        16 / 16 / 14° (these with the frame next to a key at the cosine's 0.93 × 3000).
       max_turn: the trust region, rad: the most any joint turns in one step; it shrinks
         4× after a refused step and grows back 2× after a taken one. Each step tries it two
         ways (the whole step shortened, and each joint clipped) and keeps the better. Long
@@ -324,6 +337,7 @@ class ExactIKParams:
     hips_position_scale: Float[Array, ""] | float = 1.0
     handle_weight: Float[Array, ""] | float = 10.0
     key_hold_weight: Float[Array, ""] | float = 3000.0
+    key_hold_decay: Float[Array, ""] | float = 0.85
     plant_weight: Float[Array, ""] | float = 1.0
     plant_step: Float[Array, ""] | float = 0.25
     max_turn: Float[Array, ""] | float = 1.0
@@ -725,8 +739,9 @@ class ExactIKFn:
         hold = jnp.zeros(pose.root_pos.shape[0], pose.root_pos.dtype)
         if keys is not None:
             keys = key_chain(keys)  # (start, end), or a chain's keys
-            weights = chain_key_blend_weights(hold.shape[0], keys.root_pos.shape[0] - 1, key_blend_frames)
-            hold = params.key_hold_weight * jnp.asarray(weights, hold.dtype)
+            distance = key_distances(hold.shape[0], keys.root_pos.shape[0] - 1)  # raises for a non-chain
+            decay = jnp.asarray(params.key_hold_decay, hold.dtype) ** jnp.asarray(np.maximum(distance - 1, 0), hold.dtype)
+            hold = params.key_hold_weight * decay
         planted = planted_feet(targets.position, params.plant_step)
         for _ in range(params.window_passes):
             start = _smooth(pose, params.smoothing)

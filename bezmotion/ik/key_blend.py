@@ -85,16 +85,16 @@ def key_chain(keys: tuple[Pose, Pose] | Pose) -> Pose:
     return keys
 
 
-def chain_key_blend_weights(num_frames: int, num_windows: int, frames: int) -> np.ndarray:
-    """``(num_frames,)``: each frame's share of its nearest key's correction in a chain of
-    ``num_windows`` equal windows (the larger of :func:`key_blend_weights`' two, per window).
+def key_distances(num_frames: int, num_windows: int) -> np.ndarray:
+    """``(num_frames,)``: how many frames each frame lies from the nearest key of a chain of
+    ``num_windows`` equal windows (0 at the keys).
 
     Raises:
       ValueError: ``num_frames`` is not a chain of ``num_windows`` equal windows.
     """
     window_frames = split_windows(jnp.zeros(num_frames), num_windows).shape[1]  # raises for a non-chain
-    weights = np.maximum(*key_blend_weights(window_frames, frames))
-    return np.concatenate([np.tile(weights[:-1], num_windows), weights[-1:]])
+    into = np.arange(num_frames) % (window_frames - 1)
+    return np.minimum(into, window_frames - 1 - into)
 
 
 def blend_to_chain_keys(pose: Pose, keys: tuple[Pose, Pose] | Pose, frames: int) -> Pose:

@@ -261,6 +261,13 @@ def test_window_solve_joins_the_keys_and_holds_their_neighbours(bandai):
     assert turns[0] > turns[1] > turns[2] and turns[2] < 0.5 * turns[0], turns
     assert float(hard.position_error[1, 3]) > 5.0  # held hard, it stays near the key
 
+    # key_hold_decay: the hold d frames from the key is key_hold_weight · decay^(d − 1). The
+    # same jump two frames after the key: no decay holds only frame 1, so frame 2 reaches
+    # it; a slow one holds frame 2 nearly as hard as frame 1 (a traced weight: no recompile).
+    later = targets._replace(position=targets.position.at[1, 3].add(jnp.asarray([0.0, -20.0, 0.0])).at[2, 3].add(jnp.asarray([0.0, 20.0, 0.0])))
+    errors = [float(solve(dataclasses.replace(params, key_hold_weight=1e5, key_hold_decay=d), later).position_error[2, 3]) for d in (0.0, 0.9)]
+    assert errors[0] < 0.01 < 5.0 < errors[1], errors
+
 
 def test_planted_feet_marks_still_foot_targets_only():
     """A foot target moving less than ``plant_step`` cm to the next frame is planted (the last

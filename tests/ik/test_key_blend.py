@@ -9,7 +9,7 @@ import pytest
 from bezmotion.geometry.rotations import quat_from_axis_angle
 from bezmotion.ik.protocol import Pose
 from bezmotion.metrics import key_pop_deg, rotation_change_deg
-from bezmotion.ik.key_blend import blend_to_chain_keys, blend_to_keys, chain_key_blend_weights, key_blend_weights
+from bezmotion.ik.key_blend import blend_to_chain_keys, blend_to_keys, key_blend_weights, key_distances
 
 
 def _about_y(degrees: np.ndarray) -> jnp.ndarray:
@@ -64,9 +64,10 @@ def test_chain_blend_joins_every_window_to_its_own_keys():
     np.testing.assert_allclose(np.asarray(chain.quat_local[30:61]), np.asarray(middle.quat_local), atol=1e-6)
     one = blend_to_chain_keys(Pose(ik.root_pos[:31], ik.quat_local[:31]), (key(0), key(1)), 6)
     np.testing.assert_allclose(np.asarray(one.quat_local), np.asarray(chain.quat_local[:31]), atol=1e-6)
-    weights = chain_key_blend_weights(frames, windows, 6)
-    assert weights.shape == (frames,) and weights[[0, 30, 60, 90]].tolist() == [1.0] * 4 and weights[6:25].max() == 0.0
+    distance = key_distances(frames, windows)  # the exact IK's key hold decays with it
+    assert distance.shape == (frames,) and distance[[0, 30, 60, 90]].tolist() == [0] * 4
+    assert distance[[1, 29, 31, 44, 45, 46, 89]].tolist() == [1, 1, 1, 14, 15, 14, 1]
     with pytest.raises(ValueError, match="not a chain of 4 windows"):
         blend_to_chain_keys(ik, Pose(jnp.zeros((5, 3)), jnp.zeros((5, 2, 4))), 6)
     with pytest.raises(ValueError, match="91 frames are not a chain of 4 windows"):
-        chain_key_blend_weights(frames, 4, 6)
+        key_distances(frames, 4)
