@@ -59,13 +59,14 @@ through :func:`bezmotion.ik.protocol.solve_frames`, which also hands it
   hips' translation (see ``_levenberg_marquardt``).
 
 Bandai-Namco validation, 100 windows, bundled models (``python experiments/pipeline_eval.py
---windows 100``): handles 0.003 cm in distribution and 0.37 cm OOD (0.017 / 0.64 with
+--windows 100``): handles 0.007 cm in distribution and 0.35 cm OOD (0.017 / 0.64 with
 ``prior_weight=1`` and one window pass, which also jittered; 0.121 / 2.46 with one
 trust-region factor for the whole step and absolute damping; 0.220 / 4.02 before the
-handle weights, the key hold and ``max_turn``), key pop 18.9° (41.6° without the key hold,
+handle weights, the key hold and ``max_turn``), key pop 18.4° (41.6° without the key hold,
 13.7° with a hold of 10000 that kept the body up to centimetres off the curves next to the
-keys; the mocap's own 26.2°), the most-turning joint 6.5° per frame on average (the mocap's
-7.1°), foot skating 0.140, MPJPE 3.15 cm, the six joints 0.12 cm off their curves on average.
+keys; the mocap's own 26.2°), the most-turning joint 5.4° per frame on average and 31° at
+most (the mocap's 7.1° and 32°; 6.5° and 42° with the key hold's earlier cosine fade), foot
+skating 0.140, MPJPE 3.12 cm, the six joints 0.28 cm off their curves on average.
 """
 
 from __future__ import annotations
