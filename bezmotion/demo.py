@@ -157,7 +157,7 @@ def demo(
         carry the clip's OFFSETs and End Sites and its whole frame rate.
       foot_lock: hold each foot still while the BMM says it is planted
         (:func:`~bezmotion.bmm.foot_lock.lock_feet`; ours, not the paper's): on the demo the
-        left foot slides 2.4 cm on the ground instead of 18.0 (the mocap 3.9; the summary's ``ground_slide_cm``).
+        left foot slides 2.6 cm on the ground instead of 17.3 (the mocap 3.9; the summary's ``ground_slide_cm``).
       exact_settings: :class:`~bezmotion.ik.exact.ExactIKParams` keywords of ``ik="exact"``
         (``--exact NAME=VALUE``), e.g. ``{"plant_weight": 10.0}``.
     """

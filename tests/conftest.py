@@ -122,7 +122,7 @@ def release_compiled_code():
 # ------------------------------------------------------------------------ worker processes
 
 #: At most this many pytest-xdist workers (``-n auto``, pyproject's addopts): each holds
-#: ~2.5 GB while it compiles, and the suite is ~100 files, so more add memory, not speed.
+#: ~2.5 GB while it compiles, so a many-core machine would otherwise need tens of GB.
 MAX_WORKERS = 4
 
 

@@ -13,7 +13,10 @@ from bezmotion.assets import DEMO_CLIP
 from bezmotion.cli import main
 from bezmotion.data.bvh import read_bvh
 from bezmotion.demo import demo
+from bezmotion.geometry.rotations import quat_from_axis_angle
+from bezmotion.ik.protocol import Character
 from bezmotion.io import _umask
+from bezmotion.pipeline.evaluation import largest_turn
 
 
 @pytest.fixture(scope="module")
@@ -153,10 +156,6 @@ def test_ground_slide_counts_only_travel_near_the_ground():
 
 
 def test_largest_turn_names_the_joint_and_the_frames():
-    from bezmotion.pipeline.evaluation import largest_turn
-    from bezmotion.ik.protocol import Character
-    from bezmotion.geometry.rotations import quat_from_axis_angle
-
     character = Character.from_bvh(read_bvh(DEMO_CLIP), "bandai_namco")
     quat = np.zeros((5, character.num_joints, 4), np.float32)
     quat[..., 0] = 1.0

@@ -23,6 +23,7 @@ from bezmotion.pipeline.evaluation import (
     PipelineMetricsConfig,
     chain_frame_handles,
     chain_rows,
+    curve_miss,
     evaluate_pipeline,
     ground_truth_pose_metrics,
     pose_metrics,
@@ -202,7 +203,5 @@ def test_curve_error_is_how_far_the_six_joints_lie_from_their_curves(clip):
     np.testing.assert_allclose(w["curve_error"], [0.0, 2.0 / (FRAMES * 6)], atol=1e-5)
     assert "curve_error" not in window_pose_metrics(config, c, pose, pose, handles)
     # One motion's worst miss and its frame, for a summary.
-    from bezmotion.pipeline.evaluation import curve_miss
-
     assert curve_miss(six[1], six[1])["cm"] == 0.0
     assert curve_miss(six[1], moved[1]) == {"cm": pytest.approx(2.0, abs=1e-3), "frame": 7}
