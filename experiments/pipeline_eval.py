@@ -81,6 +81,10 @@ JSON); ``--segments 1`` (the default) is the single-window evaluation.
 ``handles_error_cm`` (≈ 0: the curves pass through every handle), ``dense_error_cm`` and
 per joint, ``foot_skating_ratio``, and for the BMM the orientation error (degrees between
 the curves' and the mocap's global orientation of each joint, mean and per joint).
+Every mean over windows (``dense_error_cm``, ``curve_error_cm``, ``mpjpe_cm``,
+``foot_skating_ratio``) has its standard error over the windows beside it (``…_se``;
+:func:`~bezmotion.pipeline.evaluation.standard_error`), so two runs can be told apart from
+the windows' own spread: the report prints them as ``mean ± se``.
 ``mocap``: the mocap's own foot skating, key pop and largest per-frame rotation change.
 ``labels``: the same figures per content / action label (Bandai-Namco ``content``; LaFAN1
 the file's sequence without its number, ``walk4`` → ``walk``; a folder, the file stem
@@ -503,6 +507,12 @@ def format_report(r: dict) -> str:
     s = r["settings"]
     m = r["mocap"]
     seg = r.get("segments")
+
+    def pm(x: dict, key: str, digits: int) -> str:
+        """``x[key]`` ± its standard error over the windows (where the summary has one)."""
+        se = x.get(f"{key}_se")
+        return f"{x[key]:.{digits}f}" + ("" if se is None else f" ± {se:.{digits}f}")
+
     per, items = ("window", f"{r['windows']} windows") if seg is None else ("chain", f"{seg['chains']} chains of {seg['k']} windows")
     lines = [
         f"Pipeline on {r['source']}: {items}, handles on {s['handle_frames']} frames, {s['steps']} DDIM steps, "
@@ -540,7 +550,7 @@ def format_report(r: dict) -> str:
         lines.append(
             f"| {name} | {i['handles_error_cm']:.4f} | {o['handles_error_cm']:.4f} | {i['handles_error_max_cm']:.2f} / {o['handles_error_max_cm']:.2f} | "
             f"{i['unreachable_fraction']:.3f} / {o['unreachable_fraction']:.3f} | {i['curve_error_cm']:.3f} / {i['curve_error_max_cm']:.2f} | "
-            f"{i['mpjpe_cm']:.3f} | {i['foot_skating_ratio']:.4f} | "
+            f"{pm(i, 'mpjpe_cm', 3)} | {pm(i, 'foot_skating_ratio', 4)} | "
             f"{i['key_pop_deg']:.2f} / {o['key_pop_deg']:.2f} | {i['rotation_change_deg']:.2f} / {i['max_rotation_change_deg']:.1f} | "
             f"{i[f'ik_ms_per_{per}']:.1f} | {x['compile_s']:.1f} |"
         )
@@ -555,8 +565,8 @@ def format_report(r: dict) -> str:
         i, o = c["id"], c["ood"]
         orientation = f"{i['orientation_error_deg']:.2f} / {o['orientation_error_deg']:.2f}" if "orientation_error_deg" in i else "–"
         lines.append(
-            f"| {kind} | {i['handles_error_cm']:.4f} / {o['handles_error_cm']:.4f} | {i['dense_error_cm']:.3f} / {o['dense_error_cm']:.3f} | "
-            f"{i['foot_skating_ratio']:.4f} / {o['foot_skating_ratio']:.4f} | {orientation} |"
+            f"| {kind} | {i['handles_error_cm']:.4f} / {o['handles_error_cm']:.4f} | {pm(i, 'dense_error_cm', 3)} / {pm(o, 'dense_error_cm', 3)} | "
+            f"{pm(i, 'foot_skating_ratio', 4)} / {pm(o, 'foot_skating_ratio', 4)} | {orientation} |"
         )
     first_ik = next(iter(r["ik"]))
     lines += [

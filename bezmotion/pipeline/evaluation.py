@@ -695,10 +695,23 @@ def _turn_figures(quat_local: Array) -> dict[str, Array]:
     return {"max_rotation_change": jnp.max(change, axis=-1), "rotation_change": jnp.mean(change, axis=-1)}
 
 
+def standard_error(values: np.ndarray) -> float | None:
+    """The standard error of the mean of per-window ``values`` ``(windows, …)`` (each window's
+    mean over the other axes is one sample): ``std / √n``, None for fewer than 2 windows.
+    Two runs whose means differ by less than about twice their standard errors are not told
+    apart by the windows drawn."""
+    per_window = np.asarray(values, np.float64).reshape(len(values), -1).mean(axis=-1)
+    if per_window.size < 2:
+        return None
+    return float(per_window.std(ddof=1) / np.sqrt(per_window.size))
+
+
 def summarize_windows(per_window: Mapping[str, np.ndarray], select: np.ndarray | None = None) -> dict[str, Any]:
     """Aggregate per-window figures (of ``window_*_metrics``) over all windows or the ``select``
     ones (a boolean mask or indices). Means over valid handles / windows; maxima for the
-    largest handle error, key pop and rotation change; per joint by role name."""
+    largest handle error, key pop and rotation change; per joint by role name. The means over
+    windows (dense error, curve error, MPJPE, skating) come with their standard error over the
+    windows (``…_se``: :func:`standard_error`)."""
     pick = (lambda a: a) if select is None else (lambda a: np.asarray(a)[select])  # noqa: E731
     w = {k: pick(v) for k, v in per_window.items()}
     out: dict[str, Any] = {}
@@ -712,17 +725,21 @@ def summarize_windows(per_window: Mapping[str, np.ndarray], select: np.ndarray |
             out["unreachable_fraction"] = float(w["handle_unreachable"][valid].mean()) if error.size else 0.0
     if "dense" in w:
         out["dense_error_cm"] = float(w["dense"].mean())
+        out["dense_error_cm_se"] = standard_error(w["dense"])
         out["dense_error_per_joint_cm"] = dict(zip(CHARACTERISTIC_JOINTS, map(float, w["dense"].mean(axis=0))))
     if "orientation" in w:
         out["orientation_error_deg"] = float(w["orientation"].mean())
         out["orientation_error_per_joint_deg"] = dict(zip(CHARACTERISTIC_JOINTS, map(float, w["orientation"].mean(axis=0))))
     if "curve_error" in w:
         out["curve_error_cm"] = float(w["curve_error"].mean())
+        out["curve_error_cm_se"] = standard_error(w["curve_error"])
         out["curve_error_max_cm"] = float(w["curve_error_max"].max())
     if "mpjpe" in w:
         out["mpjpe_cm"] = float(w["mpjpe"].mean())
+        out["mpjpe_cm_se"] = standard_error(w["mpjpe"])
     if "skating" in w:
         out["foot_skating_ratio"] = float(w["skating"].mean())
+        out["foot_skating_ratio_se"] = standard_error(w["skating"])
     for key, name in (("key_pop", "key_pop_deg"), ("max_rotation_change", "max_rotation_change_deg")):
         if key in w:
             out[name] = float(w[key].max())

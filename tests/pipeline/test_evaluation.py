@@ -205,3 +205,18 @@ def test_curve_error_is_how_far_the_six_joints_lie_from_their_curves(clip):
     # One motion's worst miss and its frame, for a summary.
     assert curve_miss(six[1], six[1])["cm"] == 0.0
     assert curve_miss(six[1], moved[1]) == {"cm": pytest.approx(2.0, abs=1e-3), "frame": 7}
+
+
+def test_summaries_give_each_mean_over_windows_its_standard_error():
+    """``summarize_windows``: ``…_se`` is the windows' sample standard deviation over √n (a
+    window with several values, e.g. dense error per joint, counts once, by its mean), and
+    None for one window."""
+    from bezmotion.pipeline.evaluation import standard_error, summarize_windows
+
+    skating = np.asarray([0.0, 0.1, 0.2, 0.5])
+    dense = np.asarray([[1.0, 3.0], [2.0, 2.0], [4.0, 6.0], [0.0, 2.0]])  # (windows, joints): means 2, 2, 5, 1
+    out = summarize_windows({"skating": skating, "dense": dense})
+    assert out["foot_skating_ratio_se"] == pytest.approx(np.std(skating, ddof=1) / 2.0)
+    assert out["dense_error_cm_se"] == pytest.approx(np.std([2.0, 2.0, 5.0, 1.0], ddof=1) / 2.0)
+    assert summarize_windows({"skating": skating}, np.asarray([True, False, False, False]))["foot_skating_ratio_se"] is None
+    assert standard_error(np.full(9, 0.3)) == 0.0
