@@ -9,6 +9,12 @@ milliseconds per window separately, one window (latency) and ``--batch`` windows
 
     python benchmarks/ik_exact.py --repeats 20 --out ik_exact.json
     python benchmarks/ik_exact.py --repeats 20 --exact window_passes=1 --out ik_exact_one_pass.json   # half the solves
+    XLA_FLAGS=--xla_force_host_platform_device_count=2 python benchmarks/ik_exact.py --repeats 20 --out ik_exact_2dev.json
+
+XLA runs one CPU computation on one core (the solve's operations are too small for its
+intra-op threads). With several JAX devices (on a CPU: ``XLA_FLAGS`` as above, one per
+core), the ``--batch`` windows are split over them (a 1-D mesh over the batch axis), so
+the throughput figure uses every core; the one-window figure stays on one device.
 """
 
 from __future__ import annotations
@@ -47,6 +53,15 @@ def main(argv: list[str] | None = None) -> dict:
     targets = targets_from_pose(character, truth)
     targets = targets._replace(position=targets.position.at[12:18, 3, 1].add(15.0))
     batch = jax.tree.map(lambda x: jnp.broadcast_to(x, (args.batch, *x.shape)), targets)
+    devices = jax.device_count()
+    if devices > 1:
+        if args.batch % devices:
+            raise SystemExit(f"--batch {args.batch}: must be a multiple of the {devices} devices")
+        mesh = jax.make_mesh((devices,), ("windows",), axis_types=(jax.sharding.AxisType.Auto,))
+        batch = jax.device_put(batch, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("windows")))
+        on_batch_devices = lambda p: jax.device_put(p, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()))  # noqa: E731
+    else:
+        on_batch_devices = lambda p: p  # noqa: E731
     model = load_ik_model(BUNDLED_IK)
     rig = make_rig(character, "bandai_namco", rest_quat_local=np.asarray(truth.quat_local[0]))
     limits = JointLimits.load(BUNDLED_IK / "joint_limits.json", character)
@@ -59,7 +74,7 @@ def main(argv: list[str] | None = None) -> dict:
         exact_fn, exact_params = exact_ik(fn, params, character, limits=limits, **settings)
         for label, f, p in ((name, alone, params), (f"exact on {name}", exact_fn.solve_window, exact_params)):
             one = time_jitted(f, (p, targets), repeats=args.repeats, compiler_options=options_)
-            many = time_jitted(jax.vmap(f, in_axes=(None, 0)), (p, batch), repeats=max(3, args.repeats // 4), compiler_options=options_)
+            many = time_jitted(jax.vmap(f, in_axes=(None, 0)), (on_batch_devices(p), batch), repeats=max(3, args.repeats // 4), compiler_options=options_)
             rows[label] = {
                 "compile_s": one["lower_s"] + one["compile_s"],
                 "ms_per_window": 1e3 * one["steady_s"],
@@ -70,7 +85,7 @@ def main(argv: list[str] | None = None) -> dict:
             }
             print(f"{label}: compile {rows[label]['compile_s']:.1f} s, {rows[label]['ms_per_window']:.2f} ms/window "
                   f"(min {rows[label]['ms_per_window_min']:.2f}), batched {rows[label][f'ms_per_window_batched_{args.batch}']:.2f}", flush=True)  # fmt: skip
-    result = {"benchmark": "ik_exact", "frames": 31, "batch": args.batch, "settings": settings, "rows": rows, "machine": machine_info()}
+    result = {"benchmark": "ik_exact", "frames": 31, "batch": args.batch, "batch_devices": devices, "settings": settings, "rows": rows, "machine": machine_info()}
     summary = {k: {m: v for m, v in r.items() if m not in ("single", "batched")} for k, r in rows.items()}
     return report(result, summary, args.out)
 
