@@ -46,7 +46,10 @@ independently (BMM Appendix D.1, same noise) for the velocity jump at the shared
 (:func:`~bezmotion.metrics.chain_velocity_jumps`, six joints, cm/frame), beside the mocap's
 own frame-to-frame change over the same chains (as ``experiments/chained_segments.py``).
 Every metric below is then taken over the chains' frames (see ``segments.metrics`` in the
-JSON); ``--segments 1`` (the default) is the single-window evaluation.
+JSON); ``--segments 1`` (the default) is the single-window evaluation. ``--key-velocities``
+gives the curves the mocap's velocities at the keys (windows: frames 0→1 and 29→30; chains:
+:func:`~bezmotion.pipeline.inbetweening.chain_key_velocities`, the central difference at a
+shared key, which both its windows take).
 
 **Metrics.** Per IK, in distribution (``id``) and OOD (``ood``):
 
@@ -184,7 +187,9 @@ class Options:
     segments: int = option(1, help="windows per evaluated chain, keys 30 frames apart (1: single windows)")
     steps: int = option(10, help="DDIM steps")
     key_velocities: bool = option(
-        False, help="give the curves the keys' velocities too (from the clip: frames 0→1 and 29→30; single windows only)"
+        False,
+        help="give the curves the keys' velocities too, from the clip (windows: frames 0→1 and 29→30; chains: "
+        "the central difference at a shared key)",
     )
     foot_lock: bool = option(
         False, help="lock the curves' feet on their predicted contacts before any IK (sample_curves(foot_lock=True))"
@@ -203,8 +208,6 @@ class Options:
             raise ValueError("--windows must be ≥ 0, --chunk and --steps ≥ 1")
         if self.segments < 1:
             raise ValueError(f"--segments {self.segments}: must be ≥ 1 (windows per chain; 1 = single windows)")
-        if self.key_velocities and self.segments > 1:
-            raise ValueError(f"--key-velocities is for single windows, not --segments {self.segments}")
         exact_settings(self.exact)  # raises on a malformed or unknown setting
 
 
@@ -323,6 +326,7 @@ def sample_items(args: Options, bmm, character, items: Items, cond: str, keys: j
     return sample_chain_curves(
         bmm, character, items.truth, items.handles[cond], keys,
         coupled=coupled, steps=args.steps, chunk=chain_chunk(args), foot_lock=args.foot_lock,
+        with_key_velocities=args.key_velocities,
     )  # fmt: skip
 
 

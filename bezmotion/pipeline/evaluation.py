@@ -41,6 +41,7 @@ from bezmotion.pipeline.inbetweening import (
     KEY_BLEND_FRAMES,
     WindowCurves,
     chain_curves_traced,
+    chain_key_velocities,
     inbetween_traced,
     key_velocities,
     pose_from_chain_curves,
@@ -408,11 +409,11 @@ def chain_frame_handles(handles: Handles, window_frames: int) -> Handles:
 
 @functools.partial(jax.jit, static_argnames=("steps", "foot_lock", "coupled", "key_orientations"))
 def _chain_curves_chunk(bmm, character, transfer, inputs, *, steps, foot_lock, coupled, key_orientations) -> WindowCurves:
-    keys, handles, rng = inputs
+    keys, handles, rng, velocity = inputs
     one = functools.partial(
         chain_curves_traced, steps=steps, guidance=1.0, foot_lock=foot_lock, coupled=coupled, key_orientations=key_orientations
     )
-    return jax.vmap(lambda k, h, r: one(bmm, character, k, h, transfer, r))(keys, handles, rng)
+    return jax.vmap(lambda k, h, r, v: one(bmm, character, k, h, transfer, r, key_velocity=v))(keys, handles, rng, velocity)
 
 
 def chain_keys(truth: Pose, windows: int) -> Pose:
@@ -435,11 +436,13 @@ def sample_chain_curves(
     foot_lock: bool = False,
     key_orientations: bool = True,
     chunk: int = 128,
+    with_key_velocities: bool = False,
 ) -> WindowCurves:
     """:func:`sample_window_curves` for chains: the curves stage of every chain
     (:func:`~bezmotion.pipeline.inbetweening.chain_curves_traced`, its windows sampled in
     one :func:`~bezmotion.bmm.sampling.sample_chained_curves` call), ``chunk`` chains per
-    compiled call.
+    compiled call. ``with_key_velocities``: the curves are also given the keys' velocities,
+    from the chain's own motion (:func:`~bezmotion.pipeline.inbetweening.chain_key_velocities`).
 
     Args:
       truth: ``(chains, windows·30 + 1, …)`` poses; the keys are every 30th frame.
@@ -457,7 +460,9 @@ def sample_chain_curves(
         _chain_curves_chunk, bmm, character, transfer, steps=steps, foot_lock=foot_lock, coupled=coupled,
         key_orientations=key_orientations,
     )  # fmt: skip
-    return _chunked(run, (chain_keys(truth, handles.frame.shape[1]), handles, keys), chunk)[0]
+    windows = handles.frame.shape[1]
+    velocity = chain_key_velocities(character, truth, (truth.root_pos.shape[1] - 1) // windows) if with_key_velocities else None
+    return _chunked(run, (chain_keys(truth, windows), handles, keys, velocity), chunk)[0]
 
 
 @functools.partial(jax.jit, static_argnames=("ik_fn", "key_blend_frames"))

@@ -86,6 +86,22 @@ def key_velocities(character: Character, poses: Pose) -> Float[Array, "*batch 2 
     return jnp.stack([position[..., 1, :, :] - position[..., 0, :, :], position[..., 3, :, :] - position[..., 2, :, :]], axis=-3)
 
 
+def chain_key_velocities(character: Character, poses: Pose, stride: int = 30) -> Float[Array, "*batch keys 6 3"]:
+    """The six joints' velocities (cm/frame) at every key of a chain from its poses
+    ``(*batch, frames, …)``, keys every ``stride`` frames from the first to the last frame:
+    the central difference ``(p_{k+1} − p_{k−1}) / 2`` at a shared key (the velocity both
+    windows take), and inside the chain at its two ends (``p₁ − p₀``, ``p_F − p_{F−1}``)."""
+    position = targets_from_pose(character, poses).position  # (*batch, frames, 6, 3)
+    frames = position.shape[-3]
+    if frames < 2 or (frames - 1) % stride:
+        raise ValueError(f"a chain's frames must be keys {stride} apart (K·{stride} + 1), got {frames}")
+    key_frames = np.arange(0, frames, stride)
+    after = np.minimum(key_frames + 1, frames - 1)
+    before = np.maximum(key_frames - 1, 0)
+    span = (after - before).astype(np.float32)[:, None, None]  # 2 inside, 1 at the ends
+    return (position[..., after, :, :] - position[..., before, :, :]) / span
+
+
 def window_curves_traced(
     bmm: BezierMotionModel,
     character: Character,
@@ -326,20 +342,27 @@ def inbetween(
         raise ValueError(f"handles must describe one motion ((handles, 3) positions), got {handles.position.shape}")
     start, end = _checked_finite(start, "start"), _checked_finite(end, "end")
     if key_velocity is not None:
-        key_velocity = jnp.asarray(key_velocity, start.root_pos.dtype)
-        if key_velocity.shape != (2, len(CHARACTERISTIC_JOINTS), 3):
-            raise ValueError(f"key_velocity must be (2, 6, 3) (start and end, six joints, cm/frame), got {key_velocity.shape}")
-        message = "key_velocity contains non-finite values"
-        if isinstance(key_velocity, jax.core.Tracer):  # known at run time only, as _checked_finite's poses
-            key_velocity = eqx.error_if(key_velocity, ~jnp.isfinite(key_velocity).all(), message)
-        elif not np.isfinite(np.asarray(key_velocity)).all():
-            raise ValueError(f"{message}: {np.asarray(key_velocity).tolist()}")
+        key_velocity = _checked_key_velocity(key_velocity, 2, start.root_pos.dtype, "start and end")
     transfer = Transfer.identity() if transfer is None else transfer
     return call_with_inference_options(
         _compiled, bmm, ik_params, character, start, end, handles, transfer, key,
         ik_fn=ik_fn, steps=steps, guidance=guidance, foot_lock=foot_lock, keep_keyframes=keep_keyframes,
         key_blend_frames=key_blend_frames, key_orientations=key_orientations, key_velocity=key_velocity,
     )  # fmt: skip
+
+
+def _checked_key_velocity(key_velocity: ArrayLike, keys: int, dtype, which: str) -> Array:
+    """``key_velocity`` as a ``(keys, 6, 3)`` array of ``dtype``: raises naming its shape, or
+    its values when they are not finite (at run time inside a trace, like :func:`_checked_finite`)."""
+    key_velocity = jnp.asarray(key_velocity, dtype)
+    if key_velocity.shape != (keys, len(CHARACTERISTIC_JOINTS), 3):
+        raise ValueError(f"key_velocity must be ({keys}, 6, 3) ({which}, six joints, cm/frame), got {key_velocity.shape}")
+    message = "key_velocity contains non-finite values"
+    if isinstance(key_velocity, jax.core.Tracer):  # known at run time only, as _checked_finite's poses
+        return eqx.error_if(key_velocity, ~jnp.isfinite(key_velocity).all(), message)
+    if not np.isfinite(np.asarray(key_velocity)).all():
+        raise ValueError(f"{message}: {np.asarray(key_velocity).tolist()}")
+    return key_velocity
 
 
 class ChainResult(NamedTuple):
@@ -375,27 +398,34 @@ def chain_curves_traced(
     foot_lock: bool,
     coupled: bool = True,
     key_orientations: bool = True,
+    key_velocity: Float[Array, "keys 6 3"] | None = None,
 ) -> WindowCurves:
     """:func:`window_curves_traced` for a chain: the curves of every window between
     consecutive ``keys`` (batched ``(keys, …)``) from one
     :func:`~bezmotion.bmm.sampling.sample_chained_curves` call, and their dense
     trajectories, batched ``(keys − 1, …)``. One transfer anchor (the first key's hips on
-    the floor) for the whole chain, so a shared key is one point in the BMM's space too."""
+    the floor) for the whole chain, so a shared key is one point in the BMM's space too.
+    ``key_velocity``: optionally ``(keys, 6, 3)`` the six joints' velocities at every key
+    (cm/frame, target character), conditions met exactly, by both windows of a shared key."""
     targets = targets_from_pose(character, keys)  # (keys, 6, ·)
     anchor = floor_anchor(targets.position[0, HIPS])
     source = functools.partial(to_source_space, transfer, anchor)
     key_rot6d = orientations_to_source_space(transfer, targets.rot6d) if key_orientations else None
+    windows, cfg = targets.position.shape[0] - 1, bmm.config
+    layout = BezierLayout.from_controls(cfg.num_controls, cfg.stride)
+    key_tangent = None if key_velocity is None else tangent_from_velocity(layout, key_velocity)
     curves = sample_chained_curves(
         bmm, source(targets.position), handles._replace(position=source(handles.position)),
         key=key, steps=steps, guidance=guidance, coupled=coupled, foot_lock=foot_lock, key_rot6d=key_rot6d,
+        key_tangent=None if key_tangent is None else key_tangent / transfer.scale,
     )  # fmt: skip
-    windows, cfg = targets.position.shape[0] - 1, bmm.config
     # The handle projection after the transfer must keep the tangents the chain shares.
     shared = shared_key_mask(windows, cfg.num_controls, cfg.num_joints) if coupled else None
     first = jax.tree.map(lambda a: a[:-1], targets)
     last = jax.tree.map(lambda a: a[1:], targets)
+    tangent_pairs = None if key_tangent is None else jnp.stack([key_tangent[:-1], key_tangent[1:]], axis=1)  # (windows, 2, 6, 3)
     finish = functools.partial(_window_in_target, bmm, transfer, anchor)
-    return jax.vmap(finish)(curves, first, last, handles, shared)
+    return jax.vmap(finish)(curves, first, last, handles, shared, tangent_pairs)
 
 
 def pose_from_chain_curves(
@@ -450,11 +480,13 @@ def inbetween_chain_traced(
     key_blend_frames: int = 0,
     coupled: bool = True,
     key_orientations: bool = True,
+    key_velocity: Float[Array, "keys 6 3"] | None = None,
 ) -> ChainResult:
     """The traceable body of :func:`inbetween_chain` (no input checks, no compiler options)."""
     windows = chain_curves_traced(
         bmm, character, keys, handles, transfer, key,
         steps=steps, guidance=guidance, foot_lock=foot_lock, coupled=coupled, key_orientations=key_orientations,
+        key_velocity=key_velocity,
     )  # fmt: skip
     pose = pose_from_chain_curves(
         ik_fn, ik_params, windows, keys, keep_keyframes=keep_keyframes, key_blend_frames=key_blend_frames, handles=handles
@@ -514,6 +546,7 @@ def inbetween_chain(
     keep_keyframes: bool = True,
     key_blend_frames: int = KEY_BLEND_FRAMES,
     key_orientations: bool = True,
+    key_velocity: Float[ArrayLike, "keys 6 3"] | None = None,
 ) -> ChainResult:
     """In-between ``character`` through ``keys`` key poses ``bmm.config.num_frames − 1`` (30)
     frames apart, with handles anywhere between them: one window per pair of consecutive
@@ -532,6 +565,10 @@ def inbetween_chain(
         for comparison.
       transfer, steps, guidance, foot_lock, keep_keyframes, key_blend_frames,
         key_orientations: as in :func:`inbetween`, applied to every window.
+      key_velocity: optionally ``(keys, 6, 3)`` the six joints' velocities at every key
+        (cm/frame), e.g. :func:`chain_key_velocities` of the clip around the keys: the
+        curves pass every key at that velocity (both windows of a shared key), as
+        :func:`inbetween`'s ``key_velocity`` does for one window.
     Returns:
       :class:`ChainResult`: ``(keys − 1)·30 + 1`` frames, exactly the given keys at frames
       ``0, 30, 60, …`` with ``keep_keyframes``; the curves pass through every handle.
@@ -539,7 +576,8 @@ def inbetween_chain(
     Raises:
       ValueError: fewer than two keys, keys not poses of this character, handles not
         ``(keys − 1, handles)``, a valid handle outside its window or at a non-finite
-        position, or a key with non-finite values (naming it).
+        position, a key with non-finite values (naming it), or a ``key_velocity`` not
+        ``(keys, 6, 3)`` or not finite.
     """
     num_keys = keys.root_pos.shape[0] if keys.root_pos.ndim == 2 else None
     if num_keys is None or keys.quat_local.shape != (num_keys, character.num_joints, 4):
@@ -552,9 +590,11 @@ def inbetween_chain(
     _checked_chain_handles(handles, num_keys - 1, bmm.config.num_frames)
     checked = [_checked_finite(jax.tree.map(lambda a, k=k: a[k], keys), f"key {k}") for k in range(num_keys)]
     keys = Pose(*(jnp.stack(a) for a in zip(*checked)))
+    if key_velocity is not None:
+        key_velocity = _checked_key_velocity(key_velocity, num_keys, keys.root_pos.dtype, "one per key")
     transfer = Transfer.identity() if transfer is None else transfer
     return call_with_inference_options(
         _compiled_chain, bmm, ik_params, character, keys, handles, transfer, key,
         ik_fn=ik_fn, steps=steps, guidance=guidance, foot_lock=foot_lock, keep_keyframes=keep_keyframes,
-        key_blend_frames=key_blend_frames, coupled=coupled, key_orientations=key_orientations,
+        key_blend_frames=key_blend_frames, coupled=coupled, key_orientations=key_orientations, key_velocity=key_velocity,
     )  # fmt: skip

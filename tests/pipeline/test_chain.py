@@ -14,13 +14,13 @@ import numpy as np
 import pytest
 
 from ik.demo_poses import fk, frame, targets_of
-from pipeline.common import FRAMES, K, LEFT_HAND, STEPS
+from pipeline.common import FRAMES, K, LEFT_HAND, STEPS, STRIDE
 
 from bezmotion.bmm.sampling import Handles
 from bezmotion.data.characteristic import HIPS
 from bezmotion.ik.protocol import Pose
 from bezmotion.metrics import boundary_velocity_jump
-from bezmotion.pipeline import Transfer, inbetween_chain, join_windows, split_windows
+from bezmotion.pipeline import Transfer, chain_key_velocities, inbetween_chain, join_windows, split_windows
 
 KEY_FRAMES = [0, 30, 39]  # clip frames of the three keys (the clip has 40)
 WINDOWS = len(KEY_FRAMES) - 1
@@ -140,3 +140,36 @@ def test_chain_input_errors(chain):
         call(handles=handles._replace(position=handles.position.at[0, 1, 2].set(jnp.inf)))
     with pytest.raises(ValueError, match="key 2 pose contains non-finite"):
         call(keys=keys._replace(root_pos=keys.root_pos.at[2, 0].set(jnp.nan)))
+
+
+def test_chain_key_velocities_reach_both_windows_of_every_key(chain):
+    """``key_velocity`` ``(keys, 6, 3)``: each window leaves and reaches its keys at the given
+    velocities (tangent ``v·stride/3``), a shared key's on both sides; keys and handles still
+    hold; a wrong shape or a NaN raises."""
+    velocity = np.random.default_rng(0).normal(0.0, 1.5, (len(KEY_FRAMES), 6, 3)).astype(np.float32)  # cm/frame
+    r = inbetween_chain(*chain.args, key=jax.random.key(3), steps=STEPS, key_velocity=velocity)
+    tangent = np.asarray(r.curves.ctrl_tangent)
+    want = velocity * (STRIDE / 3.0)
+    for window in range(WINDOWS):
+        np.testing.assert_allclose(tangent[window, 0], want[window], atol=1e-5)
+        np.testing.assert_allclose(tangent[window, -1], want[window + 1], atol=1e-5)
+    np.testing.assert_allclose(r.positions[29, HIPS], chain.handles.position[0, 0], atol=1e-3)
+    np.testing.assert_array_equal(r.pose.root_pos[FRAMES - 1], chain.keys.root_pos[1])
+    with pytest.raises(ValueError, match=r"key_velocity must be \(3, 6, 3\) \(one per key.*got \(2, 6, 3\)"):
+        inbetween_chain(*chain.args, key=jax.random.key(3), steps=1, key_velocity=velocity[:2])
+    with pytest.raises(ValueError, match="key_velocity contains non-finite values"):
+        inbetween_chain(*chain.args, key=jax.random.key(3), steps=1, key_velocity=np.where(np.arange(3)[:, None, None] == 1, np.nan, velocity))
+
+
+def test_chain_key_velocities_of_a_clip(clip):
+    """``chain_key_velocities``: central differences at the shared keys, one-sided inside the
+    chain at its two ends; frames that are not keys ``stride`` apart raise."""
+    c = clip.character
+    poses = jax.tree.map(lambda a: a[:31], clip.pose)
+    position = np.asarray(fk(c, poses)[1])[:, np.asarray(c.characteristic)]
+    got = np.asarray(chain_key_velocities(c, poses, stride=15))
+    np.testing.assert_allclose(got[0], position[1] - position[0], atol=1e-4)
+    np.testing.assert_allclose(got[1], (position[16] - position[14]) / 2.0, atol=1e-4)
+    np.testing.assert_allclose(got[2], position[30] - position[29], atol=1e-4)
+    with pytest.raises(ValueError, match=r"keys 15 apart \(K·15 \+ 1\), got 30"):
+        chain_key_velocities(c, jax.tree.map(lambda a: a[:30], poses), stride=15)
