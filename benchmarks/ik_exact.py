@@ -54,14 +54,11 @@ def main(argv: list[str] | None = None) -> dict:
     targets = targets._replace(position=targets.position.at[12:18, 3, 1].add(15.0))
     batch = jax.tree.map(lambda x: jnp.broadcast_to(x, (args.batch, *x.shape)), targets)
     devices = jax.device_count()
-    if devices > 1:
-        if args.batch % devices:
-            raise SystemExit(f"--batch {args.batch}: must be a multiple of the {devices} devices")
-        mesh = jax.make_mesh((devices,), ("windows",), axis_types=(jax.sharding.AxisType.Auto,))
-        batch = jax.device_put(batch, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("windows")))
-        on_batch_devices = lambda p: jax.device_put(p, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec()))  # noqa: E731
-    else:
-        on_batch_devices = lambda p: p  # noqa: E731
+    if args.batch % devices:
+        raise SystemExit(f"--batch {args.batch}: must be a multiple of the {devices} devices")
+    mesh = jax.make_mesh((devices,), ("windows",), axis_types=(jax.sharding.AxisType.Auto,))
+    batch = jax.device_put(batch, jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec("windows")))
+    on_every_device = jax.sharding.NamedSharding(mesh, jax.sharding.PartitionSpec())  # the parameters, replicated
     model = load_ik_model(BUNDLED_IK)
     rig = make_rig(character, "bandai_namco", rest_quat_local=np.asarray(truth.quat_local[0]))
     limits = JointLimits.load(BUNDLED_IK / "joint_limits.json", character)
@@ -74,7 +71,7 @@ def main(argv: list[str] | None = None) -> dict:
         exact_fn, exact_params = exact_ik(fn, params, character, limits=limits, **settings)
         for label, f, p in ((name, alone, params), (f"exact on {name}", exact_fn.solve_window, exact_params)):
             one = time_jitted(f, (p, targets), repeats=args.repeats, compiler_options=options_)
-            many = time_jitted(jax.vmap(f, in_axes=(None, 0)), (on_batch_devices(p), batch), repeats=max(3, args.repeats // 4), compiler_options=options_)
+            many = time_jitted(jax.vmap(f, in_axes=(None, 0)), (jax.device_put(p, on_every_device), batch), repeats=max(3, args.repeats // 4), compiler_options=options_)
             rows[label] = {
                 "compile_s": one["lower_s"] + one["compile_s"],
                 "ms_per_window": 1e3 * one["steady_s"],

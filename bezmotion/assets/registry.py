@@ -55,6 +55,7 @@ _BANDAI_DATA = (
     "(c) 2022 Bandai Namco Research Inc., https://github.com/BandaiNamcoResearchInc/Bandai-Namco-Research-Motiondataset"
 )
 _LAFAN1_DATA = "LaFAN1 subjects 1-4, (c) Ubisoft La Forge, https://github.com/ubisoft/ubisoft-laforge-animation-dataset"
+_LAFAN1_LICENCE = "CC BY-NC-ND 4.0 (non-commercial, no derivatives: never shipped; train it locally)"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -141,7 +142,7 @@ REGISTRY: Mapping[str, ModelEntry] = {
         skeleton="lafan1",
         bundled=False,
         data=_LAFAN1_DATA,
-        licence="CC BY-NC-ND 4.0 (non-commercial, no derivatives: never shipped; train it locally)",
+        licence=_LAFAN1_LICENCE,
         commands=(
             # The paper-size models of the second GPU run (experiments/gpu_lafan1.sh, jobs paper_cosine and
             # ik_paper: 183 s and 248 s on an H200). On a 2-core CPU these steps take days: add --train-seconds
@@ -167,7 +168,7 @@ REGISTRY: Mapping[str, ModelEntry] = {
         skeleton="lafan1",
         bundled=False,
         data=_LAFAN1_DATA,
-        licence="CC BY-NC-ND 4.0 (non-commercial, no derivatives: never shipped; train it locally)",
+        licence=_LAFAN1_LICENCE,
         commands=(
             # The CPU-size models (2.3 M and the CPU IK), about an hour on a 2-core CPU (2026-11-27): the BMM
             # stopped by --train-seconds at step 7,526 (40 min), the IK's 9,000 steps in 16 min beside it.

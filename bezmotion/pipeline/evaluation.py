@@ -43,7 +43,6 @@ from bezmotion.pipeline.inbetweening import (
     chain_curves_traced,
     chain_key_velocities,
     inbetween_traced,
-    key_velocities,
     pose_from_chain_curves,
     pose_from_curves,
     window_curves_traced,
@@ -253,11 +252,12 @@ def _curves_chunk(bmm, character, transfer, inputs, *, steps, foot_lock, key_ori
 
 def window_key_velocities(character: Character, truth: Pose) -> Float[Array, "windows 2 6 3"]:
     """The six joints' velocities at each window's start and end key (cm/frame) from the
-    motion itself (:func:`~bezmotion.pipeline.inbetweening.key_velocities` of frames 0, 1,
-    29, 30): one-sided differences into the window, where a user would take them from the
-    frames around the keys. An evaluation that gives them to the curves knows one frame past
-    each key: an upper bound on what such context buys."""
-    return key_velocities(character, jax.tree.map(lambda x: x[:, jnp.asarray([0, 1, -2, -1])], truth))
+    motion itself (a window is a chain of one:
+    :func:`~bezmotion.pipeline.inbetweening.chain_key_velocities`, frames 0→1 and 29→30):
+    one-sided differences into the window, where a user would take them from the frames
+    around the keys. An evaluation that gives them to the curves knows one frame past each
+    key: an upper bound on what such context buys."""
+    return chain_key_velocities(character, truth, truth.root_pos.shape[-2] - 1)
 
 
 def sample_window_curves(
