@@ -105,10 +105,12 @@ With ``--segments K`` (K > 1) ``windows`` is chains × K, ``curves`` also holds
 ``bmm_independent``, each label also ``chains``, and beside them::
 
     "segments": {"k": K, "chains": n, "frames_per_chain": 30·K + 1, "key_frames": […],
-      "boundary_velocity_jump_cm_per_frame": {"coupled": {mean, p95, max, count}, "independent": {…},
+      "boundary_velocity_jump_cm_per_frame": {"coupled": {mean, p95, max, count, minus_mocap: {mean, se, chains}}, "independent": {…},
         "coupled_other_frames": {…}, "coupled_inner_control_frames": {…}, "mocap": {…}, "mocap_at_shared_keys": {…},
         "ood": {"coupled", "coupled_other_frames", "coupled_inner_control_frames", "independent"},
         "after_ik": {"<ik>": {"id", "ood"}}, "where": …},
+      (``minus_mocap``: the jump at the shared keys minus the mocap's at the same keys and
+      joints, its mean and standard error over the chains),
       "metrics": {<how each figure is taken over a chain>}, "not_computed": {<figure>: why}}
 
 With a single ``--ik`` its ``id`` and ``ood`` also sit at the top level (the issue's
@@ -149,6 +151,7 @@ from bezmotion.pipeline.evaluation import (
     sample_window_curves,
     solve_chain_curves,
     solve_window_curves,
+    standard_error,
     summarize_windows,
     window_curve_metrics,
     window_keys,
@@ -357,20 +360,33 @@ def reference_positions(items: Items, cond: str, layout) -> jax.Array:
     return jax.vmap(join_windows)(per_window)
 
 
-def jumps_at_keys(positions: jax.Array, k: int) -> dict:
-    """Velocity jump summary (cm/frame) of ``(chains, frames, 6, 3)`` at the shared keys."""
-    return distribution_summary(chain_velocity_jumps(positions, k).at_shared_keys)
+def jumps_at_keys(positions: jax.Array, k: int, mocap: jax.Array) -> dict:
+    """Velocity jump summary (cm/frame) of ``(chains, frames, 6, 3)`` at the shared keys,
+    with its excess over the ``mocap``'s (:func:`jump_excess_over_mocap`)."""
+    return {**distribution_summary(chain_velocity_jumps(positions, k).at_shared_keys), "minus_mocap": jump_excess_over_mocap(positions, mocap, k)}
 
 
-def coupled_jumps(positions: jax.Array, k: int, layout: BezierLayout) -> dict:
+def jump_excess_over_mocap(positions: jax.Array, mocap: jax.Array, k: int) -> dict:
+    """The velocity jump at the shared keys minus the mocap's at the same keys and joints
+    (cm/frame, ``(chains, frames, 6, 3)`` each): its mean, and the mean's standard error over
+    the chains (each chain's mean one sample). A pairwise difference: the chains' own spread
+    (some motions jerk more than others) cancels, which the two means' separate spreads do not."""
+    diff = np.asarray(chain_velocity_jumps(positions, k).at_shared_keys, np.float64) - np.asarray(
+        chain_velocity_jumps(mocap, k).at_shared_keys, np.float64
+    )
+    return {"mean": float(diff.mean()), "se": standard_error(diff), "chains": int(diff.shape[0])}
+
+
+def coupled_jumps(positions: jax.Array, k: int, layout: BezierLayout, mocap: jax.Array) -> dict:
     """Velocity jump summaries (cm/frame) of coupled chains ``(chains, frames, 6, 3)``: at the
-    shared keys, at every other inner frame, and at the control frames inside each of the
-    ``k`` windows (``layout``'s, keys excluded: C¹ joins like the keys)."""
+    shared keys (with the excess over the ``mocap``'s there), at every other inner frame, and
+    at the control frames inside each of the ``k`` windows (``layout``'s, keys excluded: C¹
+    joins like the keys)."""
     jumps = chain_velocity_jumps(positions, k)
     step = layout.num_frames - 1
     inner = np.concatenate([w * step + layout.control_frames[1:-1] for w in range(k)])
     return {
-        "coupled": distribution_summary(jumps.at_shared_keys),
+        "coupled": jumps_at_keys(positions, k, mocap),
         "coupled_other_frames": distribution_summary(jumps.other_frames),
         "coupled_inner_control_frames": distribution_summary(jumps.all_frames[..., inner - 1, :]),
     }
@@ -442,7 +458,10 @@ def main(argv: list[str] | None = None) -> dict:
             )
             # The coupled curves between the keys too: is a shared key rougher than the rest of
             # the motion, and than the joins inside a window?
-            jumps[cond] = {**coupled_jumps(dense.positions, k, dataset.layout), "independent": jumps_at_keys(independent.positions, k)}
+            jumps[cond] = {
+                **coupled_jumps(dense.positions, k, dataset.layout, true_targets.position),
+                "independent": jumps_at_keys(independent.positions, k, true_targets.position),
+            }
             print(f"{cond}: velocity jump at the shared keys {jumps[cond]}", flush=True)
         for name, (fn, params) in iks.items():
             pose, timing = solve_items(args, fn, params, curves, truth, items.handles[cond])
@@ -453,7 +472,7 @@ def main(argv: list[str] | None = None) -> dict:
             ik_results[name][cond] = {**summary, timing_name: timing.ms_per_window}
             ik_results[name].setdefault("compile_s", timing.compile_s)  # the OOD run reuses the compilation
             if k > 1:
-                after_ik[name][cond] = jumps_at_keys(targets_from_pose(character, pose).position, k)
+                after_ik[name][cond] = jumps_at_keys(targets_from_pose(character, pose).position, k, true_targets.position)
             print(f"{cond} {name}: {ik_results[name][cond]} (compile {timing.compile_s:.1f} s)", flush=True)
 
     results = {
@@ -527,14 +546,18 @@ def format_report(r: dict) -> str:
     ]
     if seg is not None:
         jump = seg["boundary_velocity_jump_cm_per_frame"]
-        row = lambda label, x: f"| {label} | {x['mean']:.3f} | {x['p95']:.3f} | {x['max']:.3f} | {x['count']} |"  # noqa: E731
+        def row(label: str, x: dict) -> str:
+            excess = x.get("minus_mocap")
+            paired = "" if excess is None else f"{excess['mean']:+.3f}" + ("" if excess["se"] is None else f" ± {excess['se']:.3f}")
+            return f"| {label} | {x['mean']:.3f} | {x['p95']:.3f} | {x['max']:.3f} | {x['count']} | {paired} |"
+
         lines += [
             "",
             f"Chains of {seg['k']} windows ({seg['frames_per_chain']} frames, keys at {seg['key_frames']}); every figure below "
             "over the chains' frames. Velocity jump of the six joints (cm/frame), in distribution:",
             "",
-            "| where | mean | p95 | max | values |",
-            "|---|---|---|---|---|",
+            "| where | mean | p95 | max | values | minus the mocap's at the same keys, mean ± se over chains |",
+            "|---|---|---|---|---|---|",
             row("coupled curves, at shared keys", jump["coupled"]),
             row("independent curves (D.1), at shared keys", jump["independent"]),
             *([row("coupled curves, every other frame", jump["coupled_other_frames"])] if "coupled_other_frames" in jump else []),

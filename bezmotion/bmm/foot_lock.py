@@ -10,11 +10,18 @@ to a fraction of a centimetre — which the contact labels BMM predicts can enfo
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
 from bezmotion.data.characteristic import FEET
+from bezmotion.diffusion.projection import on_control_frame
+
+if TYPE_CHECKING:
+    from bezmotion.bezier import BezierLayout
+    from bezmotion.bmm.denoiser import Conditions
 
 # X and Z; +Y is up. NumPy, not jnp: importing bezmotion must not start a JAX backend
 # (jax.distributed.initialize has to come first when several processes train).
@@ -28,6 +35,8 @@ def lock_feet(
     constrained: Bool[Array, "*batch controls joints"],
     *,
     threshold: float = 0.5,
+    handles: Conditions | None = None,
+    layout: BezierLayout | None = None,
 ) -> tuple[Float[Array, "*batch controls joints 3"], Float[Array, "*batch controls joints 3"]]:
     """Hold each foot still horizontally over every run of consecutive contact control points.
 
@@ -38,11 +47,21 @@ def lock_feet(
     Constrained points (start, end, handles) never move, so handles stay exact; heights
     and all other joints are untouched.
 
+    A foot's handle between two control frames (``handles``, off the ``layout``'s grid)
+    whose two control points lie in one contact run counts as one of the run's constrained
+    points: the run is planted where the handle puts the foot. Otherwise the run would be
+    planted at its own mean, and the handle projection that follows
+    (:func:`~bezmotion.diffusion.projection.project_off_grid`) would move the planted
+    control points and their tangents back through the handle, sliding the foot.
+
     Args:
       ctrl_pos, ctrl_tangent: Bézier control points (cm).
       contacts: left/right foot contact probabilities at the control points.
       constrained: which control positions are conditions and must not change.
       threshold: contact probability above which a foot is planted.
+      handles: ``(*batch, slots)`` conditions at any frame (positions in the curves' frame,
+        cm); those on control frames are already in ``constrained`` and are skipped here.
+      layout: the curves' layout (needed with ``handles``).
     Returns:
       ``(ctrl_pos, ctrl_tangent)``.
     """
@@ -57,9 +76,36 @@ def lock_feet(
     # same[..., k, l, f]: control points k and l belong to the same contact run of foot f.
     same = planted[..., :, None, :] & planted[..., None, :, :] & (run[..., :, None, :] == run[..., None, :, :])
     run_has_fixed = jnp.any(same & fixed[..., None, :, :], axis=-2)  # (..., K, 2)
+    if handles is not None:
+        # member[..., k, h, f]: foot f's off-grid handle h lies inside control k's contact
+        # run, and that run has no constrained control point (those already set it).
+        member = _off_grid_members(handles, layout, planted, run, feet) & ~run_has_fixed[..., None, :]
+        run_has_fixed = run_has_fixed | jnp.any(member, axis=-2)
     weight = (same & (fixed[..., None, :, :] | ~run_has_fixed[..., :, None, :])).astype(pos.dtype)
-    anchor = jnp.einsum("...klf,...lfd->...kfd", weight, pos) / jnp.maximum(weight.sum(axis=-2), 1.0)[..., None]
+    total, count = jnp.einsum("...klf,...lfd->...kfd", weight, pos), weight.sum(axis=-2)
+    if handles is not None:
+        member = member.astype(pos.dtype)
+        total = total + jnp.einsum("...khf,...hd->...kfd", member, handles.position)
+        count = count + member.sum(axis=-2)
+    anchor = total / jnp.maximum(count, 1.0)[..., None]
     move = (planted & ~fixed)[..., None] & HORIZONTAL
     new_pos = jnp.where(move, anchor, pos)
     new_tangent = jnp.where(planted[..., None] & HORIZONTAL, 0.0, ctrl_tangent[..., feet, :])
     return ctrl_pos.at[..., feet, :].set(new_pos), ctrl_tangent.at[..., feet, :].set(new_tangent)
+
+
+def _off_grid_members(
+    handles: Conditions, layout: BezierLayout | None, planted: Array, run: Array, feet: Array
+) -> Bool[Array, "*batch controls handles 2"]:
+    """``member[..., k, h, f]``: handle ``h`` is foot ``f``'s, off the control grid, both
+    control points around its frame are planted in one run, and control ``k`` is in that run."""
+    if layout is None:
+        raise ValueError("lock_feet: handles need the curves' layout")
+    on_grid, after = on_control_frame(layout, handles.frame)  # after: the control point after the frame
+    before = jnp.clip(after - 1, 0, layout.num_controls - 1)
+    gather = lambda a, c: jnp.take_along_axis(a, jnp.broadcast_to(c[..., None], (*c.shape, 2)), axis=-2)  # noqa: E731
+    run_before = gather(run, before)  # (..., H, 2)
+    inside = gather(planted, before) & gather(planted, after) & (run_before == gather(run, after))
+    own = (handles.valid & ~on_grid)[..., None] & (handles.joint[..., None] == feet)  # (..., H, 2)
+    held = own & inside
+    return held[..., None, :, :] & planted[..., :, None, :] & (run[..., :, None, :] == run_before[..., None, :, :])

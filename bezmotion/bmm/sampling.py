@@ -322,7 +322,7 @@ def _sample_one(
     # A shared key is one frame: both windows agree on whether a foot is planted there.
     contacts = couple(jax.nn.sigmoid(logits))
     if foot_lock:
-        pos, tangent = lock_feet(pos, tangent, contacts, mask)
+        pos, tangent = lock_feet(pos, tangent, contacts, mask, handles=world, layout=layout)
         if overwrite:  # locking moves control points that off-grid handles depend on
             pos, tangent = exact(pos, tangent)
     return SampledCurves(pos, tangent, rot6d, contacts)

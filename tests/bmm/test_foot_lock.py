@@ -52,6 +52,45 @@ def test_lock_feet_pins_each_contact_run_and_leaves_everything_else(rng):
         lock_feet(pos, tangent, jnp.asarray(contacts), jnp.asarray(constrained), threshold=1.0)
 
 
+def test_a_foot_handle_between_control_frames_plants_its_contact_run(rng):
+    from bezmotion.bezier import BezierLayout
+    from bezmotion.bmm.denoiser import Conditions
+    from bezmotion.bmm.foot_lock import lock_feet
+
+    layout = BezierLayout.from_controls(K, 6)
+    pos = jnp.asarray(rng.normal(scale=20.0, size=(K, J, 3)), jnp.float32)
+    tangent = jnp.asarray(rng.normal(scale=5.0, size=(K, J, 3)), jnp.float32)
+    left, right = FEET
+    contacts = np.full((K, 2), 0.1, np.float32)
+    contacts[1:4, 0] = 0.9  # left foot planted over controls 1–3 (frames 6–18), no constraint in it
+    contacts[0:3, 1] = 0.9  # right foot planted over controls 0–2, through the constrained start
+    constrained = np.zeros((K, J), bool)
+    constrained[[0, -1]] = True
+    target = np.asarray(rng.normal(scale=20.0, size=(5, 3)), np.float32)
+    handles = Conditions(
+        position=jnp.asarray(target),
+        joint=jnp.asarray([left, right, left, 0, left], jnp.int32),
+        # left inside its run; right inside its run (which the start already anchors);
+        # left from control 3 (planted) to 4 (not); the hips; padding inside the left run.
+        frame=jnp.asarray([9, 7, 20, 9, 15], jnp.int32),
+        valid=jnp.asarray([True, True, True, True, False]),
+    )
+    args = (pos, tangent, jnp.asarray(contacts), jnp.asarray(constrained))
+    new_pos, new_tangent = (np.asarray(a) for a in lock_feet(*args, handles=handles, layout=layout))
+    plain_pos, plain_tangent = (np.asarray(a) for a in lock_feet(*args))
+    # The left run stands where its handle puts the foot, horizontally; heights kept.
+    np.testing.assert_allclose(new_pos[1:4, left][:, [0, 2]], np.broadcast_to(target[0, [0, 2]], (3, 2)), rtol=1e-6)
+    np.testing.assert_array_equal(new_pos[1:4, left, 1], np.asarray(pos)[1:4, left, 1])
+    # Everything else as without handles: the right run keeps the start's anchor, the other
+    # handles (leaving the run, another joint, padding) change nothing, tangents alike.
+    others = np.ones((K, J), bool)
+    others[1:4, left] = False
+    np.testing.assert_array_equal(new_pos[others], plain_pos[others])
+    np.testing.assert_array_equal(new_tangent, plain_tangent)
+    with pytest.raises(ValueError, match="layout"):
+        lock_feet(*args, handles=handles)
+
+
 def test_foot_locked_sampling_keeps_the_constraints_exact(model, motions, sampled):
     locked = sample_curves(model, motions.start, motions.end, motions.handles, key=jax.random.key(21), steps=5, foot_lock=True)
     assert np.all(grid_errors(locked, motions) == 0.0)

@@ -207,6 +207,12 @@ def test_segments_evaluate_chains_of_windows(experiment, long_clips, monkeypatch
     assert jump["mocap"]["count"] == 2 * 59 * 6  # every inner frame of the same chains
     assert jump["coupled_other_frames"]["count"] == 2 * 58 * 6  # the same curves' inner frames but the key
     assert jump["coupled_inner_control_frames"]["count"] == 2 * 8 * 6  # frames 6, 12, 18, 24, 36, 42, 48, 54
+    # Paired with the mocap at the same keys: the difference of the two means, its standard
+    # error over the two chains.
+    for variant in (jump["coupled"], jump["independent"], jump["after_ik"]["rig"]["id"]):
+        excess = variant["minus_mocap"]
+        assert excess["chains"] == 2 and excess["se"] >= 0.0
+        np.testing.assert_allclose(excess["mean"], variant["mean"] - jump["mocap_at_shared_keys"]["mean"], atol=1e-6)
     # The other metrics over the chains' frames; the handles moved into each chain's frame.
     for cond in ("id", "ood"):
         after = r["ik"]["rig"][cond]
