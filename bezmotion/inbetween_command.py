@@ -2,6 +2,7 @@
 
     bezmotion inbetween CLIP.bvh --frames 0 30 --handle right_hand@12=+0,25,0 --out take/
     bezmotion inbetween --start A.bvh@0 --end B.bvh@12 --handles handles.json --samples 3 --out take.bvh
+    bezmotion inbetween CLIP.bvh --frames 0 30 60 90 --handle left_hand@45=+0,30,0 --out chain/
 
 **Keys.** One file and two frames (``CLIP.bvh --frames F G``), or a file and a frame each
 (``--start A.bvh@F --end B.bvh@G``; without ``@`` the start is frame 0 and the end the
@@ -9,16 +10,22 @@ last frame). The BMM in-betweens a fixed window of ``bmm.config.num_frames`` fra
 the keys are 30 frames apart). With ``--frames`` the keys must be that far apart in the
 clip — the command refuses another distance rather than silently retiming the clip;
 ``--start``/``--end`` take any two poses (also of one file) and put them 30 frames apart.
+More than two ``--frames`` (``CLIP.bvh --frames 0 30 60 90``, each 30 after the one before)
+in-between a chain through every one of them: one window per pair of consecutive keys, all
+sampled in one call and joined C¹ at the shared keys
+(:func:`~bezmotion.pipeline.inbetween_chain`), then one IK over the whole motion.
 Both files must have the same joints; the output rigs like the start file (its OFFSETs,
 End Sites and frame rate).
 
-**Handles** (any number; frames count from the start key, 0, to the end key, 30):
+**Handles** (any number; frames count from the first key, 0, to the last, 30 — or 30·K
+through K + 1 keys; a frame between two keys, not on one):
 
 - ``--handle JOINT@FRAME=X,Y,Z``: the joint at that frame is at ``(X, Y, Z)`` in the
   clip's world frame (cm for LaFAN1 and Bandai-Namco, +Y up);
 - ``--handle JOINT@FRAME=+X,Y,Z`` (a leading ``+``): an offset from the straight line
   between the joint's positions in the start and end poses, at that frame — the one
-  reference that exists for any two poses (``right_hand@12=+0,25,0``: 25 cm above it);
+  reference that exists for any two poses (``right_hand@12=+0,25,0``: 25 cm above it; in a
+  chain, the line between the two keys around the frame);
 - ``--handles FILE``: a JSON list (the format ``bezmotion/blender_curves.py`` exports)
   ``[{"joint": "right_hand", "frame": 12, "position": [x, y, z]}, …]``, or ``{"handles":
   […]}``, or a TOML file of ``[[handles]]`` tables; ``"offset"`` instead of
@@ -56,16 +63,17 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, Float
 
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, load_model
 from bezmotion.data.bvh import BvhMotion, read_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.ik.exact import exact_settings
-from bezmotion.ik.protocol import Pose, pose_fk
+from bezmotion.ik.protocol import Character, Pose, pose_fk, targets_from_pose
 from bezmotion.ik.protores import load_ik_model
 from bezmotion.io import atomic_write_text
 from bezmotion.options import option, options
-from bezmotion.pipeline import inbetween, key_velocities, pose_to_bvh
+from bezmotion.pipeline import inbetween, inbetween_chain, join_chain_curves, pose_to_bvh
 from bezmotion.pipeline.evaluation import curve_miss, largest_turn
 from bezmotion.pipeline.authoring import (
     CHANNEL_CHOICES,
@@ -99,15 +107,16 @@ class InbetweenOptions:
     """In-between two poses of your own BVH files through handles; write BVH, glTF and a preview."""
 
     clip: Path | None = option(None, positional=True, metavar="CLIP.bvh", help="one BVH file holding both key poses (with --frames)")
-    frames: tuple[int, int] | None = option(
-        None, metavar=("START", "END"), help="the key frames in CLIP, 30 frames apart (the BMM's window)"
-    )
+    frames: tuple[int, ...] | None = option(
+        None, metavar="FRAME",
+        help="the key frames in CLIP, 30 frames apart (the BMM's window): START END, or more for a chain through every one (C¹ at the shared keys)",
+    )  # fmt: skip
     start: str | None = option(None, metavar="FILE.bvh@FRAME", help="the start pose (default frame 0)")
     end: str | None = option(None, metavar="FILE.bvh@FRAME", help="the end pose (default the last frame), put 30 frames after the start")
     handle: tuple[str, ...] = option(
         (), repeat=True, metavar="JOINT@FRAME=X,Y,Z",
-        help="a handle, repeatable: the joint's position (cm) at a frame 0…30 of the in-between; "
-        "a leading + (JOINT@FRAME=+X,Y,Z) offsets it from the straight line between the keys",
+        help="a handle, repeatable: the joint's position (cm) at a frame 0…30 of the in-between (0…30·K through K + 1 keys); "
+        "a leading + (JOINT@FRAME=+X,Y,Z) offsets it from the straight line between the keys around it",
     )  # fmt: skip
     handles: Path | None = option(None, metavar="FILE", help='a JSON or TOML handles file: [{"joint", "frame", "position" or "offset"}]')
     samples: int = option(1, metavar="N", help="how many in-betweens, each with its own seed (default 1)")
@@ -138,8 +147,10 @@ class InbetweenOptions:
         False, help="condition the BMM on the key poses' joint positions alone (the paper); default: their orientations too"
     )
     key_velocities: bool = option(
-        False, help="the curves leave and reach the keys at the clip's own velocities (from the frame before the start and the one after the end)"
-    )
+        False,
+        help="the curves leave and reach the keys at the clip's own velocities (from the frame before the first key and the one "
+        "after the last; a chain's inner keys from the frames on both sides)",
+    )  # fmt: skip
     foot_lock: bool = option(True, help=FOOT_LOCK_HELP)
     exact: tuple[str, ...] = option((), repeat=True, metavar="NAME=VALUE", help=EXACT_HELP)
     no_preview: bool = option(False, help="with --out FOLDER: no preview.gif (drawing it takes a few seconds)")
@@ -238,40 +249,61 @@ def _role(request: HandleRequest, recognised: RecognisedCharacter) -> str:
 
 
 def resolve_handles(
-    requests: Sequence[HandleRequest], recognised: RecognisedCharacter, start: Pose, end: Pose, bmm: BezierMotionModel
+    requests: Sequence[HandleRequest], recognised: RecognisedCharacter, keys: Sequence[Pose], bmm: BezierMotionModel
 ) -> tuple[Handles, list[dict[str, Any]]]:
-    """``(Handles, [{"joint", "frame", "position"}])`` of the requests: offsets made positions, every handle checked.
+    """``(Handles, [{"joint", "frame", "position"}])`` of the requests: offsets made positions,
+    every handle checked.
 
+    Args:
+      keys: the key poses, ``bmm.config.num_frames − 1`` (30) frames apart: two for one
+        window, more for a chain.
+    Returns:
+      The handles: ``(slots,)`` for one window; ``(windows, slots)`` for a chain, each in its
+      window's own frames (:func:`~bezmotion.pipeline.inbetween_chain`). The records keep the
+      frames as written (counted from the first key).
     Raises:
-      ValueError: an unknown joint, a frame outside the in-between, or one the sampler
-        refuses (:meth:`Handles.from_frames`), each naming the handle as it was written.
+      ValueError: an unknown joint, a frame outside the in-between or on a key of a chain, or
+        one the sampler refuses (:meth:`Handles.from_frames`), each naming the handle as it
+        was written.
     """
     character = recognised.character
-    last = bmm.config.num_frames - 1
+    span = bmm.config.num_frames - 1
+    last = span * (len(keys) - 1)
     idx = np.asarray(character.characteristic)
-    keys = np.stack([np.asarray(pose_fk(character, p)[1])[idx] for p in (start, end)])  # (2, 6, 3)
-    roles, frames, positions, records = [], [], [], []
+    key_positions = np.stack([np.asarray(pose_fk(character, p)[1])[idx] for p in keys])  # (keys, 6, 3)
+    per_window: list[tuple[list[str], list[int], list[np.ndarray]]] = [([], [], []) for _ in range(len(keys) - 1)]
+    records = []
     for r in requests:
         role = _role(r, recognised)
         if not 0 <= r.frame <= last:
             raise ValueError(f"{r.source}: frame {r.frame} is outside the in-between, frames 0…{last} (0 and {last} are the keys)")
+        if 0 < r.frame < last and r.frame % span == 0:
+            raise ValueError(f"{r.source}: frame {r.frame} is a key of the chain (keys at {list(range(0, last + 1, span))}); handles go between them")
+        window = min(r.frame // span, len(keys) - 2)
+        local = r.frame - span * window  # the frame in its window (0 and 30 are the window's keys)
         position = np.asarray(r.value, np.float64)
         if r.relative:
-            j, t = CHARACTERISTIC_JOINTS.index(role), r.frame / last
-            position = position + (1.0 - t) * keys[0, j] + t * keys[1, j]
+            j, t = CHARACTERISTIC_JOINTS.index(role), local / span
+            position = position + (1.0 - t) * key_positions[window, j] + t * key_positions[window + 1, j]
         try:  # the sampler's own rules for handle frames, reported with the handle as written
-            Handles.from_frames([role], [r.frame], position[None], config=bmm.config)
+            Handles.from_frames([role], [local], position[None], config=bmm.config)
         except ValueError as error:
             raise ValueError(f"{r.source}: {error}") from None
-        roles.append(role)
-        frames.append(r.frame)
-        positions.append(position)
+        for column, value in zip(per_window[window], (role, local, position)):
+            column.append(value)
         records.append({"joint": role, "frame": r.frame, "position": position.tolist()})
-    handles = Handles.from_frames(roles, frames, np.stack(positions), config=bmm.config) if requests else Handles.empty()
-    # Padded (valid=False) to a multiple of _HANDLE_SLOTS, so that another count of
+    # Padded (valid=False) to one count, a multiple of _HANDLE_SLOTS, so that another count of
     # handles reuses the compiled in-between rather than compiling again.
-    pad = -len(handles.valid) % _HANDLE_SLOTS
-    return jax.tree.map(lambda x: jnp.concatenate([x, jnp.zeros((pad, *x.shape[1:]), x.dtype)]), handles), records
+    # (Never fewer than one slot: Handles.empty() has one.)
+    slots = _HANDLE_SLOTS * max(1, -(-max(len(roles) for roles, _, _ in per_window) // _HANDLE_SLOTS))
+
+    def padded(roles: list[str], frames: list[int], positions: list[np.ndarray]) -> Handles:
+        handles = Handles.from_frames(roles, frames, np.stack(positions), config=bmm.config) if roles else Handles.empty()
+        pad = slots - len(handles.valid)
+        return jax.tree.map(lambda x: jnp.concatenate([x, jnp.zeros((pad, *x.shape[1:]), x.dtype)]), handles)
+
+    windows = [padded(*columns) for columns in per_window]
+    return (windows[0] if len(windows) == 1 else jax.tree.map(lambda *x: jnp.stack(x), *windows)), records
 
 
 # ------------------------------------------------------------------------------- plan
@@ -320,8 +352,7 @@ class Plan:
 
     recognised: RecognisedCharacter
     start_motion: BvhMotion
-    start: Pose
-    end: Pose
+    keys: tuple[Pose, ...]  # two for one window, more for a chain
     reference: BvhMotion | None
     bmm: BezierMotionModel
     ik: str
@@ -333,7 +364,7 @@ class Plan:
     outputs: list[dict[str, Path]]
     folder: Path | None
     label: str
-    key_velocity: Any = None  # (2, 6, 3) cm/frame with --key-velocities
+    key_velocity: Any = None  # (keys, 6, 3) cm/frame with --key-velocities
 
 
 def _outputs(args: InbetweenOptions) -> tuple[list[dict[str, Path]], Path | None]:
@@ -372,11 +403,14 @@ def plan(args: InbetweenOptions) -> Plan:
             raise ValueError(f"CLIP {args.clip}: give the keys either as CLIP --frames START END or as --start/--end, not both")
         if args.frames is None:
             raise ValueError(f"CLIP {args.clip}: needs --frames START END (the key frames in it)")
+        shown = " ".join(map(str, args.frames))
+        if len(args.frames) < 2:
+            raise ValueError(f"--frames {shown}: needs at least two key frames (START END, or more for a chain)")
         motion = _read_clip("CLIP", args.clip)
         for f in args.frames:
-            _check_frame("--frames", " ".join(map(str, args.frames)), motion, f)
+            _check_frame("--frames", shown, motion, f)
         keys = [("CLIP", str(args.clip), args.clip, motion, f) for f in args.frames]
-        label = f"{args.clip.name} frames {args.frames[0]}–{args.frames[1]}"
+        label = f"{args.clip.name} frames {'–'.join(map(str, args.frames))}"
     else:
         if args.frames is not None:
             raise ValueError(f"--frames {' '.join(map(str, args.frames))}: goes with one CLIP.bvh (bezmotion inbetween CLIP.bvh --frames START END)")
@@ -396,7 +430,7 @@ def plan(args: InbetweenOptions) -> Plan:
             _check_frame(argument, text, m, frame)
             keys.append((argument, text, path, m, frame))
         label = f"{keys[0][1]} → {keys[1][1]}"
-    (arg0, text0, path0, start_motion, f0), (arg1, text1, _, end_motion, f1) = keys
+    (arg0, text0, path0, start_motion, f0), (arg1, text1, _, end_motion, f1) = keys[0], keys[-1]
     if args.mapping is not None and not Path(args.mapping).is_file():
         raise ValueError(f"--mapping {args.mapping}: no such file")
     try:
@@ -411,16 +445,14 @@ def plan(args: InbetweenOptions) -> Plan:
             f"({len(start_motion.skeleton.names)} joints, {text0}); both keys need the same joints"
         )
     character = recognised.character
-    start = motion_poses(start_motion, character, f0)
-    end = motion_poses(end_motion, character, f1)
+    key_poses = tuple(motion_poses(m, character, f) for _, _, _, m, f in keys)
     key_velocity = None
     if args.key_velocities:
         if f0 == 0:
             raise ValueError(f"--key-velocities: the start key is the first frame of {text0}; its velocity needs the frame before it")
         if f1 == end_motion.num_frames - 1:
             raise ValueError(f"--key-velocities: the end key is the last frame ({f1}) of {text1}; its velocity needs the frame after it")
-        around = [motion_poses(start_motion, character, f0 - 1), start, end, motion_poses(end_motion, character, f1 + 1)]
-        key_velocity = key_velocities(character, jax.tree.map(lambda *x: jnp.stack(x), *around))
+        key_velocity = _clip_key_velocities(character, [(m, f) for _, _, _, m, f in keys])
 
     # The handles as written (their joints known now; their frames once the model is).
     requests = [parse_handle(h) for h in args.handle]
@@ -438,13 +470,15 @@ def plan(args: InbetweenOptions) -> Plan:
     window = bmm.config.num_frames
     reference = None
     if args.clip is not None:
-        if f1 - f0 != window - 1:
-            raise ValueError(
-                f"--frames {f0} {f1}: the keys are {f1 - f0} frames apart; the BMM in-betweens {window - 1} "
-                f"(a {window}-frame window): use --frames {f0} {f0 + window - 1}, or --start {args.clip}@{f0} "
-                f"--end {args.clip}@{f1} to put these two poses {window - 1} frames apart"
-            )
-        reference = motion_window(start_motion, f0, window)
+        shown = " ".join(map(str, args.frames))
+        for a, b in zip(args.frames, args.frames[1:]):
+            if b - a != window - 1:
+                retime = f", or --start {args.clip}@{a} --end {args.clip}@{b} to put these two poses {window - 1} frames apart" if len(args.frames) == 2 else ""
+                raise ValueError(
+                    f"--frames {shown}: the keys{'' if len(args.frames) == 2 else f' {a} and {b}'} are {b - a} frames apart; the BMM in-betweens {window - 1} "
+                    f"(a {window}-frame window): use --frames {' '.join(str(f0 + i * (window - 1)) for i in range(len(args.frames)))}{retime}"
+                )
+        reference = motion_window(start_motion, f0, f1 - f0 + 1)
     trained_on = args.trained_on if args.trained_on is not None else bundled_trained_on
     transfer = None
     if trained_on is not None and trained_on != recognised.preset:
@@ -476,16 +510,31 @@ def plan(args: InbetweenOptions) -> Plan:
         # The exact IK's soft joint limits: those measured beside the learned IK, if any.
         limits = ik_model_joint_limits(ik_folder, character) if ik == "exact" else None
         ik_fn, ik_params = make_ik(
-            ik, recognised, rest_quat_local=np.asarray(start.quat_local), ik_model=ik_model, limits=limits, exact_settings=settings
+            ik, recognised, rest_quat_local=np.asarray(key_poses[0].quat_local), ik_model=ik_model, limits=limits, exact_settings=settings
         )
     except ValueError as error:
         raise ValueError(f"--ik {ik}: the learned IK {args.ik_model} does not fit this skeleton: {error}") from None
 
-    handles, records = resolve_handles(requests, recognised, start, end, bmm)
+    handles, records = resolve_handles(requests, recognised, key_poses, bmm)
     return Plan(
-        recognised, start_motion, start, end, reference, bmm, ik, ik_fn, ik_params, transfer, handles, records, outputs, folder, label,
+        recognised, start_motion, key_poses, reference, bmm, ik, ik_fn, ik_params, transfer, handles, records, outputs, folder, label,
         key_velocity,
     )  # fmt: skip
+
+
+def _clip_key_velocities(character: Character, keys: Sequence[tuple[BvhMotion, int]]) -> Float[Array, "keys 6 3"]:
+    """The six joints' velocities (cm/frame) at each key ``(clip, frame)`` from the clip's
+    frames around it: outwards at the first and last key (the frame before the first, the one
+    after the last: the motion kept around the in-between), the central difference at a
+    chain's inner keys (the velocity both its windows take)."""
+    def position(motion: BvhMotion, frame: int) -> Array:
+        return targets_from_pose(character, motion_poses(motion, character, frame)).position  # (6, 3)
+
+    velocities = []
+    for i, (motion, frame) in enumerate(keys):
+        before, after = (frame - 1 if i < len(keys) - 1 else frame), (frame + 1 if i > 0 else frame)
+        velocities.append((position(motion, after) - position(motion, before)) / (after - before))
+    return jnp.stack(velocities)
 
 
 # -------------------------------------------------------------------------------- run
@@ -509,9 +558,11 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
     p = plan(args)  # no progress line before it: a bad argument's error is the only output
     character = p.recognised.character
     n = len(p.outputs)
+    windows = len(p.keys) - 1
+    frames = windows * (p.bmm.config.num_frames - 1) + 1
     say(
         f"{p.label}: {character.name} ({character.num_joints} joints), IK {p.ik}, {len(p.handle_records)} handle(s), "
-        f"{n} sample(s) of {p.bmm.config.num_frames} frames, {args.steps} DDIM steps"
+        f"{n} sample(s) of {frames} frames" + (f" ({windows} windows, one chain)" if windows > 1 else "") + f", {args.steps} DDIM steps"
         + (", transferred from the BMM's skeleton" if p.transfer is not None else "")
     )
     export = dict(fps=p.start_motion.nominal_fps, channels=None if args.channels == "default" else p.start_motion.channels, template=p.start_motion)
@@ -519,16 +570,22 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
     for k in range(n):
         t0 = time.perf_counter()
         say(f"sample {k + 1}/{n}" + (" (compiling first, about a minute on a CPU) …" if k == 0 else " …"))
-        result = inbetween(
-            p.bmm, p.ik_fn, p.ik_params, character, p.start, p.end, p.handles,
+        common = dict(
             key=jax.random.fold_in(jax.random.key(args.seed), k), transfer=p.transfer, steps=args.steps,
             key_orientations=not args.key_positions_only, key_velocity=p.key_velocity, foot_lock=args.foot_lock,
         )  # fmt: skip
+        if windows == 1:
+            result = inbetween(p.bmm, p.ik_fn, p.ik_params, character, p.keys[0], p.keys[1], p.handles, **common)
+            curves = result.curves
+        else:
+            keys = jax.tree.map(lambda *x: jnp.stack(x), *p.keys)
+            result = inbetween_chain(p.bmm, p.ik_fn, p.ik_params, character, keys, p.handles, **common)
+            curves = join_chain_curves(result.curves)  # one curve through every key (C¹ there)
         jax.block_until_ready(result)
         seconds = time.perf_counter() - t0
         motion = pose_to_bvh(character, result.pose, **export)
         files = ResultFiles(
-            character, motion, result.curves, p.bmm.config.stride, tuple(p.handle_records), p.reference,
+            character, motion, curves, p.bmm.config.stride, tuple(p.handle_records), p.reference,
             f"{p.label}, sample {k}" if n > 1 else p.label,
         )  # fmt: skip
         if k == 0 and p.folder is not None:
@@ -559,7 +616,8 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
         "keys": p.label,
         "character": character.name,
         "joints": character.num_joints,
-        "frames": p.bmm.config.num_frames,
+        "frames": frames,
+        "windows": windows,
         "fps": p.start_motion.nominal_fps,
         "ik": p.ik,
         "steps": args.steps,

@@ -12,6 +12,7 @@ Two DDIM steps; handles are padded to a fixed count, so most runs share one comp
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import io
 import json
 import os
@@ -24,7 +25,7 @@ from helpers import np_forward_kinematics
 
 from bezmotion.assets import DEMO_CLIP
 from bezmotion.cli import main
-from bezmotion.data.bvh import read_bvh
+from bezmotion.data.bvh import read_bvh, write_bvh
 from bezmotion.inbetween_command import HandleRequest, InbetweenOptions, parse_handle, plan, read_handles_file
 from bezmotion.options import parse_options
 from bezmotion.pipeline.authoring import RigSpec, derive_rig_spec, read_mapping, recognise_character
@@ -248,6 +249,61 @@ def test_handles_files_json_as_blender_exports_them_and_toml(tmp_path):
         read_handles_file(bad)
 
 
+# ------------------------------------------------------------------------------ chains
+
+
+@pytest.fixture(scope="module")
+def long_clip(tmp_path_factory):
+    """The bundled clip played forward then back: 79 frames, room for keys at 0, 30 and 60."""
+    motion = read_bvh(DEMO_CLIP)
+    there_and_back = np.r_[np.arange(40), np.arange(38, -1, -1)]
+    path = tmp_path_factory.mktemp("long") / "there_and_back.bvh"
+    write_bvh(path, dataclasses.replace(motion, quat_local=motion.quat_local[there_and_back], pos_local=motion.pos_local[there_and_back]))
+    return path
+
+
+def test_a_chain_through_three_keys_keeps_them_and_hits_handles_in_both_windows(long_clip, tmp_path):
+    """``--frames 0 30 60``: one 61-frame motion through the three key poses, handles in
+    either window (frames counted from the first key), one joined curve in the glTF file."""
+    from bezmotion.pipeline.gltf import read_glb
+
+    out = tmp_path / "chain"
+    code, _, err = run_cli(
+        long_clip, "--frames", "0", "30", "60", "--handle", "right_hand@45=+0,25,0", "--handle", "left_foot@13=+0,5,0",
+        *FAST, "--no-preview", "--out", out,
+    )  # fmt: skip
+    assert code == 0, err
+    summary = json.loads((out / "summary.json").read_text())
+    assert (summary["frames"], summary["windows"]) == (61, 2)
+    clip, motion = read_bvh(long_clip), read_bvh(out / "inbetween.bvh")
+    pos, truth = fk_positions(motion), fk_positions(clip)
+    assert motion.num_frames == 61
+    np.testing.assert_allclose(pos[[0, 30, 60]], truth[[0, 30, 60]], atol=1e-3)  # every key, the inner one too
+    names = clip.skeleton.names
+    hand = names.index(HAND)
+    # Relative to the straight line between the keys around the handle: frames 30 and 60.
+    np.testing.assert_allclose(pos[45, hand], 0.5 * (truth[30, hand] + truth[60, hand]) + [0, 25, 0], atol=1e-3)
+    assert [h["frame"] for h in summary["handles"]] == [45, 13]
+    assert max(summary["samples"][0]["handle_errors_cm"]) < 1e-3
+    glb = read_glb(out / "inbetween.glb")
+    assert glb.ctrl_pos.shape == (11, 6, 3)  # two windows' 6 control points, the shared key once
+    np.testing.assert_allclose(glb.ctrl_pos[5, glb.joints.index("right_hand")], truth[30, hand], atol=1e-3)
+    np.testing.assert_allclose(fk_positions(glb.motion), pos, atol=1e-2)
+
+
+def test_a_chain_refuses_a_handle_on_its_inner_key_and_takes_every_keys_velocity(long_clip):
+    argv = [str(long_clip), "--frames", "1", "31", "61", *FAST]
+    with pytest.raises(ValueError, match=r"--handle head@30=\+0,1,0: frame 30 is a key of the chain \(keys at \[0, 30, 60\]\)"):
+        plan(parse_options(InbetweenOptions, [*argv, "--handle", "head@30=+0,1,0"]))
+    p = plan(parse_options(InbetweenOptions, [*argv, "--key-velocities", "--handle", "head@59=+0,1,0"]))
+    assert len(p.keys) == 3 and p.handles.position.shape == (2, 4, 3)  # (windows, slots, xyz)
+    assert np.asarray(p.handles.valid).tolist() == [[False] * 4, [True, False, False, False]]
+    assert int(p.handles.frame[1, 0]) == 29  # frame 59 of the chain is frame 29 of its window
+    pos = fk_positions(read_bvh(long_clip))[:, list(p.recognised.character.characteristic)]
+    # Outwards at the ends (the frames before and after), the central difference inside.
+    np.testing.assert_allclose(np.asarray(p.key_velocity), np.stack([pos[1] - pos[0], (pos[32] - pos[30]) / 2, pos[62] - pos[61]]), atol=1e-3)
+
+
 # ------------------------------------------------------------------------ bad arguments
 
 
@@ -277,6 +333,10 @@ def _cases(tmp):
         "unknown exact setting": ([*keys, "--ik", "exact", "--exact", "speed=3"], "--exact speed=3: expected NAME=VALUE with NAME one of"),
         "exact setting not a number": ([*keys, "--ik", "exact", "--exact", "iterations=x"], "--exact iterations=x: 'x' is not a number"),
         "exact settings for another IK": ([*keys, "--exact", "plant_weight=10"], "--exact plant_weight=10: the settings of the exact IK, not of --ik rig"),
+        "one key frame": ([clip, "--frames", "5"], "--frames 5: needs at least two key frames"),
+        "chain keys not 30 frames apart": (
+            [clip, "--frames", "0", "30", "35"], "--frames 0 30 35: the keys 30 and 35 are 5 frames apart; the BMM in-betweens 30"
+        ),
         "key velocity before the clip": ([*keys, "--key-velocities"], f"--key-velocities: the start key is the first frame of {clip}"),
         "key velocity after the clip": (
             ["--start", f"{clip}@5", "--end", f"{clip}@39", "--key-velocities"], f"--key-velocities: the end key is the last frame (39) of {clip}@39"

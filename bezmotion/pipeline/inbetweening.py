@@ -428,6 +428,15 @@ def chain_curves_traced(
     return jax.vmap(finish)(curves, first, last, handles, shared, tangent_pairs)
 
 
+def join_chain_curves(curves: SampledCurves) -> SampledCurves:
+    """A chain's curves, batched per window ``(windows, controls, …)`` (``ChainResult.curves``),
+    as one curve through every key ``(windows·(controls − 1) + 1, …)``: each shared key's
+    control point once (the earlier window's). A coupled chain's windows share it bit for
+    bit (position, tangent, orientation and contacts), so the joined curve is the same
+    motion, C¹ at the keys, for anything that takes one window's curves (glTF, preview)."""
+    return jax.tree.map(join_windows, curves)
+
+
 def pose_from_chain_curves(
     ik_fn: IKFn,
     ik_params: Any,
