@@ -152,6 +152,7 @@ def parse_glb(data: bytes) -> dict:
         "num_frames": int(meta["num_frames"]),
         "stride": stride,
         "control_frames": [int(f) for f in meta.get("control_frames", [])],
+        "key_frames": [int(f) for f in meta.get("key_frames", [0, int(meta["num_frames"]) - 1])],
         "curves": curves,
         "handles": list(meta.get("handles", [])),
     }
@@ -228,14 +229,16 @@ def bezier_value(segment_keys, frame):
     return u * u * u * p0 + 3 * u * u * t * p1 + 3 * u * t * t * p2 + t * t * t * p3
 
 
-def edited_handles(joint, original, keys, *, num_frames, tolerance_cm=DEFAULT_TOLERANCE_CM, everything=False, keep=()):
+def edited_handles(joint, original, keys, *, num_frames, key_frames=None, tolerance_cm=DEFAULT_TOLERANCE_CM, everything=False, keep=()):
     """Handles (cm) for the keys of one controller that moved, and notes on what cannot be said.
 
     Args:
       joint: the characteristic joint's name.
       original: ``{"control_frames", "position", "tangent"}`` as imported (cm).
       keys: ``[(frame, position_cm, tangent_cm)]`` the controller's keys now.
-      num_frames: the window's length (its first and last frames are the poses).
+      num_frames: the motion's length.
+      key_frames: the frames that are key poses, never handles (default the first and last;
+        a chain's inner keys too).
       tolerance_cm: a key counts as moved beyond this distance.
       everything: every interior key, moved or not.
       keep: frames whose keys are handles whether they moved or not (the handles the
@@ -244,6 +247,7 @@ def edited_handles(joint, original, keys, *, num_frames, tolerance_cm=DEFAULT_TO
       ``(handles, notes)``: ``[{"joint", "frame", "position"}]`` and a list of messages.
     """
     before = {int(f): (p, t) for f, p, t in zip(original["control_frames"], original["position"], original["tangent"])}
+    key_frames = {0, num_frames - 1} if key_frames is None else set(key_frames)
     handles, notes = [], []
     for frame, position, tangent in keys:
         whole = round(frame)
@@ -252,9 +256,9 @@ def edited_handles(joint, original, keys, *, num_frames, tolerance_cm=DEFAULT_TO
             continue
         old = before.get(whole)
         moved = old is None or math.dist(position, old[0]) > tolerance_cm
-        if whole in (0, num_frames - 1):
+        if whole in key_frames:
             if moved:
-                notes.append(f"{joint}: the key at frame {whole} moved, but the first and last frames are the start and end poses; not a handle")
+                notes.append(f"{joint}: the key at frame {whole} moved, but frame {whole} is a key pose (keys at {sorted(key_frames)}); not a handle")
             continue
         if not 0 < whole < num_frames - 1:
             notes.append(f"{joint}: key at frame {whole} is outside the window 0…{num_frames - 1}; skipped")
@@ -325,7 +329,9 @@ def import_glb(path, *, armature=True):
         obj.empty_display_size = 0.03
         collection.objects.link(obj)
         obj[JOINT_PROP] = joint
-        obj[PROP] = json.dumps({"control_frames": data["control_frames"], "stride": data["stride"], "num_frames": data["num_frames"], **curve})
+        obj[PROP] = json.dumps(
+            {"control_frames": data["control_frames"], "stride": data["stride"], "num_frames": data["num_frames"], "key_frames": data["key_frames"], **curve}
+        )
         fcurves = _fcurves(obj, f"ctrl_{joint}")
         for axis, keys in enumerate(blender_keyframes(data["control_frames"], data["stride"], curve["position"], curve["tangent"])):
             fc = fcurves.new("location", index=axis)
@@ -387,7 +393,8 @@ def export_handles(path, *, tolerance_cm=DEFAULT_TOLERANCE_CM, everything=False)
         joint, original, keys = controller_keys(obj)
         keep = {h["frame"] for h in given if h["joint"] == joint}
         h, n = edited_handles(
-            joint, original, keys, num_frames=original["num_frames"], tolerance_cm=tolerance_cm, everything=everything, keep=keep
+            joint, original, keys, num_frames=original["num_frames"], key_frames=original.get("key_frames"),
+            tolerance_cm=tolerance_cm, everything=everything, keep=keep,
         )
         handles += h
         notes += n

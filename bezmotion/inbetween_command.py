@@ -586,7 +586,7 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
         motion = pose_to_bvh(character, result.pose, **export)
         files = ResultFiles(
             character, motion, curves, p.bmm.config.stride, tuple(p.handle_records), p.reference,
-            f"{p.label}, sample {k}" if n > 1 else p.label,
+            f"{p.label}, sample {k}" if n > 1 else p.label, tuple(range(0, frames, p.bmm.config.num_frames - 1)),
         )  # fmt: skip
         if k == 0 and p.folder is not None:
             p.folder.mkdir(parents=True, exist_ok=True)

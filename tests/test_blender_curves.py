@@ -81,6 +81,11 @@ def test_parse_glb_reads_what_read_glb_reads(tmp_path):
     assert parsed["control_frames"] == layout.control_frames.tolist() == [0, 6, 12, 18, 24, 28]
     assert parsed["num_frames"] == 29 and parsed["stride"] == 6 and parsed["frame_time"] == motion.frame_time
     assert list(parsed["curves"]) == list(CHARACTERISTIC_JOINTS) and parsed["handles"] == handles
+    assert parsed["key_frames"] == back.key_frames == [0, 28]  # one window's: its first and last frame
+    write_glb(path, motion, ctrl_pos, ctrl_tangent, key_frames=[0, 14, 28])  # a chain's, say
+    assert bc.parse_glb(path.read_bytes())["key_frames"] == read_glb(path).key_frames == [0, 14, 28]
+    with pytest.raises(ValueError, match="key frames must be frames of the motion"):
+        write_glb(path, motion, ctrl_pos, ctrl_tangent, key_frames=[0, 29])
     for j, joint in enumerate(CHARACTERISTIC_JOINTS):
         np.testing.assert_allclose(parsed["curves"][joint]["position"], back.ctrl_pos[:, j], rtol=0, atol=1e-9)
         np.testing.assert_allclose(parsed["curves"][joint]["tangent"], back.ctrl_tangent[:, j], rtol=0, atol=1e-9)
@@ -146,6 +151,9 @@ def test_edited_handles_are_the_moved_interior_keys():
     keys[1] = (6.0, [1, 1, 1], [9, 0, 0])
     _, notes = bc.edited_handles("right_hand", original, keys, num_frames=31)
     assert any("tangent at frame 6 changed" in n for n in notes)
+    # A chain's inner key (frame 12 of keys at 0, 12, 18) is a key pose, not a handle.
+    chained, notes = bc.edited_handles("right_hand", original, keys, num_frames=19, key_frames=[0, 12, 18])
+    assert [h["frame"] for h in chained] == [9] and any("frame 12 is a key pose (keys at [0, 12, 18])" in n for n in notes)
 
 
 def test_round_trip_through_blender(tmp_path):

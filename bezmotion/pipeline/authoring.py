@@ -362,6 +362,8 @@ class ResultFiles:
       handles: ``[{"joint", "frame", "position"}]`` (cm, world frame).
       reference: the mocap between the keys, drawn beside the preview; or None.
       title: the preview's title line.
+      key_frames: the frames that are key poses (None: the first and last; a chain's inner
+        keys too), for the glTF file.
     """
 
     character: Character
@@ -371,6 +373,7 @@ class ResultFiles:
     handles: tuple[Mapping[str, Any], ...] = ()
     reference: BvhMotion | None = None
     title: str | None = None
+    key_frames: tuple[int, ...] | None = None
 
     def curve_arrays(self) -> dict[str, Any]:
         if self.curves is None:
@@ -385,7 +388,7 @@ def _write_bvh(path: Path, result: ResultFiles) -> None:
 def _write_glb(path: Path, result: ResultFiles) -> None:
     from bezmotion.pipeline.gltf import write_glb
 
-    write_glb(path, result.motion, **result.curve_arrays(), handles=list(result.handles))
+    write_glb(path, result.motion, **result.curve_arrays(), handles=list(result.handles), key_frames=result.key_frames)
 
 
 def _write_gif(path: Path, result: ResultFiles) -> None:

@@ -79,6 +79,7 @@ class GlbContents(NamedTuple):
       layout: the curves' :class:`~bezmotion.bezier.BezierLayout` (``None`` without curves).
       joints: the curve joints' names (:data:`CHARACTERISTIC_JOINTS`).
       handles: ``[{"joint", "frame", "position" (cm)}]`` as given to :func:`write_glb`.
+      key_frames: the frames that are key poses (the first and last; a chain's inner keys too).
     """
 
     motion: BvhMotion
@@ -87,6 +88,7 @@ class GlbContents(NamedTuple):
     layout: BezierLayout | None
     joints: tuple[str, ...]
     handles: list[dict[str, Any]]
+    key_frames: list[int]
 
 
 def curve_tangents_to_gltf(ctrl_tangent: np.ndarray, *, fps: float, stride: int) -> tuple[np.ndarray, np.ndarray]:
@@ -182,6 +184,7 @@ def write_glb(
     stride: int = DEFAULT_STRIDE,
     interpolation: str = "LINEAR",
     handles: Sequence[Mapping[str, Any]] | None = None,
+    key_frames: Sequence[int] | None = None,
     name: str = "inbetween",
 ) -> None:
     """Write ``motion`` and the six characteristic-joint curves as a binary glTF 2.0 file (atomically).
@@ -204,6 +207,8 @@ def write_glb(
       interpolation: ``"LINEAR"`` (slerp between frames) or ``"STEP"`` for the skeleton.
       handles: ``[{"joint": "right_hand", "frame": 12, "position": [x, y, z]}]`` (cm, world
         frame), written as marker nodes and kept in the file's extras.
+      key_frames: the frames that are key poses, kept in the extras (default the first and
+        last; a chain's inner keys too), so that an editor does not offer them as handles.
       name: the animation's name.
 
     Raises:
@@ -223,6 +228,9 @@ def write_glb(
     if not (np.isfinite(motion.quat_local).all() and np.isfinite(motion.pos_local).all()):
         raise ValueError("motion contains non-finite values")
     records = _handle_records(handles, frames)
+    key_frames = [0, frames - 1] if key_frames is None else sorted({int(f) for f in key_frames})
+    if not all(0 <= f < frames for f in key_frames):
+        raise ValueError(f"key frames must be frames of the motion, 0…{frames - 1}; got {key_frames}")
 
     skeleton = motion.skeleton
     offsets = np.asarray(skeleton.offsets, np.float64)
@@ -291,6 +299,7 @@ def write_glb(
             "curve_joints": list(CHARACTERISTIC_JOINTS) if ctrl_pos is not None else [],
             "curve_nodes": controllers,
             "handles": records,
+            "key_frames": key_frames,
         }
     }
     data = blob.bytes()
@@ -381,7 +390,8 @@ def read_glb(path: str | os.PathLike) -> GlbContents:
         ctrl_tangent = curve_tangents_from_gltf(keys[:, :, 0], keys[:, :, 2], fps=1.0 / frame_time, stride=stride)
     else:
         layout, ctrl_pos, ctrl_tangent = None, np.zeros((0, 6, 3)), np.zeros((0, 6, 3))
-    return GlbContents(motion, ctrl_pos, ctrl_tangent, layout, curve_joints, list(meta.get("handles", [])))
+    key_frames = [int(f) for f in meta.get("key_frames", [0, frames - 1])]  # files before key_frames: a window's two
+    return GlbContents(motion, ctrl_pos, ctrl_tangent, layout, curve_joints, list(meta.get("handles", [])), key_frames)
 
 
 def find_gltf_validator() -> Path | None:
