@@ -41,8 +41,9 @@ with (where they are now), every key (a control point, or one the animator added
 position moved from the imported curve by more than ``--tolerance`` cm, or every interior
 key with ``--all`` — into the handles file that ``bezmotion inbetween
 --handles FILE`` takes: ``[{"joint": "right_hand", "frame": 12, "position": [x, y, z]}]``,
-cm, in the character's world frame. The first and last frames are the start and end
-poses, not handles: moving them is reported, not exported. Edits of a handle's tangent
+cm, in the character's world frame. The key poses (the first and last frames, and a
+chain's inner keys: the file's ``key_frames``) are not handles: moving them is reported,
+not exported. Edits of a handle's tangent
 alone have no place in that format and are reported too.
 
 The conversion functions (``parse_glb``, ``blender_keyframes``, ``curve_from_keyframes``,
