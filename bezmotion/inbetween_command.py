@@ -3,6 +3,7 @@
     bezmotion inbetween CLIP.bvh --frames 0 30 --handle right_hand@12=+0,25,0 --out take/
     bezmotion inbetween --start A.bvh@0 --end B.bvh@12 --handles handles.json --samples 3 --out take.bvh
     bezmotion inbetween CLIP.bvh --frames 0 30 60 90 --handle left_hand@45=+0,30,0 --out chain/
+    bezmotion inbetween --key idle.bvh@0 --key wave.bvh@25 --key idle.bvh@80 --out chain.bvh
 
 **Keys.** One file and two frames (``CLIP.bvh --frames F G``), or a file and a frame each
 (``--start A.bvh@F --end B.bvh@G``; without ``@`` the start is frame 0 and the end the
@@ -14,6 +15,8 @@ More than two ``--frames`` (``CLIP.bvh --frames 0 30 60 90``, each 30 after the 
 in-between a chain through every one of them: one window per pair of consecutive keys, all
 sampled in one call and joined C¹ at the shared keys
 (:func:`~bezmotion.pipeline.inbetween_chain`), then one IK over the whole motion.
+``--key FILE.bvh@FRAME``, repeated, makes such a chain through any poses of any files, in
+the order given, each put 30 frames after the one before.
 Both files must have the same joints; the output rigs like the start file (its OFFSETs,
 End Sites and frame rate).
 
@@ -113,6 +116,11 @@ class InbetweenOptions:
     )  # fmt: skip
     start: str | None = option(None, metavar="FILE.bvh@FRAME", help="the start pose (default frame 0)")
     end: str | None = option(None, metavar="FILE.bvh@FRAME", help="the end pose (default the last frame), put 30 frames after the start")
+    key: tuple[str, ...] = option(
+        (), repeat=True, metavar="FILE.bvh@FRAME",
+        help="a key pose, repeatable (two or more, instead of --start/--end): a chain through them in order, each put 30 frames after "
+        "the one before (without @FRAME: the first frame, the last key's last frame)",
+    )  # fmt: skip
     handle: tuple[str, ...] = option(
         (), repeat=True, metavar="JOINT@FRAME=X,Y,Z",
         help="a handle, repeatable: the joint's position (cm) at a frame 0…30 of the in-between (0…30·K through K + 1 keys); "
@@ -397,39 +405,7 @@ def plan(args: InbetweenOptions) -> Plan:
     if args.steps < 1:
         raise ValueError(f"--steps {args.steps}: must be at least 1")
     outputs, folder = _outputs(args)
-    # The key poses.
-    if args.clip is not None:
-        if args.start is not None or args.end is not None:
-            raise ValueError(f"CLIP {args.clip}: give the keys either as CLIP --frames START END or as --start/--end, not both")
-        if args.frames is None:
-            raise ValueError(f"CLIP {args.clip}: needs --frames START END (the key frames in it)")
-        shown = " ".join(map(str, args.frames))
-        if len(args.frames) < 2:
-            raise ValueError(f"--frames {shown}: needs at least two key frames (START END, or more for a chain)")
-        motion = _read_clip("CLIP", args.clip)
-        for f in args.frames:
-            _check_frame("--frames", shown, motion, f)
-        keys = [("CLIP", str(args.clip), args.clip, motion, f) for f in args.frames]
-        label = f"{args.clip.name} frames {'–'.join(map(str, args.frames))}"
-    else:
-        if args.frames is not None:
-            raise ValueError(f"--frames {' '.join(map(str, args.frames))}: goes with one CLIP.bvh (bezmotion inbetween CLIP.bvh --frames START END)")
-        if args.start is None and args.end is None:
-            raise ValueError("give the key poses: CLIP.bvh --frames START END, or --start A.bvh@FRAME --end B.bvh@FRAME")
-        if args.start is None or args.end is None:
-            given, missing = ("--start", "--end") if args.end is None else ("--end", "--start")
-            raise ValueError(f"{given} {args.start or args.end}: needs {missing} FILE.bvh@FRAME too")
-        keys = []
-        read: dict[Path, BvhMotion] = {}
-        for argument, text in (("--start", args.start), ("--end", args.end)):
-            path, frame = _key(argument, text, end=argument == "--end")
-            if path not in read:
-                read[path] = _read_clip(argument, path, text)
-            m = read[path]
-            frame = (m.num_frames - 1 if argument == "--end" else 0) if frame is None else frame
-            _check_frame(argument, text, m, frame)
-            keys.append((argument, text, path, m, frame))
-        label = f"{keys[0][1]} → {keys[1][1]}"
+    keys, label = _read_keys(args)
     (arg0, text0, path0, start_motion, f0), (arg1, text1, _, end_motion, f1) = keys[0], keys[-1]
     if args.mapping is not None and not Path(args.mapping).is_file():
         raise ValueError(f"--mapping {args.mapping}: no such file")
@@ -439,11 +415,12 @@ def plan(args: InbetweenOptions) -> Plan:
         if args.mapping is not None:
             raise _error("--mapping", args.mapping, error) from None
         raise _error(arg0, path0, error) from None
-    if not same_skeleton(start_motion, end_motion):
-        raise ValueError(
-            f"{arg1} {text1}: its skeleton ({len(end_motion.skeleton.names)} joints) differs from the start's "
-            f"({len(start_motion.skeleton.names)} joints, {text0}); both keys need the same joints"
-        )
+    for argument, text, _, motion, _ in keys[1:]:
+        if not same_skeleton(start_motion, motion):
+            raise ValueError(
+                f"{argument} {text}: its skeleton ({len(motion.skeleton.names)} joints) differs from the start's "
+                f"({len(start_motion.skeleton.names)} joints, {text0}); every key needs the same joints"
+            )
     character = recognised.character
     key_poses = tuple(motion_poses(m, character, f) for _, _, _, m, f in keys)
     key_velocity = None
@@ -452,6 +429,9 @@ def plan(args: InbetweenOptions) -> Plan:
             raise ValueError(f"--key-velocities: the start key is the first frame of {text0}; its velocity needs the frame before it")
         if f1 == end_motion.num_frames - 1:
             raise ValueError(f"--key-velocities: the end key is the last frame ({f1}) of {text1}; its velocity needs the frame after it")
+        for argument, text, _, motion, frame in keys[1:-1]:
+            if not 0 < frame < motion.num_frames - 1:
+                raise ValueError(f"--key-velocities: the key {text} is frame {frame} of {motion.num_frames}; its velocity needs the frames on both sides")
         key_velocity = _clip_key_velocities(character, [(m, f) for _, _, _, m, f in keys])
 
     # The handles as written (their joints known now; their frames once the model is).
@@ -520,6 +500,53 @@ def plan(args: InbetweenOptions) -> Plan:
         recognised, start_motion, key_poses, reference, bmm, ik, ik_fn, ik_params, transfer, handles, records, outputs, folder, label,
         key_velocity,
     )  # fmt: skip
+
+
+def _read_keys(args: InbetweenOptions) -> tuple[list[tuple[str, str, Path, BvhMotion, int]], str]:
+    """The key poses the arguments name, read and checked, in order: ``[(argument, as
+    written, path, clip, frame)]``, and a label for them. One of CLIP ``--frames``,
+    ``--start``/``--end`` or ``--key`` (repeated)."""
+    forms = {"CLIP": args.clip, "--start": args.start, "--end": args.end, "--key": args.key[0] if args.key else None}
+    given = [name for name, value in forms.items() if value is not None]
+    if len({{"--end": "--start"}.get(name, name) for name in given}) > 1:  # --start and --end are one way
+        raise ValueError(
+            f"{given[0]} {forms[given[0]]}: give the keys one way, CLIP.bvh --frames …, --start/--end or --key (repeated), not {' and '.join(given)}"
+        )
+    if args.clip is not None:
+        if args.frames is None:
+            raise ValueError(f"CLIP {args.clip}: needs --frames START END (the key frames in it)")
+        shown = " ".join(map(str, args.frames))
+        if len(args.frames) < 2:
+            raise ValueError(f"--frames {shown}: needs at least two key frames (START END, or more for a chain)")
+        motion = _read_clip("CLIP", args.clip)
+        for f in args.frames:
+            _check_frame("--frames", shown, motion, f)
+        return [("CLIP", str(args.clip), args.clip, motion, f) for f in args.frames], f"{args.clip.name} frames {'–'.join(map(str, args.frames))}"
+    if args.frames is not None:
+        raise ValueError(f"--frames {' '.join(map(str, args.frames))}: goes with one CLIP.bvh (bezmotion inbetween CLIP.bvh --frames START END)")
+    if args.key:
+        if len(args.key) < 2:
+            raise ValueError(f"--key {args.key[0]}: needs at least two --key poses")
+        named = [("--key", text) for text in args.key]
+    elif args.start is None and args.end is None:
+        raise ValueError("give the key poses: CLIP.bvh --frames START END, or --start A.bvh@FRAME --end B.bvh@FRAME")
+    elif args.start is None or args.end is None:
+        given_one, missing = ("--start", "--end") if args.end is None else ("--end", "--start")
+        raise ValueError(f"{given_one} {args.start or args.end}: needs {missing} FILE.bvh@FRAME too")
+    else:
+        named = [("--start", args.start), ("--end", args.end)]
+    keys = []
+    read: dict[Path, BvhMotion] = {}
+    for i, (argument, text) in enumerate(named):
+        last = i == len(named) - 1
+        path, frame = _key(argument, text, end=last)
+        if path not in read:
+            read[path] = _read_clip(argument, path, text)
+        m = read[path]
+        frame = (m.num_frames - 1 if last else 0) if frame is None else frame
+        _check_frame(argument, text, m, frame)
+        keys.append((argument, text, path, m, frame))
+    return keys, " → ".join(text for _, text in named)
 
 
 def _clip_key_velocities(character: Character, keys: Sequence[tuple[BvhMotion, int]]) -> Float[Array, "keys 6 3"]:

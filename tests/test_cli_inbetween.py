@@ -27,6 +27,7 @@ from bezmotion.assets import DEMO_CLIP
 from bezmotion.cli import main
 from bezmotion.data.bvh import read_bvh, write_bvh
 from bezmotion.inbetween_command import HandleRequest, InbetweenOptions, parse_handle, plan, read_handles_file
+from bezmotion.ik.protocol import targets_from_pose
 from bezmotion.options import parse_options
 from bezmotion.pipeline.authoring import RigSpec, derive_rig_spec, read_mapping, recognise_character
 
@@ -305,6 +306,23 @@ def test_a_chain_refuses_a_handle_on_its_inner_key_and_takes_every_keys_velocity
     np.testing.assert_allclose(np.asarray(p.key_velocity), np.stack([pos[1] - pos[0], (pos[32] - pos[30]) / 2, pos[62] - pos[61]]), atol=1e-3)
 
 
+def test_keys_from_any_frames_of_any_files_make_a_chain_in_their_order(long_clip):
+    """``--key FILE@FRAME`` (repeated): each pose put 30 frames after the one before."""
+    clip = str(DEMO_CLIP)
+    argv = ["--key", f"{clip}@5", "--key", f"{long_clip}@60", "--key", f"{clip}@12", *FAST]
+    p = plan(parse_options(InbetweenOptions, argv))
+    assert p.label == f"{clip}@5 → {long_clip}@60 → {clip}@12" and p.reference is None
+    six = list(p.recognised.character.characteristic)
+    truth = fk_positions(read_bvh(DEMO_CLIP))[:, six]
+    # The long clip's frame 60 is the bundled clip's frame 18 (played forward, then back).
+    for pose, frame in zip(p.keys, (5, 18, 12)):
+        np.testing.assert_allclose(np.asarray(targets_from_pose(p.recognised.character, pose).position), truth[frame], atol=1e-3)
+    p = plan(parse_options(InbetweenOptions, [*argv, "--key-velocities"]))
+    np.testing.assert_allclose(np.asarray(p.key_velocity)[1], (truth[17] - truth[19]) / 2, atol=1e-3)  # backwards there
+    with pytest.raises(ValueError, match=f"--key-velocities: the key {clip}@0 is frame 0 of 40; its velocity needs the frames on both sides"):
+        plan(parse_options(InbetweenOptions, ["--key", f"{clip}@5", "--key", f"{clip}@0", "--key", f"{clip}@12", "--key-velocities", *FAST]))
+
+
 # ------------------------------------------------------------------------ bad arguments
 
 
@@ -335,6 +353,9 @@ def _cases(tmp):
         "exact setting not a number": ([*keys, "--ik", "exact", "--exact", "iterations=x"], "--exact iterations=x: 'x' is not a number"),
         "exact settings for another IK": ([*keys, "--exact", "plant_weight=10"], "--exact plant_weight=10: the settings of the exact IK, not of --ik rig"),
         "one key frame": ([clip, "--frames", "5"], "--frames 5: needs at least two key frames"),
+        "one --key": (["--key", f"{clip}@3"], f"--key {clip}@3: needs at least two --key poses"),
+        "keys given two ways": ([*keys, "--key", f"{clip}@3", "--key", f"{clip}@9"], f"CLIP {clip}: give the keys one way"),
+        "a --key frame out of its file": (["--key", f"{clip}@3", "--key", f"{clip}@40"], f"--key {clip}@40: frame 40 is out of range"),
         "chain keys not 30 frames apart": (
             [clip, "--frames", "0", "30", "35"], "--frames 0 30 35: the keys 30 and 35 are 5 frames apart; the BMM in-betweens 30"
         ),
