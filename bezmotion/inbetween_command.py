@@ -17,7 +17,7 @@ sampled in one call and joined C¹ at the shared keys
 (:func:`~bezmotion.pipeline.inbetween_chain`), then one IK over the whole motion.
 ``--key FILE.bvh@FRAME``, repeated, makes such a chain through any poses of any files, in
 the order given, each put 30 frames after the one before.
-Both files must have the same joints; the output rigs like the start file (its OFFSETs,
+Every key file must have the same joints; the output rigs like the first one (its OFFSETs,
 End Sites and frame rate).
 
 **Handles** (any number; frames count from the first key, 0, to the last, 30 — or 30·K
