@@ -172,7 +172,7 @@ def test_presets_are_the_configs_classmethods_by_name():
 
 EXPERIMENTS = ("ablations", "bezier_stride", "bmm_lafan1", "chained_segments", "character_profiles", "cross_skeleton", "delta_anidance",
                "delta_lafan1", "ik_subsets", "lafan1_baselines", "motion_features", "table1", "train_ik")  # fmt: skip
-BENCHMARKS = ("bezier_fit", "bmm_inference", "bvh_parse", "delta_inference", "fk")
+BENCHMARKS = ("bezier_fit", "bmm_inference", "bvh_parse", "delta_inference", "fk", "ik_exact", "inbetween")
 _SIBLINGS = ("_common", "_delta", "_timing")  # the helper modules beside the scripts
 
 
@@ -227,6 +227,7 @@ README_COMMANDS = [
     ("benchmarks", "delta_inference", []),
     ("benchmarks", "fk", []),
     ("benchmarks", "bvh_parse", []),
+    ("benchmarks", "inbetween", ["--windows", "1", "2", "4", "--ik", "learned", "exact", "--out", "results/inbetween.json"]),
 ]
 
 
