@@ -406,7 +406,7 @@ def plan(args: InbetweenOptions) -> Plan:
         raise ValueError(f"--steps {args.steps}: must be at least 1")
     outputs, folder = _outputs(args)
     keys, label = _read_keys(args)
-    (arg0, text0, path0, start_motion, f0), (arg1, text1, _, end_motion, f1) = keys[0], keys[-1]
+    (arg0, text0, path0, start_motion, f0), f1 = keys[0], keys[-1][-1]
     if args.mapping is not None and not Path(args.mapping).is_file():
         raise ValueError(f"--mapping {args.mapping}: no such file")
     try:
@@ -423,16 +423,7 @@ def plan(args: InbetweenOptions) -> Plan:
             )
     character = recognised.character
     key_poses = tuple(motion_poses(m, character, f) for _, _, _, m, f in keys)
-    key_velocity = None
-    if args.key_velocities:
-        if f0 == 0:
-            raise ValueError(f"--key-velocities: the start key is the first frame of {text0}; its velocity needs the frame before it")
-        if f1 == end_motion.num_frames - 1:
-            raise ValueError(f"--key-velocities: the end key is the last frame ({f1}) of {text1}; its velocity needs the frame after it")
-        for argument, text, _, motion, frame in keys[1:-1]:
-            if not 0 < frame < motion.num_frames - 1:
-                raise ValueError(f"--key-velocities: the key {text} is frame {frame} of {motion.num_frames}; its velocity needs the frames on both sides")
-        key_velocity = _clip_key_velocities(character, [(m, f) for _, _, _, m, f in keys])
+    key_velocity = _clip_key_velocities(character, keys) if args.key_velocities else None
 
     # The handles as written (their joints known now; their frames once the model is).
     requests = [parse_handle(h) for h in args.handle]
@@ -466,7 +457,7 @@ def plan(args: InbetweenOptions) -> Plan:
             source = load_profile(trained_on)
         except ValueError as error:
             raise _error("--trained-on", trained_on, error) from None
-        transfer = make_transfer(source, target_profile(recognised, [start_motion, end_motion]))
+        transfer = make_transfer(source, target_profile(recognised, list({id(m): m for _, _, _, m, _ in keys}.values())))
 
     settings = exact_settings(args.exact)  # its errors name the item
     ik = args.ik
@@ -549,17 +540,29 @@ def _read_keys(args: InbetweenOptions) -> tuple[list[tuple[str, str, Path, BvhMo
     return keys, " → ".join(text for _, text in named)
 
 
-def _clip_key_velocities(character: Character, keys: Sequence[tuple[BvhMotion, int]]) -> Float[Array, "keys 6 3"]:
-    """The six joints' velocities (cm/frame) at each key ``(clip, frame)`` from the clip's
-    frames around it: outwards at the first and last key (the frame before the first, the one
-    after the last: the motion kept around the in-between), the central difference at a
-    chain's inner keys (the velocity both its windows take)."""
+def _clip_key_velocities(character: Character, keys: Sequence[tuple[str, str, Path, BvhMotion, int]]) -> Float[Array, "keys 6 3"]:
+    """``--key-velocities``: the six joints' velocities (cm/frame) at each key (as
+    :func:`_read_keys` gives them) from its clip's frames around it: outwards at the first
+    and last key (the frame before the first, the one after the last: the motion kept
+    around the in-between), the central difference at a chain's inner keys (the velocity
+    both its windows take).
+
+    Raises:
+      ValueError: a key whose clip lacks a frame it needs, naming the key.
+    """
     def position(motion: BvhMotion, frame: int) -> Array:
         return targets_from_pose(character, motion_poses(motion, character, frame)).position  # (6, 3)
 
     velocities = []
-    for i, (motion, frame) in enumerate(keys):
-        before, after = (frame - 1 if i < len(keys) - 1 else frame), (frame + 1 if i > 0 else frame)
+    last = len(keys) - 1
+    for i, (_, text, _, motion, frame) in enumerate(keys):
+        before, after = (frame - 1 if i < last else frame), (frame + 1 if i > 0 else frame)
+        role = "start key" if i == 0 else "end key" if i == last else "key"
+        needs = {"start key": "the frame before it", "end key": "the frame after it", "key": "the frames on both sides"}[role]
+        if before < 0:
+            raise ValueError(f"--key-velocities: the {role} {text} is the first frame of its file; its velocity needs {needs}")
+        if after >= motion.num_frames:
+            raise ValueError(f"--key-velocities: the {role} {text} is the last frame ({frame}) of its file; its velocity needs {needs}")
         velocities.append((position(motion, after) - position(motion, before)) / (after - before))
     return jnp.stack(velocities)
 

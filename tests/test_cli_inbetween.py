@@ -319,7 +319,7 @@ def test_keys_from_any_frames_of_any_files_make_a_chain_in_their_order(long_clip
         np.testing.assert_allclose(np.asarray(targets_from_pose(p.recognised.character, pose).position), truth[frame], atol=1e-3)
     p = plan(parse_options(InbetweenOptions, [*argv, "--key-velocities"]))
     np.testing.assert_allclose(np.asarray(p.key_velocity)[1], (truth[17] - truth[19]) / 2, atol=1e-3)  # backwards there
-    with pytest.raises(ValueError, match=f"--key-velocities: the key {clip}@0 is frame 0 of 40; its velocity needs the frames on both sides"):
+    with pytest.raises(ValueError, match=f"--key-velocities: the key {clip}@0 is the first frame of its file; its velocity needs the frames on both sides"):
         plan(parse_options(InbetweenOptions, ["--key", f"{clip}@5", "--key", f"{clip}@0", "--key", f"{clip}@12", "--key-velocities", *FAST]))
 
 
@@ -359,9 +359,9 @@ def _cases(tmp):
         "chain keys not 30 frames apart": (
             [clip, "--frames", "0", "30", "35"], "--frames 0 30 35: the keys 30 and 35 are 5 frames apart; the BMM in-betweens 30"
         ),
-        "key velocity before the clip": ([*keys, "--key-velocities"], f"--key-velocities: the start key is the first frame of {clip}"),
+        "key velocity before the clip": ([*keys, "--key-velocities"], f"--key-velocities: the start key {clip} is the first frame of its file; its velocity needs the frame before it"),
         "key velocity after the clip": (
-            ["--start", f"{clip}@5", "--end", f"{clip}@39", "--key-velocities"], f"--key-velocities: the end key is the last frame (39) of {clip}@39"
+            ["--start", f"{clip}@5", "--end", f"{clip}@39", "--key-velocities"], f"--key-velocities: the end key {clip}@39 is the last frame (39) of its file; its velocity needs the frame after it"
         ),
     }  # fmt: skip
 
