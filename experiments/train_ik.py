@@ -30,7 +30,9 @@ import numpy as np
 
 from bezmotion.io import atomic_write_text
 from bezmotion.training.checkpoint import CheckpointStore
-from bezmotion.ik.frames import corpus_frames
+from bezmotion.data.corpus import Corpus
+from bezmotion.ik.frames import corpus_frame_starts, corpus_frames
+from bezmotion.ik.protocol import Pose
 from bezmotion.ik.protores import ProtoResConfig, ProtoResModel, character_to_json, save_ik_model
 from bezmotion.ik.training import (
     CHARACTERISTIC,
@@ -42,7 +44,7 @@ from bezmotion.ik.training import (
 )
 from bezmotion.options import option, options, parse_options, presets
 from bezmotion.training import compile_train_step, count_parameters, run_training
-from _common import CHARACTERISTIC_HELP, CORPUS_HELP, corpus_label, open_corpus, runs_dir
+from _common import CHARACTERISTIC_HELP, CORPUS_HELP, clip_label, corpus_label, matches_any, open_corpus, runs_dir
 
 CONFIGS = presets(ProtoResConfig)
 
@@ -67,6 +69,10 @@ class Options:
         None, help="stop training after this many seconds (at a step boundary, checkpointed; the same command resumes)"
     )
     eval_step: int = option(4, help="validate on every n-th validation frame (default 4)")
+    holdout_contents: tuple[str, ...] = option(
+        (), help="held-out contents: train without the clips whose content/action matches these patterns (e.g. 'wave-*' run); "
+        "validation keeps every clip (pipeline_eval.py reports per content)",
+    )  # fmt: skip
     no_progress: bool = False
 
     def __post_init__(self):
@@ -78,12 +84,30 @@ def parse_args(argv: list[str] | None = None) -> Options:
     return parse_options(Options, argv, description=__doc__)
 
 
+def without_contents(corpus: Corpus, poses: Pose, patterns: tuple[str, ...], frame_step: int) -> Pose:
+    """The training frames ``poses`` (:func:`corpus_frames`'s, clips in corpus order) less
+    those of the clips whose content/action (:func:`clip_label`) matches ``patterns``.
+
+    Raises:
+      ValueError: no training clip matches (naming the patterns and the corpus' contents).
+    """
+    labels = [clip_label(corpus.labels(int(c))) for c in corpus.split("train")]
+    held = matches_any(np.asarray(labels), patterns)
+    if not held.any():
+        raise ValueError(f"--holdout-contents {' '.join(patterns)}: no training clip of {corpus.name} has such a content (it has {sorted(set(labels))})")
+    starts = corpus_frame_starts(corpus, "train", frame_step=frame_step)
+    keep = np.repeat(~held, np.diff(starts))
+    return jax.tree.map(lambda x: x[keep], poses)
+
+
 def train_ik(args: Options) -> dict:
     """Train (or resume) and save; returns the summary written to ``training.json``."""
     out_dir = Path(args.out_dir).expanduser() if args.out_dir else runs_dir(f"ik_{corpus_label(args.corpus)}")
     started = time.perf_counter()
     corpus = open_corpus(args.corpus, data=args.data, characteristic=args.characteristic, progress=not args.no_progress)
     character, poses = corpus_frames(corpus, "train", frame_step=args.frame_step)
+    if args.holdout_contents:
+        poses = without_contents(corpus, poses, args.holdout_contents, args.frame_step)
     _, validation = corpus_frames(corpus, "validation", frame_step=args.eval_step)
     if not validation.root_pos.shape[0]:
         # A folder of fewer than ten files has no validation take (every 10th validates).
@@ -99,6 +123,7 @@ def train_ik(args: Options) -> dict:
     graphdef, state = init_ik_train_state(model_config, train_config, key=jax.random.key(args.seed))
     config = {
         "corpus": args.corpus,
+        **({"holdout_contents": list(args.holdout_contents)} if args.holdout_contents else {}),
         "seed": args.seed,
         "frame_step": args.frame_step,
         "model": dataclasses.asdict(model_config),

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 from typing import ClassVar, Literal
 
+import numpy as np
 import pytest
 
 from bezmotion.bmm.denoiser import BMMConfig
@@ -264,6 +265,30 @@ def test_script_defaults_and_derived_settings(load_script, tmp_path, monkeypatch
     assert ik.parse_args(["--corpus", "lafan1", "--train-seconds", "330"]).train_seconds == 330.0
     with pytest.raises(SystemExit):
         ik.parse_args(["--corpus", "lafan1", "--train-seconds", "0"])
+
+
+def test_the_ik_trains_without_held_out_contents(load_script, tmp_path, monkeypatch):
+    """``train_ik.py --holdout-contents run``: no frame of a ``run`` clip is trained on."""
+    import shutil
+
+    from bezmotion.assets import DEMO_CLIP
+    from bezmotion.ik.frames import corpus_frames
+
+    monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path / "cache"))
+    folder = tmp_path / "clips"
+    folder.mkdir()
+    for name in ("walk_1", "walk_2", "run_1", "walk_3", "run_2"):
+        shutil.copy(DEMO_CLIP, folder / f"{name}.bvh")
+    ik = load_script("experiments", "train_ik")
+    corpus = ik.open_corpus(str(folder), data=None, characteristic="bandai_namco", progress=False)
+    _, poses = corpus_frames(corpus, "train", frame_step=2)
+    labels = [ik.clip_label(corpus.labels(int(c))) for c in corpus.split("train")]
+    kept = ik.without_contents(corpus, poses, ("run",), 2)
+    per_clip = poses.root_pos.shape[0] // len(labels)  # every clip is the same 40 frames, every 2nd kept
+    assert "run" in labels and kept.root_pos.shape[0] == per_clip * labels.count("walk")
+    np.testing.assert_array_equal(kept.quat_local[:per_clip], poses.quat_local[labels.index("walk") * per_clip :][:per_clip])
+    with pytest.raises(ValueError, match=r"--holdout-contents jump: no training clip of .* has such a content \(it has \['run', 'walk'\]\)"):
+        ik.without_contents(corpus, poses, ("jump",), 2)
 
 
 @options
