@@ -360,33 +360,34 @@ def reference_positions(items: Items, cond: str, layout) -> jax.Array:
     return jax.vmap(join_windows)(per_window)
 
 
-def jumps_at_keys(positions: jax.Array, k: int, mocap: jax.Array) -> dict:
+def jumps_at_keys(positions: jax.Array, k: int, mocap_at_keys: np.ndarray) -> dict:
     """Velocity jump summary (cm/frame) of ``(chains, frames, 6, 3)`` at the shared keys,
-    with its excess over the ``mocap``'s (:func:`jump_excess_over_mocap`)."""
-    return {**distribution_summary(chain_velocity_jumps(positions, k).at_shared_keys), "minus_mocap": jump_excess_over_mocap(positions, mocap, k)}
+    with its excess over the mocap's jumps there (``mocap_at_keys``:
+    ``chain_velocity_jumps(mocap, k).at_shared_keys``; :func:`summarize_jumps_at_keys`)."""
+    return summarize_jumps_at_keys(chain_velocity_jumps(positions, k).at_shared_keys, mocap_at_keys)
 
 
-def jump_excess_over_mocap(positions: jax.Array, mocap: jax.Array, k: int) -> dict:
-    """The velocity jump at the shared keys minus the mocap's at the same keys and joints
-    (cm/frame, ``(chains, frames, 6, 3)`` each): its mean, and the mean's standard error over
-    the chains (each chain's mean one sample). A pairwise difference: the chains' own spread
-    (some motions jerk more than others) cancels, which the two means' separate spreads do not."""
-    diff = np.asarray(chain_velocity_jumps(positions, k).at_shared_keys, np.float64) - np.asarray(
-        chain_velocity_jumps(mocap, k).at_shared_keys, np.float64
-    )
-    return {"mean": float(diff.mean()), "se": standard_error(diff), "chains": int(diff.shape[0])}
+def summarize_jumps_at_keys(at_keys: jax.Array, mocap_at_keys: np.ndarray) -> dict:
+    """:func:`~bezmotion.metrics.distribution_summary` of the jumps at the shared keys
+    ``(chains, keys − 1, 6)`` (cm/frame), and ``minus_mocap``: the jumps minus the mocap's at
+    the same keys and joints, its mean and the mean's standard error over the chains (each
+    chain's mean one sample). A pairwise difference: the chains' own spread (some motions
+    jerk more than others) cancels, which the two means' separate spreads do not."""
+    diff = np.asarray(at_keys, np.float64) - np.asarray(mocap_at_keys, np.float64)
+    excess = {"mean": float(diff.mean()), "se": standard_error(diff), "chains": int(diff.shape[0])}
+    return {**distribution_summary(at_keys), "minus_mocap": excess}
 
 
-def coupled_jumps(positions: jax.Array, k: int, layout: BezierLayout, mocap: jax.Array) -> dict:
+def coupled_jumps(positions: jax.Array, k: int, layout: BezierLayout, mocap_at_keys: np.ndarray) -> dict:
     """Velocity jump summaries (cm/frame) of coupled chains ``(chains, frames, 6, 3)``: at the
-    shared keys (with the excess over the ``mocap``'s there), at every other inner frame, and
+    shared keys (with the excess over the mocap's there, ``mocap_at_keys``), at every other inner frame, and
     at the control frames inside each of the ``k`` windows (``layout``'s, keys excluded: C¹
     joins like the keys)."""
     jumps = chain_velocity_jumps(positions, k)
     step = layout.num_frames - 1
     inner = np.concatenate([w * step + layout.control_frames[1:-1] for w in range(k)])
     return {
-        "coupled": jumps_at_keys(positions, k, mocap),
+        "coupled": summarize_jumps_at_keys(jumps.at_shared_keys, mocap_at_keys),
         "coupled_other_frames": distribution_summary(jumps.other_frames),
         "coupled_inner_control_frames": distribution_summary(jumps.all_frames[..., inner - 1, :]),
     }
@@ -431,6 +432,7 @@ def main(argv: list[str] | None = None) -> dict:
     chains = reach_chains(rig)
     iks, limited = build_iks(args, ik_model, rig)
     true_targets = targets_from_pose(character, truth)
+    mocap_jumps = chain_velocity_jumps(true_targets.position, k) if k > 1 else None  # every curve's jumps are set beside these
     keys = window_keys(jax.random.key(args.sample_seed), first_rows)
     timing_name = "ik_ms_per_window" if k == 1 else "ik_ms_per_chain"
     what = "windows" if k == 1 else f"chains of {k} windows"
@@ -459,8 +461,8 @@ def main(argv: list[str] | None = None) -> dict:
             # The coupled curves between the keys too: is a shared key rougher than the rest of
             # the motion, and than the joins inside a window?
             jumps[cond] = {
-                **coupled_jumps(dense.positions, k, dataset.layout, true_targets.position),
-                "independent": jumps_at_keys(independent.positions, k, true_targets.position),
+                **coupled_jumps(dense.positions, k, dataset.layout, mocap_jumps.at_shared_keys),
+                "independent": jumps_at_keys(independent.positions, k, mocap_jumps.at_shared_keys),
             }
             print(f"{cond}: velocity jump at the shared keys {jumps[cond]}", flush=True)
         for name, (fn, params) in iks.items():
@@ -472,7 +474,7 @@ def main(argv: list[str] | None = None) -> dict:
             ik_results[name][cond] = {**summary, timing_name: timing.ms_per_window}
             ik_results[name].setdefault("compile_s", timing.compile_s)  # the OOD run reuses the compilation
             if k > 1:
-                after_ik[name][cond] = jumps_at_keys(targets_from_pose(character, pose).position, k, true_targets.position)
+                after_ik[name][cond] = jumps_at_keys(targets_from_pose(character, pose).position, k, mocap_jumps.at_shared_keys)
             print(f"{cond} {name}: {ik_results[name][cond]} (compile {timing.compile_s:.1f} s)", flush=True)
 
     results = {
@@ -492,7 +494,6 @@ def main(argv: list[str] | None = None) -> dict:
         "mocap": summarize_windows(mocap),
     }
     if k > 1:
-        mocap_jumps = chain_velocity_jumps(true_targets.position, k)
         results["segments"] = {
             "k": k, "chains": n, "frames_per_chain": int(truth.root_pos.shape[1]),
             "key_frames": list(range(0, int(truth.root_pos.shape[1]), dataset.layout.num_frames - 1)),
