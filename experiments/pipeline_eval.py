@@ -99,7 +99,17 @@ without trailing digits).
      "ik": {"<ik>": {"compile_s": …, "id": {<after-IK metrics>}, "ood": {…}}, …},
      "curves": {"bmm": {"id": {…}, "ood": {…}}, "reference": {"id": {…}, "ood": {…}}},
      "mocap": {…},
-     "labels": {"<label>": {"windows": k, "ik": {"<ik>": {"id", "ood"}}, "curves": {…}, "mocap": {…}}}}
+     "paired": {"<b> minus <a>": {"id": {<figure>: {mean, se, median, better_fraction, windows}}, "ood": {…}}, …},
+     "labels": {"<label>": {"windows": k, "ik": {"<ik>": {"id", "ood"}}, "curves": {…}, "mocap": {…}, "paired": {…}}}}
+
+``paired``: for every two IKs ``a`` before ``b`` in ``--ik``, b minus a window by window on
+the same curves (:func:`~bezmotion.pipeline.evaluation.paired_differences`: ``mpjpe_cm``,
+``foot_skating_ratio``, ``curve_error_cm``). The windows' figures move together between two
+IKs, so the difference's standard error is much smaller than either mean's: this, not two
+means ± their own se, tells whether one IK beats another. Every per-window figure the
+summaries come from is also saved beside the JSON, ``FILE.windows.npz`` (``np.load``:
+``ik/<ik>/<id|ood>/<figure>``, ``curves/<kind>/<id|ood>/<figure>``, ``mocap/<figure>``,
+``labels``, ``rows``).
 
 With ``--segments K`` (K > 1) ``windows`` is chains × K, ``curves`` also holds
 ``bmm_independent``, each label also ``chains``, and beside them::
@@ -139,7 +149,7 @@ from bezmotion.ik.exact import JointLimits, exact_ik, exact_settings
 from bezmotion.ik.protocol import Pose, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik
-from bezmotion.io import write_results
+from bezmotion.io import atomic_path, write_results
 from bezmotion.metrics import chain_velocity_jumps, distribution_summary
 from bezmotion.options import option, options, parse_options
 from bezmotion.pipeline.evaluation import (
@@ -151,6 +161,7 @@ from bezmotion.pipeline.evaluation import (
     sample_window_curves,
     solve_chain_curves,
     solve_window_curves,
+    paired_differences,
     standard_error,
     summarize_windows,
     window_curve_metrics,
@@ -509,6 +520,8 @@ def main(argv: list[str] | None = None) -> dict:
             },
             "metrics": CHAIN_METRICS, "not_computed": CHAIN_NOT_COMPUTED,
         }  # fmt: skip
+    results["paired"] = {f"{b} minus {a}": {cond: paired_differences(ik_windows[a][cond], ik_windows[b][cond]) for cond in CONDITIONS}
+                         for a, b in ik_pairs(iks)}  # fmt: skip
     results["labels"] = {}
     if len(iks) == 1:
         only = next(iter(results["ik"].values()))
@@ -521,10 +534,42 @@ def main(argv: list[str] | None = None) -> dict:
             "ik": {name: {cond: summarize_windows(ik_windows[name][cond], mask) for cond in CONDITIONS} for name in iks},
             "curves": {kind: {cond: summarize_windows(w, mask) for cond, w in conds.items()} for kind, conds in curve_windows.items()},
             "mocap": summarize_windows(mocap, mask),
+            "paired": {
+                f"{b} minus {a}": {cond: paired_differences(ik_windows[a][cond], ik_windows[b][cond], mask) for cond in CONDITIONS}
+                for a, b in ik_pairs(iks)
+            },
         }
     results["seconds"] = time.perf_counter() - started
     write_results(args.out, results, format_report(results))
+    save_per_window(per_window_path(args.out), labels, items.rows, ik_windows, curve_windows, mocap)
     return results
+
+
+def ik_pairs(iks) -> list[tuple[str, str]]:
+    """Every pair of the evaluated IKs, in ``--ik`` order: ``(a, b)`` is reported as b minus a."""
+    names = list(iks)
+    return [(a, b) for i, a in enumerate(names) for b in names[i + 1 :]]
+
+
+def per_window_path(out: str | Path) -> Path:
+    """Where the per-window figures of ``--out FILE.json`` go: ``FILE.windows.npz``."""
+    return Path(out).with_suffix(".windows.npz")
+
+
+def save_per_window(path: Path, labels, rows, ik_windows: dict, curve_windows: dict, mocap: dict) -> None:
+    """Every per-window figure the summaries were taken from, for analyses of their own
+    (``np.load``): ``ik/<ik>/<cond>/<figure>``, ``curves/<kind>/<cond>/<figure>``,
+    ``mocap/<figure>``, each ``(windows, …)`` in the order of ``labels`` and ``rows``."""
+    arrays = {"labels": np.asarray(labels).astype(str), "rows": np.asarray(rows)}
+    for group, tree in (("ik", ik_windows), ("curves", curve_windows)):
+        for name, conds in tree.items():
+            for cond, figures in conds.items():
+                arrays.update({f"{group}/{name}/{cond}/{k}": np.asarray(v) for k, v in figures.items()})
+    arrays.update({f"mocap/{k}": np.asarray(v) for k, v in mocap.items()})
+    with atomic_path(path, suffix=".npz") as tmp:
+        with open(tmp, "wb") as f:
+            np.savez_compressed(f, **arrays)
+    print(f"wrote {path}")
 
 
 def format_report(r: dict) -> str:
@@ -596,6 +641,25 @@ def format_report(r: dict) -> str:
             f"| {kind} | {i['handles_error_cm']:.4f} / {o['handles_error_cm']:.4f} | {pm(i, 'dense_error_cm', 3)} / {pm(o, 'dense_error_cm', 3)} | "
             f"{pm(i, 'foot_skating_ratio', 4)} / {pm(o, 'foot_skating_ratio', 4)} | {orientation} |"
         )
+    if r["paired"]:
+        def diff(x: dict, digits: int) -> str:
+            se = "" if x["se"] is None else f" ± {x['se']:.{digits}f}"
+            return f"{x['mean']:+.{digits}f}{se} ({x['better_fraction']:.0%})"
+
+        lines += [
+            "",
+            f"Paired on the same curves: the second IK minus the first, mean ± se of the per-{per} difference "
+            "(in brackets: the share of windows where the second is lower):",
+            "",
+            "| IKs | MPJPE ID (cm) | OOD (cm) | skating ID | OOD | off the curves ID (cm) |",
+            "|---|---|---|---|---|---|",
+        ]
+        for pair, x in r["paired"].items():
+            i, o = x["id"], x["ood"]
+            lines.append(
+                f"| {pair} | {diff(i['mpjpe_cm'], 3)} | {diff(o['mpjpe_cm'], 3)} | {diff(i['foot_skating_ratio'], 4)} | "
+                f"{diff(o['foot_skating_ratio'], 4)} | {diff(i['curve_error_cm'], 3)} |"
+            )
     first_ik = next(iter(r["ik"]))
     lines += [
         "",

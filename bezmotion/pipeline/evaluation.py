@@ -751,3 +751,41 @@ def summarize_windows(per_window: Mapping[str, np.ndarray], select: np.ndarray |
     if "rotation_change" in w:
         out["rotation_change_deg"] = float(w["rotation_change"].mean())
     return out
+
+
+# The per-window figures :func:`paired_differences` compares, by their summary name.
+PAIRED_FIGURES = {"mpjpe": "mpjpe_cm", "skating": "foot_skating_ratio", "curve_error": "curve_error_cm"}
+
+
+def paired_differences(
+    base: Mapping[str, np.ndarray], other: Mapping[str, np.ndarray], select: np.ndarray | None = None
+) -> dict[str, dict[str, float | int | None]]:
+    """``other`` minus ``base``, window by window, for two sets of per-window figures of the
+    same windows (two IKs on the same curves: :func:`window_pose_metrics`).
+
+    Each window's figures are correlated between the two (the same curves, the same
+    motion), so the standard error of the per-window difference is far smaller than either
+    mean's: two IKs whose means lie within their own standard errors can still be told
+    apart. Per figure of :data:`PAIRED_FIGURES` both have: ``{"mean", "se", "median",
+    "better_fraction"}`` (``better_fraction``: windows where ``other`` is lower; ties count
+    half) and ``"windows"``; ``select`` as in :func:`summarize_windows`.
+    """
+    pick = (lambda a: np.asarray(a)) if select is None else (lambda a: np.asarray(a)[select])  # noqa: E731
+    out: dict[str, dict[str, float | int | None]] = {}
+    for key, name in PAIRED_FIGURES.items():
+        if key not in base or key not in other:
+            continue
+        a, b = pick(base[key]), pick(other[key])
+        if a.shape != b.shape:
+            raise ValueError(f"paired figures need the same windows: {key} has shapes {a.shape} and {b.shape}")
+        diff = (b.astype(np.float64) - a).reshape(len(a), -1).mean(axis=-1)
+        if diff.size == 0:
+            continue
+        out[name] = {
+            "mean": float(diff.mean()),
+            "se": standard_error(diff),
+            "median": float(np.median(diff)),
+            "better_fraction": float(np.mean(diff < 0) + 0.5 * np.mean(diff == 0)),
+            "windows": int(diff.size),
+        }
+    return out

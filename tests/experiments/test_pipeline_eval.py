@@ -106,6 +106,21 @@ def test_every_ik_on_the_same_curves_and_windows_independent_of_their_count(expe
     # Per label: the folder's files are all "walk".
     assert list(four["labels"]) == ["walk"] and four["labels"]["walk"]["windows"] == 4
     assert four["labels"]["walk"]["ik"]["rig"]["id"]["mpjpe_cm"] == pytest.approx(four["ik"]["rig"]["id"]["mpjpe_cm"])
+    # Paired: rig minus learned window by window; its mean is the difference of the two means.
+    assert list(four["paired"]) == ["rig minus learned"]
+    for cond in ("id", "ood"):
+        paired = four["paired"]["rig minus learned"][cond]
+        for figure in ("mpjpe_cm", "foot_skating_ratio", "curve_error_cm"):
+            expected = four["ik"]["rig"][cond][figure] - four["ik"]["learned"][cond][figure]
+            assert paired[figure]["mean"] == pytest.approx(expected, abs=1e-5)
+            assert paired[figure]["windows"] == 4 and paired[figure]["se"] >= 0.0 and 0.0 <= paired[figure]["better_fraction"] <= 1.0
+    assert four["labels"]["walk"]["paired"] == four["paired"]
+    # The per-window figures behind every summary, beside the JSON.
+    with np.load(tmp_path / "four.windows.npz") as saved:
+        assert saved["labels"].tolist() == ["walk"] * 4 and saved["rows"].tolist() == four["settings"]["rows"]
+        assert float(saved["ik/rig/id/mpjpe"].mean()) == pytest.approx(four["ik"]["rig"]["id"]["mpjpe_cm"])
+        assert float(saved["curves/bmm/ood/dense"].mean()) == pytest.approx(four["curves"]["bmm"]["ood"]["dense_error_cm"])
+        assert "mocap/skating" in saved
 
     # A smaller run: its windows are the first ones of the larger, with the same handles and curves.
     recorded["sampled"].clear()

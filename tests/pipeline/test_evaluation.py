@@ -220,3 +220,23 @@ def test_summaries_give_each_mean_over_windows_its_standard_error():
     assert out["dense_error_cm_se"] == pytest.approx(np.std([2.0, 2.0, 5.0, 1.0], ddof=1) / 2.0)
     assert summarize_windows({"skating": skating}, np.asarray([True, False, False, False]))["foot_skating_ratio_se"] is None
     assert standard_error(np.full(9, 0.3)) == 0.0
+
+
+def test_paired_differences_take_the_spread_of_the_differences_not_of_the_means():
+    """Two IKs whose windows move together: each mean's own standard error is large, the
+    difference's small; ``better_fraction`` counts windows where the second is lower."""
+    from bezmotion.pipeline.evaluation import paired_differences, summarize_windows
+
+    base = {"mpjpe": np.asarray([2.0, 8.0, 4.0, 10.0]), "skating": np.asarray([0.1, 0.3, 0.2, 0.2])}
+    other = {"mpjpe": base["mpjpe"] + np.asarray([0.5, 0.7, 0.6, -0.2]), "skating": base["skating"]}
+    out = paired_differences(base, other)
+    assert out["mpjpe_cm"]["mean"] == pytest.approx(0.4)
+    assert out["mpjpe_cm"]["se"] == pytest.approx(np.std([0.5, 0.7, 0.6, -0.2], ddof=1) / 2.0)
+    assert out["mpjpe_cm"]["se"] < summarize_windows(base)["mpjpe_cm_se"] / 5.0
+    assert out["mpjpe_cm"]["median"] == pytest.approx(0.55) and out["mpjpe_cm"]["better_fraction"] == 0.25
+    assert out["foot_skating_ratio"] == {"mean": 0.0, "se": 0.0, "median": 0.0, "better_fraction": 0.5, "windows": 4}
+    assert "curve_error_cm" not in out  # neither has it
+    picked = paired_differences(base, other, np.asarray([True, True, False, False]))
+    assert picked["mpjpe_cm"]["mean"] == pytest.approx(0.6) and picked["mpjpe_cm"]["windows"] == 2
+    with pytest.raises(ValueError, match=r"mpjpe has shapes \(4,\) and \(3,\)"):
+        paired_differences(base, {"mpjpe": np.zeros(3)})
