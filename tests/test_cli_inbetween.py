@@ -429,4 +429,4 @@ def test_exact_settings_reach_the_exact_ik(tmp_path):
     p = plan(parse_options(InbetweenOptions, [*argv, "--exact", "plant_weight=10", "--exact", "iterations=3"]))
     assert p.ik == "exact" and p.ik_params.plant_weight == 10.0 and p.ik_params.iterations == 3
     default = plan(parse_options(InbetweenOptions, argv)).ik_params
-    assert default.plant_weight == 1.0 and default.iterations == 6
+    assert default.plant_weight == 4.0 and default.iterations == 6

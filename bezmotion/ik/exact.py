@@ -43,8 +43,9 @@ the identity and at full extension.
 
 Frames are solved independently by the ``ik_fn`` (:class:`ExactIKFn`); its
 :meth:`ExactIKFn.solve_window` solves a whole window ``(frames, …)`` from the inner IK's
-poses smoothed over time (a ``[w, 1 − 2w, w]`` filter of neighbouring frames' rotations),
-so a learned IK's frame-to-frame jitter does not reach the result. The pipeline uses it
+poses smoothed over time (a ``[w, 1 − 2w, w]`` filter of neighbouring frames' rotations,
+after one-frame flips are replaced by their neighbours: :func:`remove_spikes`), so a
+learned IK's frame-to-frame jitter does not reach the result. The pipeline uses it
 through :func:`bezmotion.ik.protocol.solve_frames`, which also hands it
 
 - the **keys**: the start poses are joined to the key poses first
@@ -268,16 +269,28 @@ class ExactIKParams:
       handle_weight: the position weight of pinned targets (``IKTargets.pinned``: handles)
         relative to the others'. Where the six targets cannot all be met (the generated
         curves put a hand farther from the head and hips than the body reaches), least
-        squares splits the miss in proportion to the inverse squared weights: at 10, the
-        handle keeps about 1 % of it and the unpinned joints take the rest.
+        squares splits the miss in proportion to the inverse squared weights: at 25, the
+        handle keeps about 0.2 % of it against an unpinned joint, 2.5 % against a planted
+        foot (``plant_weight`` 4). 25 since 2026-11-27 (10 before): with planted feet
+        weighing 4, a handle at 10 kept 14 % of a conflict with a planted foot, and one
+        handle of a held-out-content window was missed by 4.8 cm; at 25, 0.0015 / 0.47 cm
+        on 1,500 Bandai-Namco windows (10: 0.0075 / 0.62), the rest unchanged
+        (``plant_weight`` below).
       plant_weight: in the window solve, the position weight of a foot whose target stands
         (nearly) still, relative to the others' (1: like any target). Where a handle on the
         hips or head cannot be met with the feet where the curves put them, the unpinned
         joints give way, and a foot that gives way while its target stands still slides.
-        A trade, so off by default (1): on 100 Bandai-Namco windows with OOD handles, 1 / 5 /
-        10 gave foot skating 0.254 / 0.235 / 0.219 and handles 0.64 / 0.77 / 0.98 cm (in
-        distribution unchanged); on Table 1's 300 windows, 5 moves the OOD handles from
-        0.92 to 1.12 cm (``experiments/table1.py --exact plant_weight=5``).
+        A trade against OOD handles. On 1,500 Bandai-Namco validation windows with
+        foot-locked curves, paired window by window against ``refined`` on the same curves
+        (``experiments/pipeline_eval.py --windows 1500 --ik refined exact --foot-lock
+        --exact plant_weight=…``, ``handle_weight`` then 10), 1 / 4 / 10 gave OOD foot
+        skating +0.0058 / +0.0002 / −0.0002 (± 0.0016) above ``refined``'s and OOD handles
+        0.50 / 0.62 / 0.87 cm; in distribution skating 0.0578 / 0.0582 / 0.0584
+        (``refined`` 0.0662) and handles 0.007 cm for all three. 4 (the default since
+        2026-11-27) is the smallest that no longer skates more than ``refined`` OOD: at 1
+        the standing motions (waving, raising a hand) slid their feet to reach OOD hand
+        handles. With today's ``handle_weight`` of 25: OOD skating +0.0012 ± 0.0016, handles
+        0.0015 / 0.47 cm. LaFAN1 (1,000 windows, CPU-size models): skating unchanged by it.
       plant_step: cm per frame: a foot target moving less than this to the next frame
         stands still (0.25: 7.5 cm/s at 30 fps, the skating metric's speed).
       rotation_weight: per unit of ortho6D difference of their orientations (≈ per rad).
@@ -324,6 +337,11 @@ class ExactIKParams:
       smoothing: weight of each neighbouring frame in the window solve's temporal filter
         (0: none; 0.5 at most; the frame itself keeps ``1 - 2·smoothing``, or
         ``1 - smoothing`` at the window's ends).
+      spike_turn: rad: in the window solve, a joint of the inner IK's pose that turns more
+        than this away from both neighbouring frames (which lie nearer each other than half
+        as far) for one frame is an outlier and replaced by them before anything else
+        (:func:`remove_spikes`; 0: off). 0.75 rad (43°) is the LaFAN1 mocap's largest turn
+        in one frame, and the mocap never turns that far and back.
       iterations: Levenberg–Marquardt steps per frame and pass (static).
       window_passes: how many times the window solve smooths the poses over time and
         solves again from them (static; the first smooths the inner IK's poses). Each pass
@@ -336,10 +354,10 @@ class ExactIKParams:
     limits: JointLimits
     position_weight: Float[Array, ""] | float = 100.0
     hips_position_scale: Float[Array, ""] | float = 1.0
-    handle_weight: Float[Array, ""] | float = 10.0
+    handle_weight: Float[Array, ""] | float = 25.0
     key_hold_weight: Float[Array, ""] | float = 3000.0
     key_hold_decay: Float[Array, ""] | float = 0.85
-    plant_weight: Float[Array, ""] | float = 1.0
+    plant_weight: Float[Array, ""] | float = 4.0
     plant_step: Float[Array, ""] | float = 0.25
     max_turn: Float[Array, ""] | float = 1.0
     rotation_weight: Float[Array, ""] | float = 20.0
@@ -347,6 +365,7 @@ class ExactIKParams:
     root_weight: Float[Array, ""] | float = 0.05
     limit_weight: Float[Array, ""] | float = 10.0
     smoothing: Float[Array, ""] | float = 0.25
+    spike_turn: Float[Array, ""] | float = 0.75
     iterations: int = dataclasses.field(default=6, metadata=dict(static=True))
     window_passes: int = dataclasses.field(default=2, metadata=dict(static=True))
 
@@ -683,6 +702,36 @@ def planted_feet(position: Float[Array, "frames 6 3"], plant_step: Float[Array, 
     return jnp.zeros(position.shape[:-1], bool).at[..., np.asarray(FEET)].set(contact)
 
 
+def remove_spikes(pose: Pose, turn: Float[Array, ""] | float) -> Pose:
+    """``pose`` ``(frames, …)`` with each joint's one-frame outliers replaced by its neighbours.
+
+    A learned IK solves every frame on its own and now and then turns a joint far away for
+    a single frame (an arm's twist flipped by 150° between two frames that agree). The
+    temporal filter (:func:`_smooth`) only halves such a spike, and the key hold then holds
+    the frames next to a key at what is left of it: on LaFAN1 the exact IK's largest turn at
+    a key came from exactly that (a learned-IK flip on the key frame or two frames before it).
+
+    A joint's rotation at frame ``t`` is a spike when it lies more than ``turn`` (rad) from
+    both neighbours while they lie less than half that distance from each other (a joint
+    turning fast one way has its neighbours farther apart than either is from it); it
+    becomes their midpoint. At the first and last frame the two frames inside the window are the
+    neighbours and the nearer one replaces it. Windows under 3 frames and ``turn ≤ 0`` are
+    left alone; the hips' position is never changed.
+    """
+    q = pose.quat_local
+    if q.shape[0] < 3:
+        return pose
+    # Each frame's two neighbours; at the ends both lie inside the window (frames 1, 2 and T−2, T−3).
+    a = jnp.concatenate([q[1:2], q[:-2], q[-2:-1]])
+    b = jnp.concatenate([q[2:3], q[2:], q[-3:-2]])
+    share = jnp.asarray([0.0] + [0.5] * (q.shape[0] - 2) + [0.0], q.dtype)[:, None, None]  # of b in the replacement
+    b = jnp.where(jnp.sum(a * b, axis=-1, keepdims=True) < 0.0, -b, b)
+    replacement = quat_normalize((1.0 - share) * a + share * b)
+    away = jnp.minimum(_angle_between(q, a), _angle_between(q, b))
+    spike = (away > turn) & (_angle_between(a, b) < 0.5 * away) & (turn > 0.0)
+    return Pose(pose.root_pos, jnp.where(spike[..., None], replacement, q))
+
+
 def _smooth(pose: Pose, weight) -> Pose:
     """A [w, 1-2w, w] filter over frames of local rotations (hemisphere-aligned) and the hips' position."""
     q = pose.quat_local
@@ -744,6 +793,7 @@ class ExactIKFn:
             decay = jnp.asarray(params.key_hold_decay, hold.dtype) ** jnp.asarray(np.maximum(distance - 1, 0), hold.dtype)
             hold = params.key_hold_weight * decay
         planted = planted_feet(targets.position, params.plant_step)
+        pose = remove_spikes(pose, params.spike_turn)
         for _ in range(params.window_passes):
             start = _smooth(pose, params.smoothing)
             if keys is not None:

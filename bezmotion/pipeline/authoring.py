@@ -54,7 +54,7 @@ CHANNEL_CHOICES = ("default", "clip")
 
 EXACT_HELP = (
     "an exact IK setting NAME=VALUE (ExactIKParams), repeatable: e.g. plant_weight=10 holds planted feet "
-    "harder, iterations=4 or window_passes=1 trades precision for speed, key_hold_decay=0.6 keeps the body "
+    "harder (default 4), iterations=4 or window_passes=1 trades precision for speed, key_hold_decay=0.6 keeps the body "
     "nearer its curves between the keys (for a faster catch-up after them)"
 )
 """The commands' ``--exact`` help (``bezmotion demo``, ``bezmotion inbetween``; parsed by

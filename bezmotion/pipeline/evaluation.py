@@ -567,7 +567,8 @@ def window_pose_metrics(
 ) -> dict[str, np.ndarray]:
     """Per-window figures of poses ``(windows, frames, …)`` after IK, for :func:`summarize_windows`:
     each handle's distance from the IK'd skeleton's joint (``handle_error``, ``handle_valid``),
-    MPJPE, foot skating, key pop, per-frame joint turns (:func:`_turn_figures`), and (given
+    MPJPE (and ``mpjpe_per_joint``, ``(windows, joints)``: where it comes from), foot
+    skating, key pop, per-frame joint turns (:func:`_turn_figures`), and (given
     ``chains``) ``handle_unreachable``: the handle is farther from its chain's root *in the
     IK'd pose at that frame* than the chain's length plus :data:`HANDLE_MISS_CM` (a hand beyond the arm's reach from the shoulder the IK
     chose; hips handles never). Such a handle is necessarily missed by more than
@@ -595,10 +596,12 @@ def _pose_figures(config, character, pose, truth, handles, chains, windows, curv
     _, true_pos = pose_fk(character, truth)
     six = pos[..., np.asarray(character.characteristic), :]
     feet = six[..., list(FEET), :]
+    per_joint = jnp.mean(jnp.linalg.norm(pos - true_pos, axis=-1), axis=-2)  # (windows, joints)
     out = {
         "handle_error": handle_distances(six, handles),
         "handle_valid": handles.valid,
-        "mpjpe": jnp.mean(jnp.linalg.norm(pos - true_pos, axis=-1), axis=(-2, -1)),
+        "mpjpe": jnp.mean(per_joint, axis=-1),
+        "mpjpe_per_joint": per_joint,
         "skating": _per_window(lambda f: foot_skating_ratio(f, config.fps, floor_height=config.floor_height), feet),
         "key_pop": _key_pop(pose.quat_local, windows),
         **_turn_figures(pose.quat_local),

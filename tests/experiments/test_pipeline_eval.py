@@ -119,6 +119,9 @@ def test_every_ik_on_the_same_curves_and_windows_independent_of_their_count(expe
     with np.load(tmp_path / "four.windows.npz") as saved:
         assert saved["labels"].tolist() == ["walk"] * 4 and saved["rows"].tolist() == four["settings"]["rows"]
         assert float(saved["ik/rig/id/mpjpe"].mean()) == pytest.approx(four["ik"]["rig"]["id"]["mpjpe_cm"])
+        per_joint = saved["ik/rig/id/mpjpe_per_joint"]  # where the MPJPE comes from, joint by joint
+        assert per_joint.shape[0] == 4 and per_joint.shape[1] > 6
+        np.testing.assert_allclose(per_joint.mean(axis=-1), saved["ik/rig/id/mpjpe"], rtol=1e-5)
         assert float(saved["curves/bmm/ood/dense"].mean()) == pytest.approx(four["curves"]["bmm"]["ood"]["dense_error_cm"])
         assert "mocap/skating" in saved
 

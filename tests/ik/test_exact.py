@@ -291,9 +291,35 @@ def test_planted_feet_hold_their_targets_against_a_handle(bandai):
     raised = targets._replace(
         position=targets.position.at[:, head, 1].add(12.0), pinned=jnp.zeros((FRAMES, 6), bool).at[:, head].set(True)
     )
-    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, plant_step=100.0)  # every foot planted
+    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, plant_step=100.0, handle_weight=10.0)  # every foot planted
     solve = jax.jit(fn.solve_window_with_residual)
     loose, planted = (solve(dataclasses.replace(params, plant_weight=w), raised) for w in (1.0, 10.0))
     feet_loose, feet_planted = (float(jnp.mean(r.position_error[:, feet])) for r in (loose, planted))
     assert feet_loose > 2.0 and feet_planted < 0.5 * feet_loose, (feet_loose, feet_planted)
     assert float(jnp.mean(planted.position_error[:, head])) > float(jnp.mean(loose.position_error[:, head]))
+
+
+def test_one_frame_flips_of_the_inner_ik_are_removed_and_fast_turns_kept():
+    """``remove_spikes``: a joint flipped far from both neighbours for one frame (in the
+    middle, or on the window's first frame) takes its neighbours' rotation; a joint turning
+    fast but steadily, another joint, the hips' position and short windows are untouched."""
+    from bezmotion.ik.exact import _angle_between, remove_spikes
+
+    frames, joints = 9, 3
+    axis = jnp.asarray([0.0, 0.0, 1.0])
+    steady = quat_from_axis_angle(jnp.broadcast_to(axis, (frames, 3)), 0.9 * jnp.arange(frames, dtype=jnp.float32))
+    still = quat_from_axis_angle(jnp.broadcast_to(axis, (frames, 3)), jnp.full(frames, 0.2))
+    flip = quat_from_axis_angle(jnp.asarray([1.0, 0.0, 0.0]), jnp.asarray(2.6))  # 149°
+    spiky = still.at[4].set(quat_mul(still[4], flip)).at[0].set(quat_mul(still[0], flip))
+    quat = jnp.stack([steady, spiky, still], axis=1)  # (frames, joints, 4)
+    root = jnp.arange(frames * 3, dtype=jnp.float32).reshape(frames, 3)
+    out = remove_spikes(Pose(root, quat), 0.75)
+
+    np.testing.assert_array_equal(out.root_pos, root)
+    np.testing.assert_array_equal(out.quat_local[:, 0], steady)  # 0.9 rad a frame, one way: no spike
+    np.testing.assert_array_equal(out.quat_local[:, 2], still)
+    assert float(jnp.max(_angle_between(out.quat_local[:, 1], still))) < 1e-3  # both flips gone
+    np.testing.assert_array_equal(remove_spikes(Pose(root, quat), 0.0).quat_local, quat)  # off
+    np.testing.assert_array_equal(remove_spikes(Pose(root, quat), 2.7).quat_local, quat)  # a 149° flip under the threshold
+    short = Pose(root[:2], quat[:2])
+    np.testing.assert_array_equal(remove_spikes(short, 0.75).quat_local, short.quat_local)
