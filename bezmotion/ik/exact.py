@@ -366,6 +366,7 @@ class ExactIKParams:
     limit_weight: Float[Array, ""] | float = 10.0
     smoothing: Float[Array, ""] | float = 0.25
     spike_turn: Float[Array, ""] | float = 0.75
+    robust_cm: Float[Array, ""] | float = 0.0
     iterations: int = dataclasses.field(default=6, metadata=dict(static=True))
     window_passes: int = dataclasses.field(default=2, metadata=dict(static=True))
 
@@ -449,6 +450,7 @@ class _Problem(NamedTuple):
     target_quat: Float[Array, "6 4"]
     position_scale: Array  # (6, 1): per-joint factors on the position rows (_position_scale)
     hold: Array  # () per rad: how hard the frame is held at its start pose (next to a key)
+    robust: Array | float = 0.0  # (6, 1) cm: each position's Huber threshold (0: least squares)
 
 
 def _limit_excess(params: ExactIKParams, start_quat: Array, delta: Array) -> tuple[Array, Array]:
@@ -481,18 +483,27 @@ def _evaluate(params: ExactIKParams, problem: _Problem, delta: Array, root_delta
     quat_global, pos_global = pose_fk(character, pose)
     rot = matrix_from_quat(quat_global)
     idx = np.asarray(character.characteristic)
-    e_pos = (pos_global[idx] - problem.target_pos) * problem.position_scale
+    miss = pos_global[idx] - problem.target_pos
+    # Huber's loss beyond ``problem.robust`` cm: the rows of a position that far off are scaled
+    # by sqrt(robust / distance) for the step (iteratively reweighted least squares: the same
+    # gradient as Huber's), and the cost is Huber's, so a step is judged by the loss it descends.
+    distance = safe_norm(miss, keepdims=True)  # (6, 1)
+    far = (problem.robust > 0.0) & (distance > problem.robust)
+    safe_distance = jnp.where(far, distance, 1.0)
+    row_scale = problem.position_scale * jnp.where(far, jnp.sqrt(problem.robust / safe_distance), 1.0)
+    e_pos = miss * row_scale
+    position_cost = problem.position_scale**2 * jnp.where(far, 2.0 * problem.robust * safe_distance - problem.robust**2, distance**2)
     # Orientation: 2·vec of the world-frame difference q·q_t⁻¹ (short way), ≈ angle × axis.
     rel = quat_mul(quat_global[idx], quat_conjugate(problem.target_quat))
     rel = jnp.where(rel[..., :1] < 0.0, -rel, rel)
     e_rot = 2.0 * rel[..., 1:]
     excess, limit_rel = _limit_excess(params, problem.start.quat_local, delta)
     cost = (
-        params.position_weight**2 * jnp.sum(e_pos * e_pos)
+        params.position_weight**2 * jnp.sum(position_cost)
         + params.rotation_weight**2 * jnp.sum(e_rot * e_rot)
         + params.limit_weight**2 * jnp.sum(excess * excess)
     )
-    return rot, pos_global, rel, e_pos, e_rot, excess, limit_rel, cost
+    return rot, pos_global, rel, e_pos, row_scale, e_rot, excess, limit_rel, cost
 
 
 def _inverse_3x3(m: Float[Array, "*batch 3 3"]) -> Float[Array, "*batch 3 3"]:
@@ -540,7 +551,7 @@ def _step(params: ExactIKParams, problem: _Problem, delta: Array, root_delta: Ar
     Levenberg–Marquardt damping adds ``damping · diag(JᵀW²J)`` to ``D`` (each unknown's own curvature).
     """
     character = params.character
-    rot, pos, rel, e_pos, e_rot, excess, limit_rel, _ = evaluated
+    rot, pos, rel, e_pos, scale, e_rot, excess, limit_rel, _ = evaluated
     free = _free_joints(character)
     idx = np.asarray(character.characteristic)
     n_free = len(free)
@@ -551,7 +562,6 @@ def _step(params: ExactIKParams, problem: _Problem, delta: Array, root_delta: Ar
     mask = jnp.asarray(_ancestry(character), dtype)[:, :, None, None]  # (6, free, 1, 1)
     lever = pos[idx][:, None, :] - pos[free][None, :, :]  # (6, free, xyz)
     j_pos = mask * jnp.cross(axes[None], lever[:, :, None, :])  # (6, free, k, xyz)
-    scale = problem.position_scale
     j_pos = j_pos * scale[:, :, None, None]
     # A world turn ω of the joint changes 2·vec(q_rel) by (w I − [v]×) ω, (w, v) = q_rel.
     w, v = rel[:, :1, None], rel[:, 1:]
@@ -667,7 +677,8 @@ def _solve(
     planted = jnp.zeros(6, bool) if planted is None else planted
     dtype = start.root_pos.dtype
     scale = _position_scale(params, pinned, planted, dtype)
-    problem = _Problem(start, targets.position, quat_from_rot6d(targets.rot6d), scale, jnp.asarray(hold, dtype))
+    robust = jnp.where(pinned, 0.0, jnp.asarray(params.robust_cm, dtype))[:, None]  # handles stay least squares
+    problem = _Problem(start, targets.position, quat_from_rot6d(targets.rot6d), scale, jnp.asarray(hold, dtype), robust)
     delta, root_delta, _ = _levenberg_marquardt(params, problem, iterations)
     return _apply(params.character, start, delta, root_delta)
 

@@ -323,3 +323,40 @@ def test_one_frame_flips_of_the_inner_ik_are_removed_and_fast_turns_kept():
     np.testing.assert_array_equal(remove_spikes(Pose(root, quat), 2.7).quat_local, quat)  # a 149° flip under the threshold
     short = Pose(root[:2], quat[:2])
     np.testing.assert_array_equal(remove_spikes(short, 0.75).quat_local, short.quat_local)
+
+
+def test_robust_loss_lets_a_far_unpinned_target_go_and_keeps_near_ones(bandai):
+    """``robust_cm``: beyond it an unpinned position costs Huber's loss, so a left-hand target
+    80 cm out of reach no longer drags the rest of the body off its targets; reachable
+    targets, and a pinned far one, are solved as in least squares."""
+    targets = targets_from_pose(bandai.character, bandai.truth)
+    left_hand, others = 2, [0, 1, 3, 4, 5]
+    far = targets._replace(position=targets.position.at[:, left_hand, 0].add(80.0), pinned=jnp.zeros((FRAMES, 6), bool))
+    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character)
+    robust = dataclasses.replace(params, robust_cm=5.0)
+    solve = _with_residual(fn)
+    plain_far, robust_far = solve(params, far), solve(robust, far)
+    dragged, kept = (float(jnp.mean(r.position_error[:, others])) for r in (plain_far, robust_far))
+    assert kept < 0.5 * dragged and dragged > 0.5, (dragged, kept)
+    assert float(jnp.mean(robust_far.position_error[:, left_hand])) > float(jnp.mean(plain_far.position_error[:, left_hand]))
+    # Reachable targets: the same poses (the learned IK starts a few cm off, so the first steps
+    # differ slightly) and the targets met as closely.
+    near = targets._replace(pinned=jnp.zeros((FRAMES, 6), bool))
+    plain_near, robust_near = solve(params, near), solve(robust, near)
+    np.testing.assert_allclose(robust_near.pose.quat_local, plain_near.pose.quat_local, atol=2e-3)
+    assert float(jnp.max(robust_near.position_error)) < 2 * float(jnp.max(plain_near.position_error)) + 1e-3
+    # Pinned, the far target stays least squares: reached at least as closely (the unpinned
+    # joints it drags far off give way more easily).
+    pinned = far._replace(pinned=far.pinned.at[:, left_hand].set(True))
+    reach = [float(jnp.mean(solve(p, pinned).position_error[:, left_hand])) for p in (params, robust)]
+    assert reach[1] <= reach[0] + 1e-3, reach
+    # The cost beyond the threshold is Huber's: 2·5·20 − 5² per cm² for a 20 cm miss.
+    truth = jax.tree.map(lambda x: x[0], bandai.truth)
+    one = targets_from_pose(bandai.character, truth)
+    scale = exact_module._position_scale(robust, jnp.zeros(6, bool), jnp.zeros(6, bool), jnp.float32)
+    problem = exact_module._Problem(
+        truth, one.position.at[left_hand, 1].add(20.0), exact_module.quat_from_rot6d(one.rot6d), scale, jnp.asarray(0.0), jnp.full((6, 1), 5.0)
+    )
+    free = len(exact_module._free_joints(bandai.character))
+    cost = float(exact_module._evaluate(robust, problem, jnp.zeros((free, 3)), jnp.zeros(3))[-1])
+    assert cost == pytest.approx(robust.position_weight**2 * (2 * 5.0 * 20.0 - 25.0), rel=1e-4)
