@@ -878,4 +878,30 @@ def exact_ik(
     unknown = set(settings) - {f.name for f in dataclasses.fields(ExactIKParams)} - {"inner", "character", "limits"}
     if unknown:
         raise ValueError(f"unknown exact IK settings {sorted(unknown)}")
+    for name, value in settings.items():
+        _check_setting(name, value)
     return ExactIKFn(inner_fn), ExactIKParams(inner_params, character, limits, **settings)
+
+
+# Allowed ranges of the settings given as numbers, ``(low, high, low is allowed)``; every other
+# number setting is a weight, a threshold or a count, ≥ 0.
+_SETTING_RANGES = {
+    "max_turn": (0.0, np.inf, False),
+    "smoothing": (0.0, 0.5, True),
+    "key_hold_decay": (0.0, 1.0, True),
+    "window_passes": (1, np.inf, True),
+}
+
+
+def _check_setting(name: str, value: Any) -> None:
+    """Raise ValueError, naming the setting and value, for a plain number out of its range (or
+    NaN), or a non-integer step count; arrays (e.g. traced values) pass unchecked."""
+    field = next(f for f in dataclasses.fields(ExactIKParams) if f.name == name)
+    if field.metadata.get("static") and not (isinstance(value, (int, np.integer)) and not isinstance(value, bool)):
+        raise ValueError(f"exact IK setting {name}={value!r}: must be an integer")
+    if not isinstance(value, (int, float, np.integer, np.floating)) or isinstance(value, bool):
+        return
+    low, high, closed = _SETTING_RANGES.get(name, (0.0, np.inf, True))
+    if not (low <= value <= high if closed else low < value <= high):
+        bounds = f"{'[' if closed else '('}{low}, {high}]".replace("inf]", "∞)")
+        raise ValueError(f"exact IK setting {name}={value!r}: must lie in {bounds}")

@@ -185,6 +185,18 @@ def test_bad_settings(bandai):
         exact_ik(rig_ik, bandai.params.inner, bandai.character, position_wieght=1.0)
     with pytest.raises(ValueError, match="joint limits for 3 joints"):
         exact_ik(rig_ik, bandai.params.inner, bandai.character, limits=JointLimits.unlimited(3))
+    # Out of range, NaN, or a fractional step count: named with the value.
+    for setting, message in (
+        ({"smoothing": 0.7}, r"smoothing=0.7: must lie in \[0.0, 0.5\]"),
+        ({"plant_weight": -1.0}, r"plant_weight=-1.0: must lie in \[0.0, ∞\)"),
+        ({"robust_cm": float("nan")}, r"robust_cm=nan"),
+        ({"max_turn": 0.0}, r"max_turn=0.0: must lie in \(0.0, ∞\)"),
+        ({"window_passes": 0}, r"window_passes=0"),
+        ({"iterations": 2.5}, r"iterations=2.5: must be an integer"),
+    ):
+        with pytest.raises(ValueError, match=message):
+            exact_ik(rig_ik, bandai.params.inner, bandai.character, **setting)
+    exact_ik(rig_ik, bandai.params.inner, bandai.character, smoothing=0.5, key_hold_decay=1.0, rotation_weight=0.0, iterations=0)
 
 
 def test_pinned_targets_weigh_handle_weight_more(bandai):
