@@ -345,19 +345,20 @@ class ExactIKParams:
         in one frame, and the mocap never turns that far and back.
       robust_cm: cm: a target's position miss beyond this costs Huber's loss (linear in the
         distance) instead of its square; 0: least squares throughout. Handles (pinned) and
-        planted feet stay least squares. Where the targets conflict (a curve's joint out of
-        reach, curves the BMM draws badly), least squares spreads the miss over every joint
-        and bends the whole body towards the worst target; Huber's lets that one go further
-        and keeps the others on their curves. Reachable targets are met as before. 2 since
-        2026-11-27 (0 before). Paired on the same curves, 2 against 0 (``pipeline_eval.py
-        --foot-lock``): on 1,500 Bandai-Namco windows MPJPE −0.008 ± 0.001 cm in distribution
-        and −0.155 ± 0.006 OOD, skating −0.0002 ± 0.0002 / +0.0003 ± 0.0006, handles 0.0013 /
-        0.46 cm (0.0015 / 0.47), the six joints 0.007 / 0.031 cm farther from their curves;
-        on 1,000 LaFAN1 windows (CPU-size models) MPJPE −0.006 ± 0.004 / −0.017 ± 0.006 cm,
-        skating +0.0003 ± 0.0002 / −0.0004 ± 0.0003, handles 0.0023 / 0.11 cm (0.0038 /
-        0.11). With models trained without the ``run`` content, on its 105 windows the exact
-        IK's MPJPE above ``refined``'s fell from +0.70 ± 0.20 cm to +0.29 ± 0.07 (10: +0.45,
-        5: +0.38, measured with the planted feet under Huber's loss too).
+        planted feet stay least squares. Where a curve's joint lies far out of reach (curves
+        the BMM draws badly), least squares spreads the miss over every joint and bends the
+        whole body towards that one target; Huber's lets it go further and keeps the others
+        on their curves. Misses under the threshold (reachable targets, the key hold's
+        compromises next to a key) are solved as before. 5 since 2026-11-27 (0 before).
+        Paired on the same curves against 0 (``pipeline_eval.py --foot-lock``), 5 / 2 cm: on
+        1,500 Bandai-Namco windows MPJPE −0.001 / −0.008 cm in distribution and −0.034 ±
+        0.002 / −0.155 ± 0.006 OOD, skating unchanged (±0.0006), the six joints' mean
+        distance from their curves −0.000 / +0.007 cm ID and −0.007 / +0.031 OOD, their worst
+        per window +0.03 / +0.36 cm ID. With models trained without the ``run`` content, on
+        its 105 windows the exact IK's MPJPE above ``refined``'s fell from +0.70 ± 0.20 cm to
+        +0.39 ± 0.07 (5) and +0.29 ± 0.07 (2). 2 cm holds the body farther from its curves
+        wherever the key hold pulls (on the demo a joint 6.2 cm off its curve at frame 25
+        and the forearm turning 16.3° in a frame, against 3.8 cm and 13.5° at 5 and at 0).
       iterations: Levenberg–Marquardt steps per frame and pass (static).
       window_passes: how many times the window solve smooths the poses over time and
         solves again from them (static; the first smooths the inner IK's poses). Each pass
@@ -382,7 +383,7 @@ class ExactIKParams:
     limit_weight: Float[Array, ""] | float = 10.0
     smoothing: Float[Array, ""] | float = 0.25
     spike_turn: Float[Array, ""] | float = 0.75
-    robust_cm: Float[Array, ""] | float = 2.0
+    robust_cm: Float[Array, ""] | float = 5.0
     iterations: int = dataclasses.field(default=6, metadata=dict(static=True))
     window_passes: int = dataclasses.field(default=2, metadata=dict(static=True))
 
@@ -695,7 +696,7 @@ def _solve(
     scale = _position_scale(params, pinned, planted, dtype)
     # Handles and planted feet stay least squares: under Huber's loss a planted foot pulled
     # several cm gives way much further (demo frames 10–17 with the head pinned 12 cm up, at
-    # plant_weight 10: the feet 6.1 cm off their targets against least squares' 3.4).
+    # plant_weight 10 and robust_cm 2: the feet 6.1 cm off their targets against least squares' 3.4).
     robust = jnp.where(pinned | planted, 0.0, jnp.asarray(params.robust_cm, dtype))[:, None]
     problem = _Problem(start, targets.position, quat_from_rot6d(targets.rot6d), scale, jnp.asarray(hold, dtype), robust)
     delta, root_delta, _ = _levenberg_marquardt(params, problem, iterations)

@@ -56,7 +56,7 @@ EXACT_HELP = (
     "an exact IK setting NAME=VALUE (ExactIKParams), repeatable: e.g. plant_weight=10 holds planted feet "
     "harder (default 4), iterations=4 or window_passes=1 trades precision for speed, key_hold_decay=0.6 keeps the body "
     "nearer its curves between the keys (for a faster catch-up after them), robust_cm=0 solves every target by "
-    "least squares (default 2: a curve point more than 2 cm out of reach stops dragging the body)"
+    "least squares (default 5: a curve point more than 5 cm out of reach stops dragging the body)"
 )
 """The commands' ``--exact`` help (``bezmotion demo``, ``bezmotion inbetween``; parsed by
 :func:`~bezmotion.ik.exact.exact_settings`, as in ``experiments/pipeline_eval.py``)."""
