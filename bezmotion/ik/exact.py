@@ -884,25 +884,27 @@ def exact_ik(
     return ExactIKFn(inner_fn), ExactIKParams(inner_params, character, limits, **settings)
 
 
-# Allowed ranges of the settings given as numbers, ``(low, high, low is allowed)``; every other
+# Allowed ranges of the settings given as numbers, ``(low, high, low excluded)``; every other
 # number setting is a weight, a threshold or a count, ≥ 0.
 _SETTING_RANGES = {
-    "max_turn": (0.0, np.inf, False),
-    "smoothing": (0.0, 0.5, True),
-    "key_hold_decay": (0.0, 1.0, True),
-    "window_passes": (1, np.inf, True),
+    "max_turn": (0.0, np.inf, True),
+    "smoothing": (0.0, 0.5, False),
+    "key_hold_decay": (0.0, 1.0, False),
+    "window_passes": (1, np.inf, False),
 }
 
 
 def _check_setting(name: str, value: Any) -> None:
     """Raise ValueError, naming the setting and value, for a plain number out of its range (or
     NaN), or a non-integer step count; arrays (e.g. traced values) pass unchecked."""
-    field = next(f for f in dataclasses.fields(ExactIKParams) if f.name == name)
-    if field.metadata.get("static") and not (isinstance(value, (int, np.integer)) and not isinstance(value, bool)):
+    is_integer = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
+    static = next(f for f in dataclasses.fields(ExactIKParams) if f.name == name).metadata.get("static")
+    if static and not is_integer:
         raise ValueError(f"exact IK setting {name}={value!r}: must be an integer")
-    if not isinstance(value, (int, float, np.integer, np.floating)) or isinstance(value, bool):
+    if not (is_integer or isinstance(value, (float, np.floating))):
         return
-    low, high, closed = _SETTING_RANGES.get(name, (0.0, np.inf, True))
-    if not (low <= value <= high if closed else low < value <= high):
-        bounds = f"{'[' if closed else '('}{low}, {high}]".replace("inf]", "∞)")
-        raise ValueError(f"exact IK setting {name}={value!r}: must lie in {bounds}")
+    low, high, low_excluded = _SETTING_RANGES.get(name, (0.0, np.inf, False))
+    above_low = low < value if low_excluded else low <= value
+    if not (above_low and value <= high):  # NaN fails both
+        interval = f"{'(' if low_excluded else '['}{low}, {'∞)' if high == np.inf else f'{high}]'}"
+        raise ValueError(f"exact IK setting {name}={value!r}: must lie in {interval}")
