@@ -28,7 +28,8 @@ import numpy as np
 from _timing import machine_info, report, time_jitted
 from bezmotion.assets import BUNDLED_IK, DEMO_CLIP
 from bezmotion.data.bvh import read_bvh
-from bezmotion.ik.exact import JointLimits, exact_ik, exact_settings
+from bezmotion.ik.exact import exact_ik, exact_settings
+from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.protocol import Character, pose_from_motion, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik

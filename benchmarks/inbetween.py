@@ -26,7 +26,8 @@ from _timing import machine_info, report, time_jitted
 from bezmotion.assets import BUNDLED_BMM, BUNDLED_IK, DEMO_CLIP
 from bezmotion.bmm.sampling import Handles, load_model
 from bezmotion.data.bvh import read_bvh
-from bezmotion.ik.exact import JointLimits, exact_ik
+from bezmotion.ik.exact import exact_ik
+from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.protocol import Character, pose_from_motion, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn
 from bezmotion.options import option, options, parse_options

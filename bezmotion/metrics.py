@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from bezmotion.geometry.rotations import quat_conjugate, quat_fix_continuity, quat_mul
+from bezmotion.geometry.rotations import quat_angle, quat_fix_continuity
 
 
 def l2q(
@@ -144,9 +144,7 @@ def mean_position_error(
 
 def rotation_change_deg(quat_local: Float[Array, "*batch frames joints 4"]) -> Float[Array, "*batch frames-1 joints"]:
     """Angle (degrees) each joint's local rotation turns from each frame to the next (either quaternion sign)."""
-    rel = quat_mul(quat_conjugate(quat_local[..., :-1, :, :]), quat_local[..., 1:, :, :])
-    vec = jnp.sqrt(jnp.sum(rel[..., 1:] ** 2, axis=-1))
-    return jnp.degrees(2.0 * jnp.arctan2(vec, jnp.abs(rel[..., 0])))
+    return jnp.degrees(quat_angle(quat_local[..., :-1, :, :], quat_local[..., 1:, :, :]))
 
 
 def key_pop_deg(quat_local: Float[Array, "*batch frames joints 4"]) -> Float[Array, ""]:

@@ -27,7 +27,8 @@ from bezmotion.bmm.sampling import load_model
 from bezmotion.data.corpus import motion_clips
 from bezmotion.data.curves import curve_dataset
 from bezmotion.data.sources import load_corpus
-from bezmotion.ik.exact import JointLimits, exact_ik
+from bezmotion.ik.exact import exact_ik
+from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik
 from bezmotion.io import write_results

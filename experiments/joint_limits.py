@@ -1,10 +1,10 @@
-"""Per-joint rotation limits of a corpus' skeleton, for the exact IK (:mod:`bezmotion.ik.exact`).
+"""Per-joint rotation limits of a corpus' skeleton, for the exact IK (:mod:`bezmotion.ik.exact`; kept in :mod:`bezmotion.ik.joint_limits`).
 
     python experiments/joint_limits.py --corpus bandai_namco --out bezmotion/assets/models/ik_bandai_namco/joint_limits.json
 
 Measured on the training clips only (the validation windows stay unseen): each joint's
 mean local rotation, and the 0.5th–99.5th percentile of each axis of the rotation vector
-relative to it, widened by 0.1 rad (:func:`bezmotion.ik.exact.joint_limits_from_motion`).
+relative to it, widened by 0.1 rad (:func:`bezmotion.ik.joint_limits.joint_limits_from_motion`).
 The file sits beside the learned IK of the same skeleton, which the demo reads it from.
 """
 
@@ -14,7 +14,7 @@ import numpy as np
 
 from bezmotion.data.corpus import motion_clips
 from bezmotion.data.sources import load_corpus
-from bezmotion.ik.exact import joint_limits_from_motion
+from bezmotion.ik.joint_limits import joint_limits_from_motion
 from bezmotion.ik.protocol import Character, pose_from_motion
 from bezmotion.geometry.skeleton import Skeleton
 from bezmotion.options import option, options, parse_options

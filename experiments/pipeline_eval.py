@@ -145,7 +145,8 @@ from bezmotion.bmm.sampling import Handles, load_model
 from bezmotion.data.corpus import Corpus, motion_clips
 from bezmotion.data.curves import CurveDataset, curve_dataset
 from bezmotion.data.sources import load_corpus
-from bezmotion.ik.exact import JointLimits, exact_ik, exact_settings
+from bezmotion.ik.exact import exact_ik, exact_settings
+from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.protocol import Pose, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik

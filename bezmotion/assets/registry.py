@@ -36,7 +36,7 @@ from typing import Literal, NamedTuple
 from bezmotion.assets import MODELS_DIR, PROFILES_DIR
 from bezmotion.bmm.sampling import BezierMotionModel, load_model
 from bezmotion.data.cache import cache_dir
-from bezmotion.ik.exact import JointLimits
+from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.protocol import Character
 from bezmotion.ik.protores import ProtoResModel, load_ik_model
 from bezmotion.io import atomic_write_text

@@ -1,4 +1,4 @@
-"""Rotations: unit quaternions (w, x, y, z), ortho6D, rotation matrices, Euler angles, slerp.
+"""Rotations: unit quaternions (w, x, y, z), rotation vectors, ortho6D, rotation matrices, Euler angles, slerp.
 
 Conventions used everywhere in bezmotion:
 
@@ -28,6 +28,8 @@ _AXIS_INDEX = {"x": 0, "y": 1, "z": 2}
 # Below this, a vector is treated as having zero length (normalisation returns a
 # well-defined default instead of dividing by ~0).
 _TINY = 1e-12
+# Below this angle (rad) the exponential and logarithm maps use their Taylor series.
+_SMALL_ANGLE = 1e-4
 
 
 def _check_order(order: str) -> tuple[int, int, int]:
@@ -182,6 +184,41 @@ def slerp(
     w0 = jnp.where(linear, 1.0 - t, jnp.sin((1.0 - t) * omega) / sin_omega)
     w1 = jnp.where(linear, t, jnp.sin(t * omega) / sin_omega)
     return quat_normalize(w0 * q0 + w1 * q1)
+
+
+def quat_angle(a: Float[Array, "*#batch 4"], b: Float[Array, "*#batch 4"]) -> Float[Array, "*batch"]:
+    """Angle (rad, in [0, π]) of the rotation from ``a`` to ``b`` (unit quaternions, either sign).
+
+    ``2·atan2(|vec(a⁻¹ b)|, |w(a⁻¹ b)|)``: accurate for small angles (``acos`` of the dot
+    product loses them in float32) and with a finite gradient where ``a = ±b``.
+    """
+    rel = quat_mul(quat_conjugate(a), b)
+    return 2.0 * jnp.arctan2(safe_norm(rel[..., 1:]), jnp.abs(rel[..., 0]))
+
+
+def quat_exp(v: Float[Array, "*batch 3"]) -> Float[Array, "*batch 4"]:
+    """Unit quaternion of the rotation vector ``v`` (axis × angle, rad); finite gradients at 0.
+
+    Below ``_SMALL_ANGLE`` rad, ``sin(θ/2)/θ`` and ``cos(θ/2)`` take their Taylor series.
+    """
+    theta = safe_norm(v, keepdims=True)
+    small = theta < _SMALL_ANGLE
+    safe_theta = jnp.where(small, 1.0, theta)
+    sinc_half = jnp.where(small, 0.5 - theta * theta / 48.0, jnp.sin(0.5 * safe_theta) / safe_theta)
+    cos_half = jnp.where(small, 1.0 - theta * theta / 8.0, jnp.cos(0.5 * safe_theta))
+    return jnp.concatenate([cos_half, sinc_half * v], axis=-1)
+
+
+def quat_log(q: Float[Array, "*batch 4"]) -> Float[Array, "*batch 3"]:
+    """Rotation vector (axis × angle, rad, angle ≤ π: the short way) of unit quaternions
+    ``q``; the inverse of :func:`quat_exp`, with finite gradients at the identity."""
+    q = jnp.where(q[..., :1] < 0.0, -q, q)
+    w, xyz = q[..., :1], q[..., 1:]
+    n = safe_norm(xyz, keepdims=True)
+    small = n < _SMALL_ANGLE
+    # 2·atan2(n, w)/n, and 2/w (its limit) for small n (w ≈ 1 there).
+    scale = jnp.where(small, 2.0 / jnp.where(small, w, 1.0), 2.0 * jnp.arctan2(n, w) / jnp.where(small, 1.0, n))
+    return scale * xyz
 
 
 # ------------------------------------------------------------------------------ matrices

@@ -3,7 +3,8 @@
 See :mod:`bezmotion.ik.protocol` for the ``ik_fn(params, targets) -> pose`` protocol.
 """
 
-from bezmotion.ik.exact import ExactIKFn, ExactIKParams, ExactIKResult, JointLimits, exact_ik, joint_limits_from_motion
+from bezmotion.ik.exact import ExactIKFn, ExactIKParams, ExactIKResult, exact_ik
+from bezmotion.ik.joint_limits import JointLimits, joint_limits_from_motion
 from bezmotion.ik.protocol import (
     Character,
     IKFn,

@@ -20,7 +20,7 @@ of the weighted residuals
 - a **prior** keeping every joint near its start rotation (``prior_weight`` per radian):
   among the poses that reach the targets the solve picks the one closest to the inner
   IK's, so elbows and knees keep the inner pose's swivel and the spine its bend;
-- soft **joint limits** measured from a corpus (:func:`joint_limits_from_motion`): a
+- soft **joint limits** measured from a corpus (:mod:`bezmotion.ik.joint_limits`): a
   hinge on each axis of the joint's rotation relative to its corpus mean
   (``limit_weight`` per radian beyond the range); without them, no limits.
 
@@ -74,10 +74,6 @@ skating 0.140, MPJPE 3.12 cm, the six joints 0.28 cm off their curves on average
 from __future__ import annotations
 
 import dataclasses
-import json
-import os
-from collections.abc import Callable, Mapping
-from pathlib import Path
 from typing import Any, NamedTuple
 
 import jax
@@ -89,19 +85,21 @@ from bezmotion.data.characteristic import FEET
 from bezmotion.data.windows import foot_contacts
 from bezmotion.geometry.rotations import (
     matrix_from_quat,
+    quat_angle,
     quat_conjugate,
-    quat_mul,
+    quat_exp,
     quat_from_rot6d,
+    quat_log,
+    quat_mul,
     quat_normalize,
     safe_norm,
 )
+from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.key_blend import blend_to_chain_keys, key_chain, key_distances
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, pose_fk
 from bezmotion.linalg import cholesky_solve
 
-# A joint without limits: a range wider than any rotation's logarithm (|log| ≤ π).
-_UNLIMITED = 1e3
-_SMALL_ANGLE = 1e-4  # rad: below this the exp/log maps use their Taylor series
+_SMALL_ANGLE = 1e-4  # rad: below this the right Jacobians use their Taylor series
 # Levenberg–Marquardt damping, relative to each unknown's own curvature (the diagonal of
 # JᵀW²J: a hand's position rows weigh a shoulder turn by its ~50 cm lever, the hips' by a
 # few cm): none while steps lower the cost (the inner IK's pose is already close), from
@@ -113,143 +111,6 @@ _DAMPING_FIRST, _DAMPING_UP, _DAMPING_DOWN = 1.0, 10.0, 0.1
 _MIN_ROW_WEIGHT_SQ = 1e-12
 # The trust region (ExactIKParams.max_turn) after a taken step and after a refused one.
 _RADIUS_GROW, _RADIUS_SHRINK = 2.0, 0.25
-
-
-# ------------------------------------------------------------------------------ rotations
-
-
-def _quat_exp(v: Float[Array, "*batch 3"]) -> Float[Array, "*batch 4"]:
-    """Unit quaternion of the rotation vector ``v`` (axis × angle, rad); finite gradients at 0."""
-    theta = safe_norm(v, keepdims=True)
-    small = theta < _SMALL_ANGLE
-    safe_theta = jnp.where(small, 1.0, theta)
-    # sin(θ/2)/θ and cos(θ/2) with their series below the threshold.
-    sinc_half = jnp.where(small, 0.5 - theta * theta / 48.0, jnp.sin(0.5 * safe_theta) / safe_theta)
-    cos_half = jnp.where(small, 1.0 - theta * theta / 8.0, jnp.cos(0.5 * safe_theta))
-    return jnp.concatenate([cos_half, sinc_half * v], axis=-1)
-
-
-def _quat_log(q: Float[Array, "*batch 4"]) -> Float[Array, "*batch 3"]:
-    """Rotation vector (rad, angle ≤ π) of unit quaternions ``q``; finite gradients at the identity."""
-    q = jnp.where(q[..., :1] < 0.0, -q, q)  # the short way
-    w, xyz = q[..., :1], q[..., 1:]
-    n = safe_norm(xyz, keepdims=True)
-    small = n < _SMALL_ANGLE
-    # 2·atan2(n, w)/n, and 2/w (its limit) for small n (w ≈ 1 there).
-    scale = jnp.where(small, 2.0 / jnp.where(small, w, 1.0), 2.0 * jnp.arctan2(n, w) / jnp.where(small, 1.0, n))
-    return scale * xyz
-
-
-def _angle_between(a: Float[Array, "*batch 4"], b: Float[Array, "*batch 4"]) -> Float[Array, "*batch"]:
-    """Rotation angle (rad) from ``a`` to ``b`` (unit quaternions, either sign)."""
-    rel = quat_mul(quat_conjugate(a), b)
-    return 2.0 * jnp.arctan2(safe_norm(rel[..., 1:]), jnp.abs(rel[..., 0]))
-
-
-# --------------------------------------------------------------------------------- limits
-
-
-@jax.tree_util.register_dataclass
-@dataclasses.dataclass(frozen=True)
-class JointLimits:
-    """Soft per-joint rotation limits: a range per axis of ``log(center⁻¹ ⊗ q_local)``.
-
-    Attributes:
-      center: ``(joints, 4)`` the corpus' mean local rotation of each joint.
-      lower, upper: ``(joints, 3)`` the range (rad) of the rotation vector of each joint's
-        local rotation relative to ``center``, in the center's frame; ±1e3 = unlimited.
-    """
-
-    center: Float[Array, "joints 4"]
-    lower: Float[Array, "joints 3"]
-    upper: Float[Array, "joints 3"]
-
-    @classmethod
-    def unlimited(cls, num_joints: int, dtype=jnp.float32) -> JointLimits:
-        """No limits (the default when none were measured)."""
-        center = jnp.zeros((num_joints, 4), dtype).at[:, 0].set(1.0)
-        return cls(center, jnp.full((num_joints, 3), -_UNLIMITED, dtype), jnp.full((num_joints, 3), _UNLIMITED, dtype))
-
-    def to_json(self, character: Character) -> dict[str, Any]:
-        """``{"joints": {name: {"center": [w, x, y, z], "lower": [...], "upper": [...]}}}`` (radians)."""
-        center, lower, upper = (np.asarray(x, np.float64) for x in (self.center, self.lower, self.upper))
-        return {
-            "units": "radians; rotation vector of center⁻¹ ⊗ local rotation",
-            "joints": {
-                name: {"center": center[j].round(6).tolist(), "lower": lower[j].round(5).tolist(), "upper": upper[j].round(5).tolist()}
-                for j, name in enumerate(character.skeleton.names)
-            },
-        }
-
-    @classmethod
-    def from_json(cls, data: Mapping[str, Any], character: Character) -> JointLimits:
-        """Limits from :meth:`to_json`'s dict; joints it does not name are unlimited.
-
-        Raises:
-          ValueError: a joint name the character does not have, or a malformed entry.
-        """
-        joints = data.get("joints") if isinstance(data, Mapping) else None
-        if not isinstance(joints, Mapping):
-            raise ValueError(f"joint limits need a 'joints' mapping, got {type(joints).__name__}")
-        names = character.skeleton.names
-        unknown = [n for n in joints if n not in names]
-        if unknown:
-            raise ValueError(f"joint limits name joints {unknown} that {character.name} does not have")
-        limits = cls.unlimited(character.num_joints)
-        center, lower, upper = (np.array(x, np.float64) for x in (limits.center, limits.lower, limits.upper))
-        for name, entry in joints.items():
-            j = names.index(name)
-            try:
-                c, lo, hi = (np.asarray(entry[k], np.float64) for k in ("center", "lower", "upper"))
-            except (KeyError, TypeError) as err:
-                raise ValueError(f"joint limits of {name!r}: need 'center', 'lower' and 'upper' ({err})") from None
-            if c.shape != (4,) or lo.shape != (3,) or hi.shape != (3,) or not (np.all(lo <= hi) and np.linalg.norm(c) > 0.5):
-                raise ValueError(f"joint limits of {name!r}: bad center {c.tolist()} or range {lo.tolist()}…{hi.tolist()}")
-            center[j], lower[j], upper[j] = c / np.linalg.norm(c), lo, hi
-        return cls(jnp.asarray(center, jnp.float32), jnp.asarray(lower, jnp.float32), jnp.asarray(upper, jnp.float32))
-
-    def save(self, path: str | os.PathLike, character: Character) -> None:
-        """Write :meth:`to_json` to ``path``."""
-        Path(path).write_text(json.dumps(self.to_json(character), indent=1) + "\n", encoding="utf-8")
-
-    @classmethod
-    def load(cls, path: str | os.PathLike, character: Character) -> JointLimits:
-        """Read limits written by :meth:`save`."""
-        return cls.from_json(json.loads(Path(path).read_text(encoding="utf-8")), character)
-
-
-def joint_limits_from_motion(
-    character: Character,
-    quat_local: Float[Array | np.ndarray, "frames joints 4"],
-    *,
-    percentile: float = 0.5,
-    margin: float = 0.1,
-) -> JointLimits:
-    """Measure per-joint rotation limits on motion frames (e.g. a corpus' training clips).
-
-    Args:
-      character: the skeleton (the hips and the joints above it stay unlimited: the hips'
-        rotation is global, the others are held at identity).
-      quat_local: ``(frames, joints, 4)`` local rotations.
-      percentile: the range runs from this percentile to ``100 - percentile`` on each axis.
-      margin: radians added on both sides (the corpus is a sample of what bodies do).
-    """
-    q = np.asarray(quat_local, np.float64).reshape(-1, character.num_joints, 4)
-    if q.shape[0] == 0:
-        raise ValueError("joint limits need at least one frame")
-    # The mean of hemisphere-aligned quaternions (aligned to a first estimate): fine for
-    # the concentrated distributions of joint rotations.
-    first = q[0]
-    q = np.where(np.sum(q * first, axis=-1, keepdims=True) < 0.0, -q, q)
-    center = q.mean(axis=0)
-    center /= np.maximum(np.linalg.norm(center, axis=-1, keepdims=True), 1e-12)
-    with jax.default_device(jax.devices("cpu")[0]):
-        rel = np.asarray(_quat_log(quat_mul(quat_conjugate(jnp.asarray(center)[None]), jnp.asarray(q))))
-    lower = np.percentile(rel, percentile, axis=0) - margin
-    upper = np.percentile(rel, 100.0 - percentile, axis=0) + margin
-    free = [character.hips, *character.ancestors_of_hips()]
-    lower[free], upper[free] = -_UNLIMITED, _UNLIMITED
-    return JointLimits(jnp.asarray(center, jnp.float32), jnp.asarray(lower, jnp.float32), jnp.asarray(upper, jnp.float32))
 
 
 # ------------------------------------------------------------------------------- settings
@@ -413,7 +274,7 @@ def _free_joints(character: Character) -> np.ndarray:
 
 def _apply(character: Character, start: Pose, delta: Float[Array, "free 3"], root_delta: Float[Array, "3"]) -> Pose:
     free = _free_joints(character)
-    quat = start.quat_local.at[free].set(quat_mul(start.quat_local[free], _quat_exp(delta)))
+    quat = start.quat_local.at[free].set(quat_mul(start.quat_local[free], quat_exp(delta)))
     return Pose(start.root_pos + root_delta, quat)
 
 
@@ -475,7 +336,7 @@ def _limit_excess(params: ExactIKParams, start_quat: Array, delta: Array) -> tup
     and that rotation as ``ρ = log(center⁻¹ ⊗ start ⊗ exp(δ))`` ``(free, 3)``."""
     free = _free_joints(params.character)
     limits = params.limits
-    rel = _quat_log(quat_mul(quat_conjugate(limits.center[free]), quat_mul(start_quat[free], _quat_exp(delta))))
+    rel = quat_log(quat_mul(quat_conjugate(limits.center[free]), quat_mul(start_quat[free], quat_exp(delta))))
     excess = jnp.maximum(rel - limits.upper[free], 0.0) + jnp.minimum(rel - limits.lower[free], 0.0)
     return excess, rel
 
@@ -722,7 +583,7 @@ def _errors(character: Character, pose: Pose, targets: IKTargets) -> tuple[Array
     quat_global, pos_global = pose_fk(character, pose)
     idx = np.asarray(character.characteristic)
     position = safe_norm(pos_global[..., idx, :] - targets.position)
-    rotation = _angle_between(quat_global[..., idx, :], quat_from_rot6d(targets.rot6d))
+    rotation = quat_angle(quat_global[..., idx, :], quat_from_rot6d(targets.rot6d))
     return position, rotation
 
 
@@ -758,8 +619,8 @@ def remove_spikes(pose: Pose, turn: Float[Array, ""] | float) -> Pose:
     share = jnp.asarray([0.0] + [0.5] * (q.shape[0] - 2) + [0.0], q.dtype)[:, None, None]  # of b in the replacement
     b = jnp.where(jnp.sum(a * b, axis=-1, keepdims=True) < 0.0, -b, b)
     replacement = quat_normalize((1.0 - share) * a + share * b)
-    away = jnp.minimum(_angle_between(q, a), _angle_between(q, b))
-    spike = (away > turn) & (_angle_between(a, b) < 0.5 * away) & (turn > 0.0)
+    away = jnp.minimum(quat_angle(q, a), quat_angle(q, b))
+    spike = (away > turn) & (quat_angle(a, b) < 0.5 * away) & (turn > 0.0)
     return Pose(pose.root_pos, jnp.where(spike[..., None], replacement, q))
 
 
@@ -869,7 +730,7 @@ def exact_ik(
     Args:
       inner_fn, inner_params: the IK whose pose the solve starts from (and stays near).
       character: the skeleton the inner IK poses.
-      limits: soft joint limits (:func:`joint_limits_from_motion`, :meth:`JointLimits.load`);
+      limits: soft joint limits (:func:`~bezmotion.ik.joint_limits.joint_limits_from_motion`, :meth:`JointLimits.load`);
         default none.
       settings: weights and step counts of :class:`ExactIKParams`.
     """

@@ -39,7 +39,8 @@ from bezmotion.data.bvh import BvhMotion, read_bvh, write_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, SKELETON_MAPS
 from bezmotion.geometry.skeleton import forward_kinematics
 from bezmotion.ik.protocol import Character, IKFn, Pose, pose_fk, pose_from_motion
-from bezmotion.ik.exact import JointLimits, exact_ik
+from bezmotion.ik.exact import exact_ik
+from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.protores import ProtoResModel, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import RigSpec, make_rig, rig_ik
 from bezmotion.pipeline.transfer import CharacterProfile, Transfer

@@ -33,7 +33,7 @@ from bezmotion.bmm.evaluation import EvalSet, map_in_chunks
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, FEET, HIPS
 from bezmotion.data.corpus import MotionClips
 from bezmotion.data.curves import CurveDataset
-from bezmotion.geometry.rotations import quat_conjugate, quat_from_rot6d, quat_mul
+from bezmotion.geometry.rotations import quat_angle, quat_from_rot6d
 from bezmotion.ik.protocol import Character, IKFn, Pose, pose_fk, pose_from_motion, targets_from_pose
 from bezmotion.ik.rig import Rig
 from bezmotion.metrics import foot_skating_ratio, key_pop_deg, mean_position_error, rotation_change_deg
@@ -638,8 +638,7 @@ def curve_miss(
 
 
 def _angle_deg(rot6d_a: Array, rot6d_b: Array) -> Array:
-    rel = quat_mul(quat_conjugate(quat_from_rot6d(rot6d_a)), quat_from_rot6d(rot6d_b))
-    return jnp.degrees(2.0 * jnp.arctan2(jnp.linalg.norm(rel[..., 1:], axis=-1), jnp.abs(rel[..., 0])))
+    return jnp.degrees(quat_angle(quat_from_rot6d(rot6d_a), quat_from_rot6d(rot6d_b)))
 
 
 def window_curve_metrics(

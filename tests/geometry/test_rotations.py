@@ -294,6 +294,29 @@ def test_slerp_broadcasts_weights(rng):
     np.testing.assert_allclose(out[3], R.slerp(q0, q1, t[3]), atol=1e-6)
 
 
+def test_quat_exp_matches_axis_angle_and_log_inverts_it(rng):
+    axis = rng.normal(size=(64, 3))
+    axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+    angle = np.concatenate([rng.uniform(0.0, np.pi - 1e-3, 60), [0.0, 1e-6, 5e-5, 2e-4]])  # across the series threshold
+    v = jnp.asarray(axis * angle[:, None], jnp.float32)
+    q = R.quat_exp(v)
+    np.testing.assert_allclose(np.asarray(q), np.asarray(R.quat_from_axis_angle(jnp.asarray(axis, jnp.float32), jnp.asarray(angle, jnp.float32))), atol=1e-6)
+    np.testing.assert_allclose(np.asarray(R.quat_log(q)), np.asarray(v), atol=2e-6)
+    np.testing.assert_allclose(np.asarray(R.quat_log(-q)), np.asarray(v), atol=2e-6)  # either sign: the short way
+
+
+def test_quat_angle_is_the_relative_rotation_angle(rng):
+    q0 = random_quat(rng, (32,))
+    axis = jnp.asarray(rng.normal(size=(32, 3)), jnp.float32)
+    angle = jnp.asarray(rng.uniform(0.0, np.pi, 32), jnp.float32)
+    q1 = R.quat_mul(q0, R.quat_from_axis_angle(axis, angle))
+    np.testing.assert_allclose(np.asarray(R.quat_angle(q0, q1)), np.asarray(angle), atol=2e-5)
+    np.testing.assert_allclose(np.asarray(R.quat_angle(q0, -q1)), np.asarray(angle), atol=2e-5)
+    np.testing.assert_allclose(np.asarray(R.quat_angle(q1, q0)), np.asarray(angle), atol=2e-5)
+    tiny = R.quat_mul(q0, R.quat_from_axis_angle(axis, jnp.full(32, 1e-4, jnp.float32)))
+    np.testing.assert_allclose(np.asarray(R.quat_angle(q0, tiny)), 1e-4, rtol=0.05)  # acos(dot) would lose it
+
+
 # --------------------------------------------------------------------------- JAX contracts
 
 
@@ -320,6 +343,9 @@ def _contract_cases(rng: np.random.Generator) -> dict:
         "quat_from_euler": (functools.partial(R.quat_from_euler, order="yzx"), (vec,)),
         "euler_from_quat": (functools.partial(R.euler_from_quat, order="zxy"), (q0,)),
         "normalize": (R.normalize, (vec,)),
+        "quat_angle": (R.quat_angle, (q0, q1)),
+        "quat_exp": (R.quat_exp, (vec,)),
+        "quat_log": (R.quat_log, (q0,)),
     }
 
 
@@ -389,6 +415,10 @@ def _singular_cases() -> dict:
         "quat_between_opposite": (R.quat_between, (u, -u), (0, 1)),
         "quat_from_matrix_identity": (R.quat_from_matrix, (jnp.broadcast_to(jnp.eye(3), (2, 3, 3)),), (0,)),
         "quat_from_matrix_pi": (R.quat_from_matrix, (R.matrix_from_quat(q),), (0,)),
+        "quat_exp_zero": (R.quat_exp, (jnp.zeros((2, 3)),), (0,)),
+        "quat_log_identity": (R.quat_log, (identity,), (0,)),
+        "quat_angle_equal": (R.quat_angle, (q, q), (0, 1)),
+        "quat_angle_antipodal": (R.quat_angle, (q, -q), (0, 1)),
         "euler_identity": (zyx, (identity,), (0,)),
         "euler_gimbal_lock": (zyx, (locked,), (0,)),
     }

@@ -19,9 +19,10 @@ from helpers import lapack_calls
 
 from bezmotion.assets import BUNDLED_IK, DEMO_CLIP
 from bezmotion.data.bvh import read_bvh
-from bezmotion.geometry.rotations import quat_from_axis_angle, quat_mul
+from bezmotion.geometry.rotations import quat_angle, quat_from_axis_angle, quat_mul
 import bezmotion.ik.exact as exact_module
-from bezmotion.ik.exact import ExactIKFn, JointLimits, exact_ik, joint_limits_from_motion
+from bezmotion.ik.exact import ExactIKFn, exact_ik
+from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.protocol import Character, Pose, pose_from_motion, solve_frames, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik
@@ -166,20 +167,6 @@ def test_composes_with_learned_ik_and_window_solve(bandai):
     np.testing.assert_allclose(np.asarray(pose.quat_local), np.asarray(result.pose.quat_local), atol=1e-6)
 
 
-def test_joint_limits_from_motion_and_json(bandai, tmp_path):
-    limits = joint_limits_from_motion(bandai.character, np.asarray(bandai.truth.quat_local), percentile=0.0, margin=0.0)
-    hips = bandai.character.hips
-    assert float(limits.lower[hips, 0]) < -100 and float(limits.upper[hips, 0]) > 100  # the hips: unlimited
-    assert np.all(np.asarray(limits.lower) <= np.asarray(limits.upper))
-    limits.save(tmp_path / "limits.json", bandai.character)
-    back = JointLimits.load(tmp_path / "limits.json", bandai.character)
-    np.testing.assert_allclose(np.asarray(back.lower), np.asarray(limits.lower), atol=1e-4)
-    with pytest.raises(ValueError, match="'Nope'"):
-        JointLimits.from_json({"joints": {"Nope": {}}}, bandai.character)
-    with pytest.raises(ValueError, match="Hips"):
-        JointLimits.from_json({"joints": {"Hips": {"center": [1, 0, 0, 0], "lower": [1, 1, 1], "upper": [0, 0, 0]}}}, bandai.character)
-
-
 def test_bad_settings(bandai):
     with pytest.raises(ValueError, match="position_wieght"):
         exact_ik(rig_ik, bandai.params.inner, bandai.character, position_wieght=1.0)
@@ -262,7 +249,7 @@ def test_window_solve_joins_the_keys_and_holds_their_neighbours(bandai):
     solve = jax.jit(lambda p, t: fn.solve_window_with_residual(p, t, keys, 6))
 
     def turn_next_to_start_deg(result) -> float:
-        return float(jnp.max(exact_module._angle_between(result.pose.quat_local[0], result.pose.quat_local[1])) * 180 / np.pi)
+        return float(jnp.max(quat_angle(result.pose.quat_local[0], result.pose.quat_local[1])) * 180 / np.pi)
 
     free, default, hard = (solve(dataclasses.replace(params, key_hold_weight=w), targets) for w in (0.0, params.key_hold_weight, 1e5))
     for result in (free, default, hard):
@@ -315,7 +302,7 @@ def test_one_frame_flips_of_the_inner_ik_are_removed_and_fast_turns_kept():
     """``remove_spikes``: a joint flipped far from both neighbours for one frame (in the
     middle, or on the window's first frame) takes its neighbours' rotation; a joint turning
     fast but steadily, another joint, the hips' position and short windows are untouched."""
-    from bezmotion.ik.exact import _angle_between, remove_spikes
+    from bezmotion.ik.exact import remove_spikes
 
     frames, joints = 9, 3
     axis = jnp.asarray([0.0, 0.0, 1.0])
@@ -330,7 +317,7 @@ def test_one_frame_flips_of_the_inner_ik_are_removed_and_fast_turns_kept():
     np.testing.assert_array_equal(out.root_pos, root)
     np.testing.assert_array_equal(out.quat_local[:, 0], steady)  # 0.9 rad a frame, one way: no spike
     np.testing.assert_array_equal(out.quat_local[:, 2], still)
-    assert float(jnp.max(_angle_between(out.quat_local[:, 1], still))) < 1e-3  # both flips gone
+    assert float(jnp.max(quat_angle(out.quat_local[:, 1], still))) < 1e-3  # both flips gone
     np.testing.assert_array_equal(remove_spikes(Pose(root, quat), 0.0).quat_local, quat)  # off
     np.testing.assert_array_equal(remove_spikes(Pose(root, quat), 2.7).quat_local, quat)  # a 149° flip under the threshold
     short = Pose(root[:2], quat[:2])
