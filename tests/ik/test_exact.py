@@ -324,6 +324,37 @@ def test_one_frame_flips_of_the_inner_ik_are_removed_and_fast_turns_kept():
     np.testing.assert_array_equal(remove_spikes(short, 0.75).quat_local, short.quat_local)
 
 
+def test_lasting_flips_of_the_inner_ik_become_ramps_from_the_keys():
+    """``limit_turns``: a joint that flips by 149° and stays flipped turns at most the limit a
+    frame, counted from the nearer end of the window (so the frames next to the key keep the
+    inner pose there); slower motion and the hips' position pass bit for bit."""
+    from bezmotion.ik.exact import limit_turns
+    from bezmotion.metrics import rotation_change_deg
+
+    frames, limit = 15, 0.5
+    axis = jnp.asarray([0.0, 0.0, 1.0])
+    steady = quat_from_axis_angle(jnp.broadcast_to(axis, (frames, 3)), 0.4 * jnp.arange(frames, dtype=jnp.float32))
+    still = quat_from_axis_angle(jnp.broadcast_to(axis, (frames, 3)), jnp.full(frames, 0.2))
+    flip = quat_from_axis_angle(jnp.asarray([1.0, 0.0, 0.0]), jnp.asarray(2.6))  # 149°
+    late = still.at[11:].set(quat_mul(still[11:], flip))  # flipped from frame 11 to the end
+    early = still.at[:3].set(quat_mul(still[:3], flip))  # flipped from the start to frame 2
+    quat = jnp.stack([steady, late, early, still], axis=1)
+    root = jnp.arange(frames * 3, dtype=jnp.float32).reshape(frames, 3)
+    out = limit_turns(Pose(root, quat), limit)
+
+    np.testing.assert_array_equal(out.root_pos, root)
+    np.testing.assert_array_equal(out.quat_local[:, [0, 3]], quat[:, [0, 3]])  # 0.4 rad a frame: under the limit
+    turns = np.radians(np.asarray(rotation_change_deg(out.quat_local)))
+    assert turns[:, 1:3].max() <= limit + 1e-4  # no step left
+    # The frames from the step to the nearer end keep the inner pose; the ramp runs away from that end.
+    np.testing.assert_array_equal(out.quat_local[11:, 1], late[11:])
+    np.testing.assert_array_equal(out.quat_local[:3, 2], early[:3])
+    assert float(quat_angle(out.quat_local[10, 1], late[11])) == pytest.approx(limit, abs=1e-4)
+    assert float(quat_angle(out.quat_local[3, 2], early[2])) == pytest.approx(limit, abs=1e-4)
+    np.testing.assert_array_equal(out.quat_local[:5, 1], late[:5])  # reached the inner pose again (2.6 / 0.5: 6 frames)
+    np.testing.assert_array_equal(limit_turns(Pose(root, quat), 0.0).quat_local, quat)  # off
+
+
 def test_robust_loss_lets_a_far_unpinned_target_go_and_keeps_near_ones(bandai):
     """``robust_cm``: beyond it an unpinned position costs Huber's loss, so a left-hand target
     80 cm out of reach no longer drags the rest of the body off its targets; reachable
