@@ -656,8 +656,7 @@ def limit_turns(pose: Pose, turn: Float[Array, ""] | float) -> Pose:
     turn = jnp.asarray(turn, q.dtype)
 
     def follow(sequence: Array) -> Array:
-        def step(previous, current):
-            current = jnp.where(jnp.sum(previous * current, axis=-1, keepdims=True) < 0.0, -current, current)
+        def step(previous, current):  # quat_angle and slerp take either sign of current
             angle = quat_angle(previous, current)[..., None]
             limited = (turn > 0.0) & (angle > turn)
             fraction = jnp.where(limited, turn / jnp.where(limited, angle, 1.0), 1.0)
@@ -673,7 +672,7 @@ def limit_turns(pose: Pose, turn: Float[Array, ""] | float) -> Pose:
     score = quat_angle(forward, backward) + 1e-3 * jnp.asarray(np.abs(t - (frames - 1) / 2) / frames, q.dtype)[:, None]
     split = jnp.argmin(score, axis=0)  # (joints,)
     limited = jnp.where((t[:, None] < split[None, :])[..., None], forward, backward)
-    # Unchanged frames keep their own quaternion (not its aligned sign): a no-op stays exact.
+    # Unchanged frames keep their own quaternion (not slerp's sign of it): a no-op stays exact.
     same = jnp.abs(jnp.sum(limited * q, axis=-1, keepdims=True)) >= 1.0 - 1e-7
     return Pose(pose.root_pos, jnp.where(same, q, limited))
 

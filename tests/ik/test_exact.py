@@ -357,15 +357,16 @@ def test_lasting_flips_of_the_inner_ik_become_ramps_from_the_keys():
 
 @dataclasses.dataclass(frozen=True)
 class _FlippingIK:
-    """The learned IK, with the right upper arm twisted 150° on the frames whose hips target
-    lies in ``(low, high)`` along z (the demo clip walks along z): a lasting flip."""
+    """The learned IK, with joint ``arm`` twisted 149° on the frames whose hips target lies in
+    ``(low, high)`` along z (the demo clip walks along z): a lasting flip."""
 
+    arm: int
     low: float
     high: float
 
     def __call__(self, params, targets):
         pose = protores_ik_fn(params, targets)
-        arm = 11  # UpperArm_R
+        arm = self.arm
         flip = quat_from_axis_angle(jnp.asarray([1.0, 0.0, 0.0]), jnp.asarray(2.6))
         inside = (targets.position[0, 2] > self.low) & (targets.position[0, 2] < self.high)
         return pose._replace(quat_local=pose.quat_local.at[arm].set(jnp.where(inside, quat_mul(pose.quat_local[arm], flip), pose.quat_local[arm])))
@@ -382,10 +383,11 @@ def test_window_solve_ramps_a_lasting_flip_of_the_inner_ik(bandai):
     truth = pose_from_motion(bandai.character, jnp.asarray(motion.quat_local[10:26]), jnp.asarray(motion.pos_local[10:26]))
     targets = targets_from_pose(bandai.character, truth)  # hips z: −539 … −519 cm; frames 9–13 flipped
     keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
-    fn, params = exact_ik(_FlippingIK(-527.5, -522.0), load_ik_model(BUNDLED_IK), bandai.character)
+    arm = bandai.character.skeleton.names.index("UpperArm_R")
+    fn, params = exact_ik(_FlippingIK(arm, -527.5, -522.0), load_ik_model(BUNDLED_IK), bandai.character)
     solve = jax.jit(lambda p, t: fn.solve_window_with_residual(p, t, keys, 6))
     limited, unlimited = solve(params, targets), solve(dataclasses.replace(params, spike_turn=0.0), targets)
-    arm_turn = lambda r: float(jnp.max(rotation_change_deg(r.pose.quat_local)[:, 11]))  # noqa: E731
+    arm_turn = lambda r: float(jnp.max(rotation_change_deg(r.pose.quat_local)[:, arm]))  # noqa: E731
     assert arm_turn(unlimited) > 55.0 and arm_turn(limited) < 45.0, (arm_turn(unlimited), arm_turn(limited))
     # The targets are met as closely (within 0.5 cm: every frame of 16 lies near a key, held).
     mean, worst = (float(jnp.mean(limited.position_error)), float(jnp.max(limited.position_error)))
