@@ -28,13 +28,10 @@ The solver is ours rather than ``optimistix.LevenbergMarquardt``: the same dampe
 Gauss–Newton steps with exact Jacobians, but FK's Jacobian is analytic (a joint's turn
 moves its subtree's points by axis × lever) and the normal equations are solved in their
 dual form (a 36 × 36 system per frame instead of QR on the 69-column Jacobian). A fixed
-step count keeps a batch of frames in lock step. On the demo window (31 frames) it
-measured ~8 ms against optimistix's 263 ms at the same accuracy; with the joint limits'
-Jacobian in closed form, 7.3 ms from the rig's pose and 8.0 ms from the learned IK's
-(``python benchmarks/ik_exact.py --repeats 20``, 2-core CPU, 2026-11-26; the issue's aim
-is 5 ms); the default two window passes take 14.6 ms (2026-11-27). What is left is spread over small ops: each of the 6 steps costs ~0.9 ms, of
-which the 36 × 36 Cholesky solve (108 sequential loop steps, no LAPACK: see
-``bezmotion.linalg``) takes ~0.3 ms. Gradients pass through the unrolled steps.
+step count keeps a batch of frames in lock step. On the demo window (31 frames) one pass
+measured ~8 ms against optimistix's 263 ms at the same accuracy; docs/precision.md gives
+today's timings (the window solve's two passes ~15 ms on a 2-core CPU, issue 15 aims at
+5 ms) and what was tried to go faster. Gradients pass through the unrolled steps.
 
 A target out of reach is approached as closely as the limbs allow (the positions'
 residual cannot vanish, the other terms keep the pose finite and near its start);
@@ -44,11 +41,10 @@ the identity and at full extension.
 
 Frames are solved independently by the ``ik_fn`` (:class:`ExactIKFn`); its
 :meth:`ExactIKFn.solve_window` solves a whole window ``(frames, …)`` from the inner IK's
-poses smoothed over time (a ``[w, 1 − 2w, w]`` filter of neighbouring frames' rotations,
-after one-frame flips are replaced by their neighbours, :func:`remove_spikes`, and lasting
-flips become ramps, :func:`limit_turns`), so a learned IK's frame-to-frame jitter does not
-reach the result. The pipeline uses it
-through :func:`bezmotion.ik.protocol.solve_frames`, which also hands it
+poses filtered over time (:mod:`bezmotion.ik.temporal`: one-frame flips replaced by their
+neighbours, lasting flips turned into ramps, then a ``[w, 1 − 2w, w]`` filter of
+neighbouring frames), so a learned IK's frame-to-frame jitter does not reach the result.
+The pipeline uses it through :func:`bezmotion.ik.protocol.solve_frames`, which also hands it
 
 - the **keys**: the start poses are joined to the key poses first
   (:func:`~bezmotion.ik.key_blend.blend_to_keys`) and the frames next to a key are held
@@ -61,15 +57,9 @@ through :func:`bezmotion.ik.protocol.solve_frames`, which also hands it
   damping scaled to each unknown's curvature and a trust region that never shortens the
   hips' translation (see ``_levenberg_marquardt``).
 
-Bandai-Namco validation, 100 windows, bundled models (``python experiments/pipeline_eval.py
---windows 100``): handles 0.007 cm in distribution and 0.35 cm OOD (0.017 / 0.64 with
-``prior_weight=1`` and one window pass, which also jittered; 0.121 / 2.46 with one
-trust-region factor for the whole step and absolute damping; 0.220 / 4.02 before the
-handle weights, the key hold and ``max_turn``), key pop 18.4° (41.6° without the key hold,
-13.7° with a hold of 10000 that kept the body up to centimetres off the curves next to the
-keys; the mocap's own 26.2°), the most-turning joint 5.4° per frame on average and 31° at
-most (the mocap's 7.1° and 32°; 6.5° and 42° with the key hold's earlier cosine fade), foot
-skating 0.140, MPJPE 3.12 cm, the six joints 0.28 cm off their curves on average.
+What it achieves on Bandai-Namco and LaFAN1 (handles, MPJPE, foot skating, key pop, speed)
+is in README's *Precision after IK*; docs/precision.md has every measurement, and how
+each default of :class:`ExactIKParams` was chosen.
 """
 
 from __future__ import annotations
@@ -82,8 +72,6 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from bezmotion.data.characteristic import FEET
-from bezmotion.data.windows import foot_contacts
 from bezmotion.geometry.rotations import (
     matrix_from_quat,
     quat_angle,
@@ -92,13 +80,12 @@ from bezmotion.geometry.rotations import (
     quat_from_rot6d,
     quat_log,
     quat_mul,
-    quat_normalize,
     safe_norm,
-    slerp,
 )
 from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.key_blend import blend_to_chain_keys, key_chain, key_distances
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, pose_fk
+from bezmotion.ik.temporal import limit_turns, planted_feet, remove_spikes, smooth
 from bezmotion.linalg import cholesky_solve
 
 _SMALL_ANGLE = 1e-4  # rad: below this the right Jacobians use their Taylor series
@@ -123,117 +110,62 @@ _RADIUS_GROW, _RADIUS_SHRINK = 2.0, 0.25
 class ExactIKParams:
     """Parameters of :class:`ExactIKFn`: the inner IK's, the character, limits and weights.
 
+    Each weight multiplies a residual (its square enters the cost). docs/precision.md,
+    *The exact IK's settings and how their defaults were chosen*, gives the measurements
+    behind every default; the lines here say what each setting does and why it exists.
+
     Attributes:
       inner: the inner ``ik_fn``'s params (a :class:`~bezmotion.ik.protores.ProtoResModel`,
         a :class:`~bezmotion.ik.rig.Rig`, …).
       character: the skeleton and its six characteristic joints.
       limits: :class:`JointLimits` (:meth:`JointLimits.unlimited` for none).
-      position_weight: residual weight per cm of characteristic-joint position error.
+      position_weight: per cm of a characteristic joint's position error: large, so the
+        positions are as hard as float32 allows and the other terms only choose among the
+        poses that reach them.
       hips_position_scale: the hips' position weight relative to the others'.
       handle_weight: the position weight of pinned targets (``IKTargets.pinned``: handles)
-        relative to the others'. Where the six targets cannot all be met (the generated
-        curves put a hand farther from the head and hips than the body reaches), least
-        squares splits the miss in proportion to the inverse squared weights: at 25, the
-        handle keeps about 0.2 % of it against an unpinned joint, 2.5 % against a planted
-        foot (``plant_weight`` 4). 25 since 2026-11-27 (10 before): with planted feet
-        weighing 4, a handle at 10 kept 14 % of a conflict with a planted foot, and one
-        handle of a held-out-content window was missed by 4.8 cm; at 25, 0.0015 / 0.47 cm
-        on 1,500 Bandai-Namco windows (10: 0.0075 / 0.62), the rest unchanged
-        (``plant_weight`` below).
+        relative to the others'. Where the six targets cannot all be met, least squares
+        splits the miss in proportion to the inverse squared weights: at 25 the handle keeps
+        about 0.2 % of it against an unpinned joint, 2.5 % against a planted foot.
       plant_weight: in the window solve, the position weight of a foot whose target stands
-        (nearly) still, relative to the others' (1: like any target). Where a handle on the
-        hips or head cannot be met with the feet where the curves put them, the unpinned
-        joints give way, and a foot that gives way while its target stands still slides.
-        A trade against OOD handles. On 1,500 Bandai-Namco validation windows with
-        foot-locked curves, paired window by window against ``refined`` on the same curves
-        (``experiments/pipeline_eval.py --windows 1500 --ik refined exact --foot-lock
-        --exact plant_weight=…``, ``handle_weight`` then 10), 1 / 4 / 10 gave OOD foot
-        skating +0.0058 / +0.0002 / −0.0002 (± 0.0016) above ``refined``'s and OOD handles
-        0.50 / 0.62 / 0.87 cm; in distribution skating 0.0578 / 0.0582 / 0.0584
-        (``refined`` 0.0662) and handles 0.007 cm for all three. 4 (the default since
-        2026-11-27) is the smallest that no longer skates more than ``refined`` OOD: at 1
-        the standing motions (waving, raising a hand) slid their feet to reach OOD hand
-        handles. With today's ``handle_weight`` of 25: OOD skating +0.0012 ± 0.0016, handles
-        0.0015 / 0.47 cm. LaFAN1 (1,000 windows, CPU-size models): skating unchanged by it.
+        (nearly) still, relative to the others' (1: like any target): where a handle cannot
+        be met with the feet where the curves put them, the feet would otherwise give way
+        and slide. 4 is the smallest that no longer skates more than ``refined`` OOD.
       plant_step: cm per frame: a foot target moving less than this to the next frame
         stands still (0.25: 7.5 cm/s at 30 fps, the skating metric's speed).
-      rotation_weight: per unit of ortho6D difference of their orientations (≈ per rad).
+      rotation_weight: per unit of ortho6D difference of the six joints' orientations (≈ per rad).
       prior_weight: per radian of a joint's rotation away from its start (inner IK) pose.
         Frames are solved independently, so this is also what keeps neighbouring frames
-        alike: at 1, on 100 Bandai-Namco windows, the most-turning joint turned 12.1° per
-        frame on average (the mocap 7.1°) and up to 173° (a flipped arm); at 50, with two
-        window passes, 6.5° and 43°, and the handles were met more closely too
-        (0.003 / 0.37 cm against 0.017 / 0.64).
+        alike (at 1 an arm flipped 173° between frames).
       root_weight: per cm of the hips' position away from its start.
       limit_weight: per radian beyond a joint's limits.
       key_hold_weight: with keys (:meth:`ExactIKFn.solve_window`), per radian of a joint's
         turn away from its start pose (the inner IK's, joined to the key) at the frame next
-        to a key (``key_hold_decay`` sets how it fades with the distance): where curves
-        near a key are hard to reach exactly, the frames next to it stay near the key
-        instead of swinging every joint for the last centimetres (a pop); pinned handles
-        there still win (``position_weight · handle_weight`` per cm). A trade: the held
-        frames leave the curves, and the body catches up with them later. On 100
-        Bandai-Namco windows (foot-locked curves, ``pipeline_eval.py --foot-lock --exact
-        key_hold_weight=…``, with the earlier fade: the key blend's cosine over 6 frames),
-        10000 / 3000 / 1000 / 300 gave key pop 13.7 / 18.9 / 26.2 / 34.6° (the mocap's
-        26.2°), the six joints off their curves by 0.21 / 0.13 / 0.08 / 0.06 cm on
-        average, foot skating 0.080 / 0.072 / 0.070 / 0.071; on the demo, the forearm's
-        largest turn in a frame 28° / 20° / 14° / 14° as it caught up near the end key.
-        3000 keeps the key pop well under the mocap's.
+        to a key: where the curves near a key are hard to reach exactly, the frames next to
+        it stay near the key instead of swinging every joint for the last centimetres (a
+        pop). Pinned handles there still win. A trade: held frames leave the curves, and
+        the body catches up later.
       key_hold_decay: the hold ``d`` frames from the nearest key is ``key_hold_weight ·
-        key_hold_decay^(d − 1)``. A hold that ends within a few frames (the earlier cosine
-        fade over the key blend's 6 frames) releases the body where the curves have moved
-        on, and it catches up in one or two frames (the demo's forearm: 20° in one frame);
-        a slow decay spreads the catch-up, and far from the keys it pulls towards the
-        smoothed inner IK's pose more than ``prior_weight`` does. On the same 100 windows,
-        against the cosine fade: 0.6 / 0.75 / 0.85 gave the largest turn in one frame
-        40 / 66 / 31° in distribution (cosine 42°, the mocap's 32°) and 118 / 119 / 60°
-        OOD (cosine 160°), foot skating 0.070 / 0.070 / 0.069 and 0.099 OOD for all three
-        (cosine 0.072 / 0.101), MPJPE 3.007 / 2.993 / 2.965 cm (cosine 2.999), the six
-        joints off their curves by 0.12 / 0.17 / 0.27 cm (cosine 0.13), and on the demo
-        16 / 16 / 14° (these with the frame next to a key at the cosine's 0.93 × 3000).
+        key_hold_decay^(d − 1)``: a slow decay spreads the catch-up over many frames (a
+        hold that ends within a few frames makes the body catch up in one or two).
       max_turn: the trust region, rad: the most any joint turns in one step; it shrinks
         4× after a refused step and grows back 2× after a taken one. Each step tries it two
         ways (the whole step shortened, and each joint clipped) and keeps the better. Long
-        steps suit a close start (a learned IK's): near a straight limb the linearisation
-        is poor but its direction good. From a far start (the rig's) use 0.2: on the
-        tests' bent poses it meets the targets to 8 µm in 14 steps, where 1.0 leaves 2.9 cm.
+        steps suit a close start (a learned IK's); from a far start (the rig's) use 0.2.
       smoothing: weight of each neighbouring frame in the window solve's temporal filter
-        (0: none; 0.5 at most; the frame itself keeps ``1 - 2·smoothing``, or
-        ``1 - smoothing`` at the window's ends).
-      spike_turn: rad: in the window solve, a joint of the inner IK's pose that turns more
-        than this away from both neighbouring frames (which lie nearer each other than half
-        as far) for one frame is an outlier and replaced by them before anything else
-        (:func:`remove_spikes`; 0: off). 0.75 rad (43°) is the LaFAN1 mocap's largest turn
-        in one frame, and the mocap never turns that far and back. A joint that then still
-        turns further in one frame (a lasting flip) turns at most this much a frame, counted
-        from the window's ends (:func:`limit_turns`). On 1,000 LaFAN1 windows (CPU-size
-        models, foot-locked curves, same curves) that took the exact IK's key pop from 48.1°
-        to 34.8° in distribution (the mocap's 36.1°) and 35.5° to 35.3° OOD, the windows
-        turning a joint more than 45° in a frame from 17 to 9 (OOD 24 to 14), handles, MPJPE
-        and skating unchanged; on Bandai-Namco, whose learned IK never turns that fast,
-        nothing changed.
-      robust_cm: cm: a target's position miss beyond this costs Huber's loss (linear in the
-        distance) instead of its square; 0: least squares throughout. Handles (pinned) and
-        planted feet stay least squares. Where a curve's joint lies far out of reach (curves
-        the BMM draws badly), least squares spreads the miss over every joint and bends the
-        whole body towards that one target; Huber's lets it go further and keeps the others
-        on their curves. Misses under the threshold (reachable targets, the key hold's
-        compromises next to a key) are solved as before. 5 since 2026-11-27 (0 before).
-        Paired on the same curves against 0 (``pipeline_eval.py --foot-lock``), 5 / 2 cm: on
-        1,500 Bandai-Namco windows MPJPE −0.001 / −0.008 cm in distribution and −0.034 ±
-        0.002 / −0.155 ± 0.006 OOD, skating unchanged (±0.0006), the six joints' mean
-        distance from their curves −0.000 / +0.007 cm ID and −0.007 / +0.031 OOD, their worst
-        per window +0.03 / +0.36 cm ID. With models trained without the ``run`` content, on
-        its 105 windows the exact IK's MPJPE above ``refined``'s fell from +0.70 ± 0.20 cm to
-        +0.39 ± 0.07 (5) and +0.29 ± 0.07 (2). 2 cm holds the body farther from its curves
-        wherever the key hold pulls (on the demo a joint 6.2 cm off its curve at frame 25
-        and the forearm turning 16.3° in a frame, against 3.8 cm and 13.5° at 5 and at 0).
+        (:func:`~bezmotion.ik.temporal.smooth`; 0: none, 0.5 at most).
+      spike_turn: rad: in the window solve, the inner IK's one-frame flips beyond this are
+        replaced by their neighbours (:func:`~bezmotion.ik.temporal.remove_spikes`), and
+        lasting flips become ramps turning at most this much a frame
+        (:func:`~bezmotion.ik.temporal.limit_turns`); 0: off. 0.75 rad (43°) is the LaFAN1
+        mocap's largest turn in one frame.
+      robust_cm: cm: an unpinned, unplanted joint's position miss beyond this costs Huber's
+        loss (linear in the distance) instead of its square, so a curve point far out of
+        reach does not bend the whole body towards it; 0: least squares throughout.
       iterations: Levenberg–Marquardt steps per frame and pass (static).
       window_passes: how many times the window solve smooths the poses over time and
         solves again from them (static; the first smooths the inner IK's poses). Each pass
-        costs one solve: 1 halves the time for a little more jitter (at prior 50: 7.2° per
-        frame, handles 0.007 / 0.51 cm).
+        costs one solve: 1 halves the time for a little more jitter.
     """
 
     inner: Any
@@ -596,99 +528,6 @@ def _errors(character: Character, pose: Pose, targets: IKTargets) -> tuple[Array
     return position, rotation
 
 
-def planted_feet(position: Float[Array, "frames 6 3"], plant_step: Float[Array, ""] | float) -> Array:
-    """``(frames, 6)``: the feet whose targets move less than ``plant_step`` cm to the next
-    frame (the last frame repeats the one before it); hips, head and hands never."""
-    contact = foot_contacts(position, FEET, threshold=jnp.square(plant_step))
-    return jnp.zeros(position.shape[:-1], bool).at[..., np.asarray(FEET)].set(contact)
-
-
-def remove_spikes(pose: Pose, turn: Float[Array, ""] | float) -> Pose:
-    """``pose`` ``(frames, …)`` with each joint's one-frame outliers replaced by its neighbours.
-
-    A learned IK solves every frame on its own and now and then turns a joint far away for
-    a single frame (an arm's twist flipped by 150° between two frames that agree). The
-    temporal filter (:func:`_smooth`) only halves such a spike, and the key hold then holds
-    the frames next to a key at what is left of it: on LaFAN1 the exact IK's largest turn at
-    a key came from exactly that (a learned-IK flip on the key frame or two frames before it).
-
-    A joint's rotation at frame ``t`` is a spike when it lies more than ``turn`` (rad) from
-    both neighbours while they lie less than half that distance from each other (a joint
-    turning fast one way has its neighbours farther apart than either is from it); it
-    becomes their midpoint. At the first and last frame the two frames inside the window are the
-    neighbours and the nearer one replaces it. Windows under 3 frames and ``turn ≤ 0`` are
-    left alone; the hips' position is never changed.
-    """
-    q = pose.quat_local
-    if q.shape[0] < 3:
-        return pose
-    # Each frame's two neighbours; at the ends both lie inside the window (frames 1, 2 and T−2, T−3).
-    a = jnp.concatenate([q[1:2], q[:-2], q[-2:-1]])
-    b = jnp.concatenate([q[2:3], q[2:], q[-3:-2]])
-    share = jnp.asarray([0.0] + [0.5] * (q.shape[0] - 2) + [0.0], q.dtype)[:, None, None]  # of b in the replacement
-    b = jnp.where(jnp.sum(a * b, axis=-1, keepdims=True) < 0.0, -b, b)
-    replacement = quat_normalize((1.0 - share) * a + share * b)
-    away = jnp.minimum(quat_angle(q, a), quat_angle(q, b))
-    spike = (away > turn) & (quat_angle(a, b) < 0.5 * away) & (turn > 0.0)
-    return Pose(pose.root_pos, jnp.where(spike[..., None], replacement, q))
-
-
-def limit_turns(pose: Pose, turn: Float[Array, ""] | float) -> Pose:
-    """``pose`` ``(frames, …)`` with no joint turning more than ``turn`` rad from one frame to
-    the next, the frames at both ends of the window kept.
-
-    A learned IK sometimes flips a joint for good rather than for one frame (an arm's twist
-    by ~180° between two frames, where the curves' hand orientation lies far from any pose it
-    learned): :func:`remove_spikes` keeps such a step, and the key hold then holds the frames
-    next to the key on whichever side of it they lie. Here each joint's rotation follows the
-    inner poses from the first frame forwards, and again from the last frame backwards,
-    moving at most ``turn`` a frame (a step becomes a ramp over as many frames as it needs).
-    The result takes the forward pass up to the frame where the two passes agree best (both
-    back on the inner poses), the backward pass after it: the ramp lies on the side of the
-    step away from the nearer end, and the frames next to each key stay continuous with it.
-    Poses that never turn that fast are returned unchanged (bit for bit); ``turn ≤ 0`` turns
-    it off; the hips' position is never changed.
-    """
-    q = pose.quat_local
-    frames = q.shape[0]
-    if frames < 3:
-        return pose
-    turn = jnp.asarray(turn, q.dtype)
-
-    def follow(sequence: Array) -> Array:
-        def step(previous, current):  # quat_angle and slerp take either sign of current
-            angle = quat_angle(previous, current)[..., None]
-            limited = (turn > 0.0) & (angle > turn)
-            fraction = jnp.where(limited, turn / jnp.where(limited, angle, 1.0), 1.0)
-            moved = jnp.where(limited, slerp(previous, current, fraction[..., 0]), current)
-            return moved, moved
-
-        _, rest = jax.lax.scan(step, sequence[0], sequence[1:])
-        return jnp.concatenate([sequence[:1], rest])
-
-    forward, backward = follow(q), follow(q[::-1])[::-1]
-    # Per joint, the frame where the passes lie closest (ties: the one nearest the middle).
-    t = np.arange(frames)
-    score = quat_angle(forward, backward) + 1e-3 * jnp.asarray(np.abs(t - (frames - 1) / 2) / frames, q.dtype)[:, None]
-    split = jnp.argmin(score, axis=0)  # (joints,)
-    limited = jnp.where((t[:, None] < split[None, :])[..., None], forward, backward)
-    # Unchanged frames keep their own quaternion (not slerp's sign of it): a no-op stays exact.
-    same = jnp.abs(jnp.sum(limited * q, axis=-1, keepdims=True)) >= 1.0 - 1e-7
-    return Pose(pose.root_pos, jnp.where(same, q, limited))
-
-
-def _smooth(pose: Pose, weight) -> Pose:
-    """A [w, 1-2w, w] filter over frames of local rotations (hemisphere-aligned) and the hips' position."""
-    q = pose.quat_local
-    prev = jnp.concatenate([q[:1], q[:-1]])
-    nxt = jnp.concatenate([q[1:], q[-1:]])
-    align = lambda a: jnp.where(jnp.sum(a * q, axis=-1, keepdims=True) < 0.0, -a, a)  # noqa: E731
-    quat = quat_normalize((1.0 - 2.0 * weight) * q + weight * (align(prev) + align(nxt)))
-    r = pose.root_pos
-    root = (1.0 - 2.0 * weight) * r + weight * (jnp.concatenate([r[:1], r[:-1]]) + jnp.concatenate([r[1:], r[-1:]]))
-    return Pose(root, quat)
-
-
 @dataclasses.dataclass(frozen=True)
 class ExactIKFn:
     """``ik_fn(params, targets) -> pose``: the inner IK, then the exact solve (one frame).
@@ -740,7 +579,7 @@ class ExactIKFn:
         planted = planted_feet(targets.position, params.plant_step)
         pose = limit_turns(remove_spikes(pose, params.spike_turn), params.spike_turn)
         for _ in range(params.window_passes):
-            start = _smooth(pose, params.smoothing)
+            start = smooth(pose, params.smoothing)
             if keys is not None:
                 start = blend_to_chain_keys(start, keys, key_blend_frames)
             pose = jax.vmap(lambda s, t, h, p: _solve(params, s, t, params.iterations, h, p))(start, targets, hold, planted)

@@ -268,17 +268,6 @@ def test_window_solve_joins_the_keys_and_holds_their_neighbours(bandai):
     assert errors[0] < 0.01 < 5.0 < errors[1], errors
 
 
-def test_planted_feet_marks_still_foot_targets_only():
-    """A foot target moving less than ``plant_step`` cm to the next frame is planted (the last
-    frame repeats the one before); hips, head and hands never are."""
-    position = jnp.zeros((4, 6, 3)).at[:, 5, 0].set(jnp.asarray([0.0, 1.0, 1.1, 5.0]))  # right foot: still, then moving
-    position = position.at[:, 3, 0].set(0.0)  # a still hand stays unplanted
-    planted = np.asarray(exact_module.planted_feet(position, 0.5))
-    np.testing.assert_array_equal(planted[:, 4], [True, True, True, True])
-    np.testing.assert_array_equal(planted[:, 5], [False, True, False, False])
-    assert not planted[:, :4].any()
-
-
 def test_planted_feet_hold_their_targets_against_a_handle(bandai):
     """The head's target 12 cm up, pinned, on 8 consecutive frames of the demo clip: reaching
     it lifts the hips and the feet give way. Planted feet (``plant_weight``) keep their targets
@@ -296,63 +285,6 @@ def test_planted_feet_hold_their_targets_against_a_handle(bandai):
     feet_loose, feet_planted = (float(jnp.mean(r.position_error[:, feet])) for r in (loose, planted))
     assert feet_loose > 2.0 and feet_planted < 0.5 * feet_loose, (feet_loose, feet_planted)
     assert float(jnp.mean(planted.position_error[:, head])) > float(jnp.mean(loose.position_error[:, head]))
-
-
-def test_one_frame_flips_of_the_inner_ik_are_removed_and_fast_turns_kept():
-    """``remove_spikes``: a joint flipped far from both neighbours for one frame (in the
-    middle, or on the window's first frame) takes its neighbours' rotation; a joint turning
-    fast but steadily, another joint, the hips' position and short windows are untouched."""
-    from bezmotion.ik.exact import remove_spikes
-
-    frames, joints = 9, 3
-    axis = jnp.asarray([0.0, 0.0, 1.0])
-    steady = quat_from_axis_angle(jnp.broadcast_to(axis, (frames, 3)), 0.9 * jnp.arange(frames, dtype=jnp.float32))
-    still = quat_from_axis_angle(jnp.broadcast_to(axis, (frames, 3)), jnp.full(frames, 0.2))
-    flip = quat_from_axis_angle(jnp.asarray([1.0, 0.0, 0.0]), jnp.asarray(2.6))  # 149°
-    spiky = still.at[4].set(quat_mul(still[4], flip)).at[0].set(quat_mul(still[0], flip))
-    quat = jnp.stack([steady, spiky, still], axis=1)  # (frames, joints, 4)
-    root = jnp.arange(frames * 3, dtype=jnp.float32).reshape(frames, 3)
-    out = remove_spikes(Pose(root, quat), 0.75)
-
-    np.testing.assert_array_equal(out.root_pos, root)
-    np.testing.assert_array_equal(out.quat_local[:, 0], steady)  # 0.9 rad a frame, one way: no spike
-    np.testing.assert_array_equal(out.quat_local[:, 2], still)
-    assert float(jnp.max(quat_angle(out.quat_local[:, 1], still))) < 1e-3  # both flips gone
-    np.testing.assert_array_equal(remove_spikes(Pose(root, quat), 0.0).quat_local, quat)  # off
-    np.testing.assert_array_equal(remove_spikes(Pose(root, quat), 2.7).quat_local, quat)  # a 149° flip under the threshold
-    short = Pose(root[:2], quat[:2])
-    np.testing.assert_array_equal(remove_spikes(short, 0.75).quat_local, short.quat_local)
-
-
-def test_lasting_flips_of_the_inner_ik_become_ramps_from_the_keys():
-    """``limit_turns``: a joint that flips by 149° and stays flipped turns at most the limit a
-    frame, counted from the nearer end of the window (so the frames next to the key keep the
-    inner pose there); slower motion and the hips' position pass bit for bit."""
-    from bezmotion.ik.exact import limit_turns
-    from bezmotion.metrics import rotation_change_deg
-
-    frames, limit = 15, 0.5
-    axis = jnp.asarray([0.0, 0.0, 1.0])
-    steady = quat_from_axis_angle(jnp.broadcast_to(axis, (frames, 3)), 0.4 * jnp.arange(frames, dtype=jnp.float32))
-    still = quat_from_axis_angle(jnp.broadcast_to(axis, (frames, 3)), jnp.full(frames, 0.2))
-    flip = quat_from_axis_angle(jnp.asarray([1.0, 0.0, 0.0]), jnp.asarray(2.6))  # 149°
-    late = still.at[11:].set(quat_mul(still[11:], flip))  # flipped from frame 11 to the end
-    early = still.at[:3].set(quat_mul(still[:3], flip))  # flipped from the start to frame 2
-    quat = jnp.stack([steady, late, early, still], axis=1)
-    root = jnp.arange(frames * 3, dtype=jnp.float32).reshape(frames, 3)
-    out = limit_turns(Pose(root, quat), limit)
-
-    np.testing.assert_array_equal(out.root_pos, root)
-    np.testing.assert_array_equal(out.quat_local[:, [0, 3]], quat[:, [0, 3]])  # 0.4 rad a frame: under the limit
-    turns = np.radians(np.asarray(rotation_change_deg(out.quat_local)))
-    assert turns[:, 1:3].max() <= limit + 1e-4  # no step left
-    # The frames from the step to the nearer end keep the inner pose; the ramp runs away from that end.
-    np.testing.assert_array_equal(out.quat_local[11:, 1], late[11:])
-    np.testing.assert_array_equal(out.quat_local[:3, 2], early[:3])
-    assert float(quat_angle(out.quat_local[10, 1], late[11])) == pytest.approx(limit, abs=1e-4)
-    assert float(quat_angle(out.quat_local[3, 2], early[2])) == pytest.approx(limit, abs=1e-4)
-    np.testing.assert_array_equal(out.quat_local[:5, 1], late[:5])  # reached the inner pose again (2.6 / 0.5: 6 frames)
-    np.testing.assert_array_equal(limit_turns(Pose(root, quat), 0.0).quat_local, quat)  # off
 
 
 @dataclasses.dataclass(frozen=True)

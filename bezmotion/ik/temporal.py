@@ -1,0 +1,118 @@
+"""Filters over a window's frames: what the exact IK's window solve does to the poses it starts from.
+
+A learned IK solves every frame on its own, so its poses jitter, and now and then one joint
+flips for a frame (:func:`remove_spikes`) or for good (:func:`limit_turns`). The window
+solve (:meth:`bezmotion.ik.exact.ExactIKFn.solve_window`) takes those out, then smooths the
+poses over time (:func:`smooth`) before each of its passes; :func:`planted_feet` marks the
+frames whose foot targets stand still. Every function takes one window ``(frames, …)``.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from bezmotion.data.characteristic import FEET
+from bezmotion.data.windows import foot_contacts
+from bezmotion.geometry.rotations import quat_angle, quat_normalize, slerp
+from bezmotion.ik.protocol import Pose
+
+
+def planted_feet(position: Float[Array, "frames 6 3"], plant_step: Float[Array, ""] | float) -> Array:
+    """``(frames, 6)``: the feet whose targets move less than ``plant_step`` cm to the next
+    frame (the last frame repeats the one before it); hips, head and hands never."""
+    contact = foot_contacts(position, FEET, threshold=jnp.square(plant_step))
+    return jnp.zeros(position.shape[:-1], bool).at[..., np.asarray(FEET)].set(contact)
+
+
+def remove_spikes(pose: Pose, turn: Float[Array, ""] | float) -> Pose:
+    """``pose`` ``(frames, …)`` with each joint's one-frame outliers replaced by its neighbours.
+
+    A learned IK solves every frame on its own and now and then turns a joint far away for
+    a single frame (an arm's twist flipped by 150° between two frames that agree). The
+    temporal filter (:func:`smooth`) only halves such a spike, and the key hold then holds
+    the frames next to a key at what is left of it: on LaFAN1 the exact IK's largest turn at
+    a key came from exactly that (a learned-IK flip on the key frame or two frames before it).
+
+    A joint's rotation at frame ``t`` is a spike when it lies more than ``turn`` (rad) from
+    both neighbours while they lie less than half that distance from each other (a joint
+    turning fast one way has its neighbours farther apart than either is from it); it
+    becomes their midpoint. At the first and last frame the two frames inside the window are the
+    neighbours and the nearer one replaces it. Windows under 3 frames and ``turn ≤ 0`` are
+    left alone; the hips' position is never changed.
+    """
+    q = pose.quat_local
+    if q.shape[0] < 3:
+        return pose
+    # Each frame's two neighbours; at the ends both lie inside the window (frames 1, 2 and T−2, T−3).
+    a = jnp.concatenate([q[1:2], q[:-2], q[-2:-1]])
+    b = jnp.concatenate([q[2:3], q[2:], q[-3:-2]])
+    share = jnp.asarray([0.0] + [0.5] * (q.shape[0] - 2) + [0.0], q.dtype)[:, None, None]  # of b in the replacement
+    b = jnp.where(jnp.sum(a * b, axis=-1, keepdims=True) < 0.0, -b, b)
+    replacement = quat_normalize((1.0 - share) * a + share * b)
+    away = jnp.minimum(quat_angle(q, a), quat_angle(q, b))
+    spike = (away > turn) & (quat_angle(a, b) < 0.5 * away) & (turn > 0.0)
+    return Pose(pose.root_pos, jnp.where(spike[..., None], replacement, q))
+
+
+def limit_turns(pose: Pose, turn: Float[Array, ""] | float) -> Pose:
+    """``pose`` ``(frames, …)`` with no joint turning more than ``turn`` rad from one frame to
+    the next, the frames at both ends of the window kept.
+
+    A learned IK sometimes flips a joint for good rather than for one frame (an arm's twist
+    by ~180° between two frames, where the curves' hand orientation lies far from any pose it
+    learned): :func:`remove_spikes` keeps such a step, and the key hold then holds the frames
+    next to the key on whichever side of it they lie. Here each joint's rotation follows the
+    inner poses from the first frame forwards, and again from the last frame backwards,
+    moving at most ``turn`` a frame (a step becomes a ramp over as many frames as it needs).
+    The result takes the forward pass up to the frame where the two passes agree best (both
+    back on the inner poses), the backward pass after it: the ramp lies on the side of the
+    step away from the nearer end, and the frames next to each key stay continuous with it.
+    Poses that never turn that fast are returned unchanged (bit for bit); ``turn ≤ 0`` turns
+    it off; the hips' position is never changed.
+    """
+    q = pose.quat_local
+    frames = q.shape[0]
+    if frames < 3:
+        return pose
+    turn = jnp.asarray(turn, q.dtype)
+
+    def follow(sequence: Array) -> Array:
+        def step(previous, current):  # quat_angle and slerp take either sign of current
+            angle = quat_angle(previous, current)[..., None]
+            limited = (turn > 0.0) & (angle > turn)
+            fraction = jnp.where(limited, turn / jnp.where(limited, angle, 1.0), 1.0)
+            moved = jnp.where(limited, slerp(previous, current, fraction[..., 0]), current)
+            return moved, moved
+
+        _, rest = jax.lax.scan(step, sequence[0], sequence[1:])
+        return jnp.concatenate([sequence[:1], rest])
+
+    forward, backward = follow(q), follow(q[::-1])[::-1]
+    # Per joint, the frame where the passes lie closest (ties: the one nearest the middle).
+    t = np.arange(frames)
+    score = quat_angle(forward, backward) + 1e-3 * jnp.asarray(np.abs(t - (frames - 1) / 2) / frames, q.dtype)[:, None]
+    split = jnp.argmin(score, axis=0)  # (joints,)
+    limited = jnp.where((t[:, None] < split[None, :])[..., None], forward, backward)
+    # Unchanged frames keep their own quaternion (not slerp's sign of it): a no-op stays exact.
+    same = jnp.abs(jnp.sum(limited * q, axis=-1, keepdims=True)) >= 1.0 - 1e-7
+    return Pose(pose.root_pos, jnp.where(same, q, limited))
+
+
+def smooth(pose: Pose, weight: Float[Array, ""] | float) -> Pose:
+    """``pose`` ``(frames, …)`` filtered over time by ``[w, 1 − 2w, w]``, ``w = weight`` (0 … 0.5).
+
+    Each frame's local rotations (its neighbours' turned to its hemisphere, the sum
+    normalised) and the hips' position are averaged with the neighbouring frames'. At the
+    window's ends the missing neighbour is the frame itself, so it keeps ``1 − w``.
+    """
+    q = pose.quat_local
+    prev = jnp.concatenate([q[:1], q[:-1]])
+    nxt = jnp.concatenate([q[1:], q[-1:]])
+    align = lambda a: jnp.where(jnp.sum(a * q, axis=-1, keepdims=True) < 0.0, -a, a)  # noqa: E731
+    quat = quat_normalize((1.0 - 2.0 * weight) * q + weight * (align(prev) + align(nxt)))
+    r = pose.root_pos
+    root = (1.0 - 2.0 * weight) * r + weight * (jnp.concatenate([r[:1], r[:-1]]) + jnp.concatenate([r[1:], r[-1:]]))
+    return Pose(root, quat)

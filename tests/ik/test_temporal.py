@@ -1,0 +1,103 @@
+"""Filters over a window's frames (bezmotion.ik.temporal): one-frame and lasting flips of an
+inner IK's poses, the temporal smoothing, planted feet. Synthetic rotations of known angles."""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bezmotion.geometry.rotations import quat_angle, quat_from_axis_angle, quat_mul
+from bezmotion.ik.protocol import Pose
+from bezmotion.ik.temporal import limit_turns, planted_feet, remove_spikes, smooth
+from bezmotion.metrics import rotation_change_deg
+
+
+def test_planted_feet_marks_still_foot_targets_only():
+    """A foot target moving less than ``plant_step`` cm to the next frame is planted (the last
+    frame repeats the one before); hips, head and hands never are."""
+    position = jnp.zeros((4, 6, 3)).at[:, 5, 0].set(jnp.asarray([0.0, 1.0, 1.1, 5.0]))  # right foot: still, then moving
+    position = position.at[:, 3, 0].set(0.0)  # a still hand stays unplanted
+    planted = np.asarray(planted_feet(position, 0.5))
+    np.testing.assert_array_equal(planted[:, 4], [True, True, True, True])
+    np.testing.assert_array_equal(planted[:, 5], [False, True, False, False])
+    assert not planted[:, :4].any()
+
+
+def test_one_frame_flips_of_the_inner_ik_are_removed_and_fast_turns_kept():
+    """``remove_spikes``: a joint flipped far from both neighbours for one frame (in the
+    middle, or on the window's first frame) takes its neighbours' rotation; a joint turning
+    fast but steadily, another joint, the hips' position and short windows are untouched."""
+    frames, joints = 9, 3
+    axis = jnp.asarray([0.0, 0.0, 1.0])
+    steady = quat_from_axis_angle(jnp.broadcast_to(axis, (frames, 3)), 0.9 * jnp.arange(frames, dtype=jnp.float32))
+    still = quat_from_axis_angle(jnp.broadcast_to(axis, (frames, 3)), jnp.full(frames, 0.2))
+    flip = quat_from_axis_angle(jnp.asarray([1.0, 0.0, 0.0]), jnp.asarray(2.6))  # 149°
+    spiky = still.at[4].set(quat_mul(still[4], flip)).at[0].set(quat_mul(still[0], flip))
+    quat = jnp.stack([steady, spiky, still], axis=1)  # (frames, joints, 4)
+    root = jnp.arange(frames * 3, dtype=jnp.float32).reshape(frames, 3)
+    out = remove_spikes(Pose(root, quat), 0.75)
+
+    np.testing.assert_array_equal(out.root_pos, root)
+    np.testing.assert_array_equal(out.quat_local[:, 0], steady)  # 0.9 rad a frame, one way: no spike
+    np.testing.assert_array_equal(out.quat_local[:, 2], still)
+    assert float(jnp.max(quat_angle(out.quat_local[:, 1], still))) < 1e-3  # both flips gone
+    np.testing.assert_array_equal(remove_spikes(Pose(root, quat), 0.0).quat_local, quat)  # off
+    np.testing.assert_array_equal(remove_spikes(Pose(root, quat), 2.7).quat_local, quat)  # a 149° flip under the threshold
+    short = Pose(root[:2], quat[:2])
+    np.testing.assert_array_equal(remove_spikes(short, 0.75).quat_local, short.quat_local)
+
+
+def test_lasting_flips_of_the_inner_ik_become_ramps_from_the_keys():
+    """``limit_turns``: a joint that flips by 149° and stays flipped turns at most the limit a
+    frame, counted from the nearer end of the window (so the frames next to the key keep the
+    inner pose there); slower motion and the hips' position pass bit for bit."""
+    frames, limit = 15, 0.5
+    axis = jnp.asarray([0.0, 0.0, 1.0])
+    steady = quat_from_axis_angle(jnp.broadcast_to(axis, (frames, 3)), 0.4 * jnp.arange(frames, dtype=jnp.float32))
+    still = quat_from_axis_angle(jnp.broadcast_to(axis, (frames, 3)), jnp.full(frames, 0.2))
+    flip = quat_from_axis_angle(jnp.asarray([1.0, 0.0, 0.0]), jnp.asarray(2.6))  # 149°
+    late = still.at[11:].set(quat_mul(still[11:], flip))  # flipped from frame 11 to the end
+    early = still.at[:3].set(quat_mul(still[:3], flip))  # flipped from the start to frame 2
+    quat = jnp.stack([steady, late, early, still], axis=1)
+    root = jnp.arange(frames * 3, dtype=jnp.float32).reshape(frames, 3)
+    out = limit_turns(Pose(root, quat), limit)
+
+    np.testing.assert_array_equal(out.root_pos, root)
+    np.testing.assert_array_equal(out.quat_local[:, [0, 3]], quat[:, [0, 3]])  # 0.4 rad a frame: under the limit
+    turns = np.radians(np.asarray(rotation_change_deg(out.quat_local)))
+    assert turns[:, 1:3].max() <= limit + 1e-4  # no step left
+    # The frames from the step to the nearer end keep the inner pose; the ramp runs away from that end.
+    np.testing.assert_array_equal(out.quat_local[11:, 1], late[11:])
+    np.testing.assert_array_equal(out.quat_local[:3, 2], early[:3])
+    assert float(quat_angle(out.quat_local[10, 1], late[11])) == pytest.approx(limit, abs=1e-4)
+    assert float(quat_angle(out.quat_local[3, 2], early[2])) == pytest.approx(limit, abs=1e-4)
+    np.testing.assert_array_equal(out.quat_local[:5, 1], late[:5])  # reached the inner pose again (2.6 / 0.5: 6 frames)
+    np.testing.assert_array_equal(limit_turns(Pose(root, quat), 0.0).quat_local, quat)  # off
+
+
+def test_smoothing_averages_each_frame_with_its_neighbours():
+    """``smooth``: weights ``[w, 1 − 2w, w]`` on the hips' position and, about one axis, on the
+    half-angles' quaternions (a sign-flipped neighbour counts as the same rotation); at the
+    window's ends the frame keeps ``1 − w``; ``w = 0`` changes nothing."""
+    frames, w = 5, 0.25
+    axis = jnp.broadcast_to(jnp.asarray([0.0, 0.0, 1.0]), (frames, 3))
+    angle = jnp.asarray([0.0, 0.0, 0.6, 0.0, 0.0])
+    quat = quat_from_axis_angle(axis, angle)[:, None]  # (frames, 1 joint, 4)
+    quat = quat.at[3].multiply(-1.0)  # the same rotation, the other hemisphere
+    root = jnp.asarray([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [2.0, 4.0, 0.0], [3.0, 0.0, 0.0], [4.0, 0.0, 8.0]])
+    out = smooth(Pose(root, quat), w)
+
+    expected_root = np.asarray(root)
+    previous, following = np.concatenate([expected_root[:1], expected_root[:-1]]), np.concatenate([expected_root[1:], expected_root[-1:]])
+    np.testing.assert_allclose(out.root_pos, (1 - 2 * w) * expected_root + w * (previous + following), atol=1e-6)
+    # The half-angles' unit vectors averaged: frame 2 lands halfway (0.3 rad); frames 1 and 3
+    # take a quarter of its (cos, sin)(0.3).
+    neighbour = 2 * np.arctan2(w * np.sin(0.3), (1 - w) + w * np.cos(0.3))
+    expected_angle = np.asarray([0.0, neighbour, 0.3, neighbour, 0.0])
+    got = np.asarray(quat_angle(out.quat_local[:, 0], quat_from_axis_angle(axis, jnp.zeros(frames))))
+    np.testing.assert_allclose(got, expected_angle, atol=1e-5)
+    assert float(jnp.max(jnp.abs(jnp.linalg.norm(out.quat_local, axis=-1) - 1.0))) < 1e-6
+    unchanged = smooth(Pose(root, quat), 0.0)
+    np.testing.assert_allclose(unchanged.quat_local, quat, atol=1e-7)
+    np.testing.assert_array_equal(unchanged.root_pos, root)
