@@ -32,7 +32,7 @@ from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, FEET
 from bezmotion.ik.protocol import Character, Pose, pose_fk
 from bezmotion.ik.protores import load_ik_model
 from bezmotion.pipeline import InbetweenResult, full_body_handles_error, inbetween, pose_to_bvh
-from bezmotion.pipeline.evaluation import curve_miss, largest_turn
+from bezmotion.pipeline.window_figures import curve_miss, largest_turn
 from bezmotion.pipeline.authoring import (
     CHANNEL_CHOICES,
     IK_CHOICES,

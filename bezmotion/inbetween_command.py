@@ -77,7 +77,7 @@ from bezmotion.ik.protores import load_ik_model
 from bezmotion.io import atomic_write_text
 from bezmotion.options import option, options
 from bezmotion.pipeline import inbetween, inbetween_chain, join_chain_curves, pose_to_bvh
-from bezmotion.pipeline.evaluation import curve_miss, largest_turn
+from bezmotion.pipeline.window_figures import curve_miss, largest_turn
 from bezmotion.pipeline.authoring import (
     CHANNEL_CHOICES,
     EXACT_HELP,

@@ -33,7 +33,8 @@ from bezmotion.data.sources import load_corpus
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik
 from bezmotion.pipeline import CharacterProfile, Transfer
-from bezmotion.pipeline.evaluation import PipelineMetricsConfig, evaluate_pipeline, ground_truth_pose_metrics, window_poses
+from bezmotion.pipeline.evaluation import evaluate_pipeline, ground_truth_pose_metrics, window_poses
+from bezmotion.pipeline.window_figures import PipelineMetricsConfig
 from bezmotion.bmm.sampling import load_model
 from bezmotion.options import option, options, parse_options
 from _common import runs_dir

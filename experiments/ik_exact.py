@@ -33,7 +33,8 @@ from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refine
 from bezmotion.ik.rig import make_rig, rig_ik
 from bezmotion.io import write_results
 from bezmotion.options import option, options, parse_options
-from bezmotion.pipeline.evaluation import PipelineMetricsConfig, evaluate_pipeline, ground_truth_pose_metrics, window_poses
+from bezmotion.pipeline.evaluation import evaluate_pipeline, ground_truth_pose_metrics, window_poses
+from bezmotion.pipeline.window_figures import PipelineMetricsConfig
 
 
 @options

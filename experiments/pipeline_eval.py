@@ -59,8 +59,10 @@ shared key, which both its windows take).
 - ``unreachable_fraction``: handles out of the limb's reach: farther from the root of
   their chain in the IK'd pose at that frame (the upper arm for a hand, the upper leg
   for a foot, the hips for the head) than the chain's length stretched out (sum of its
-  bones) plus 1 cm; hips handles are always reachable. Such handles are missed by more
-  than 1 cm whatever the limb does, so they are a subset of the missed ones; the rest
+  bones) plus 1 cm; and hips handles missed by more than 1 cm on a frame whose other
+  handle lies farther from them than that joint can lie from the hips (its chain's length
+  plus the bones up to the hips, plus 1 cm: no pose meets both). Such handles are missed
+  by more than 1 cm whatever the limb does, so they are a subset of the missed ones; the rest
   (``handles_missed_fraction − unreachable_fraction``) are misses the limb could have
   avoided. (The 1 cm keeps handles at full extension, an arm hanging straight, from
   counting: the mocap's own lie within millimetres of the chain's length.)
@@ -86,7 +88,7 @@ per joint, ``foot_skating_ratio``, and for the BMM the orientation error (degree
 the curves' and the mocap's global orientation of each joint, mean and per joint).
 Every mean over windows (``dense_error_cm``, ``curve_error_cm``, ``mpjpe_cm``,
 ``foot_skating_ratio``) has its standard error over the windows beside it (``…_se``;
-:func:`~bezmotion.pipeline.evaluation.standard_error`), so two runs can be told apart from
+:func:`~bezmotion.pipeline.window_figures.standard_error`), so two runs can be told apart from
 the windows' own spread: the report prints them as ``mean ± se``.
 ``mocap``: the mocap's own foot skating, key pop and largest per-frame rotation change.
 ``labels``: the same figures per content / action label (Bandai-Namco ``content``; LaFAN1
@@ -103,7 +105,7 @@ without trailing digits).
      "labels": {"<label>": {"windows": k, "ik": {"<ik>": {"id", "ood"}}, "curves": {…}, "mocap": {…}, "paired": {…}}}}
 
 ``paired``: for every two IKs ``a`` before ``b`` in ``--ik``, b minus a window by window on
-the same curves (:func:`~bezmotion.pipeline.evaluation.paired_differences`: ``mpjpe_cm``,
+the same curves (:func:`~bezmotion.pipeline.window_figures.paired_differences`: ``mpjpe_cm``,
 ``foot_skating_ratio``, ``curve_error_cm``). The windows' figures move together between two
 IKs, so the difference's standard error is much smaller than either mean's: this, not two
 means ± their own se, tells whether one IK beats another. Every per-window figure the
@@ -154,23 +156,25 @@ from bezmotion.io import atomic_path, write_results
 from bezmotion.metrics import chain_velocity_jumps, distribution_summary
 from bezmotion.options import option, options, parse_options
 from bezmotion.pipeline.evaluation import (
-    PipelineMetricsConfig,
     chain_frame_handles,
     chain_rows,
-    reach_chains,
     sample_chain_curves,
     sample_window_curves,
     solve_chain_curves,
     solve_window_curves,
+    window_keys,
+    window_poses,
+    window_shifts,
+)
+from bezmotion.pipeline.window_figures import (
+    PipelineMetricsConfig,
     paired_differences,
+    reach_chains,
     standard_error,
     summarize_windows,
     window_curve_metrics,
-    window_keys,
     window_mocap_metrics,
     window_pose_metrics,
-    window_poses,
-    window_shifts,
 )
 from bezmotion.data.windows import join_windows
 from bezmotion.pipeline.inbetweening import KEY_BLEND_FRAMES, WindowCurves

@@ -81,16 +81,8 @@ from bezmotion.ik.protocol import Pose, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn
 from bezmotion.io import write_results
 from bezmotion.options import option, options, parse_options
-from bezmotion.pipeline.evaluation import (
-    PipelineMetricsConfig,
-    sample_window_curves,
-    solve_window_curves,
-    summarize_windows,
-    window_curve_metrics,
-    window_keys,
-    window_pose_metrics,
-    window_poses,
-)
+from bezmotion.pipeline.evaluation import sample_window_curves, solve_window_curves, window_keys, window_poses
+from bezmotion.pipeline.window_figures import PipelineMetricsConfig, summarize_windows, window_curve_metrics, window_pose_metrics
 from bezmotion.pipeline.authoring import ik_model_joint_limits
 from bezmotion.pipeline.inbetweening import WindowCurves
 from bezmotion.pipeline.transfer import CharacterProfile

@@ -16,7 +16,7 @@ from bezmotion.demo import demo
 from bezmotion.geometry.rotations import quat_from_axis_angle
 from bezmotion.ik.protocol import Character
 from bezmotion.io import _umask
-from bezmotion.pipeline.evaluation import largest_turn
+from bezmotion.pipeline.window_figures import largest_turn
 
 
 @pytest.fixture(scope="module")

@@ -7,12 +7,12 @@
 :func:`inbetween_chain` through several keys),
 :mod:`~bezmotion.pipeline.transfer` (driving one skeleton with another's BMM),
 :mod:`~bezmotion.pipeline.export` (BVH), :mod:`~bezmotion.pipeline.gltf` (glTF: skeleton
-and curves), :mod:`~bezmotion.pipeline.preview` (animated GIF), :mod:`~bezmotion.pipeline.evaluation` (metrics
-after IK on a corpus's validation windows).
+and curves), :mod:`~bezmotion.pipeline.preview` (animated GIF), :mod:`~bezmotion.pipeline.evaluation` (the
+pipeline over a corpus's validation windows) and :mod:`~bezmotion.pipeline.window_figures` (their
+per-window figures after IK and of the curves).
 """
 
 from bezmotion.pipeline.evaluation import (
-    PipelineMetricsConfig,
     evaluate_pipeline,
     full_body_handles_error,
     ground_truth_pose_metrics,
@@ -21,6 +21,7 @@ from bezmotion.pipeline.evaluation import (
     run_pipeline,
     window_poses,
 )
+from bezmotion.pipeline.window_figures import PipelineMetricsConfig
 from bezmotion.pipeline.export import default_channels, pose_to_bvh
 from bezmotion.pipeline.gltf import GlbContents, read_glb, validate_glb, write_glb
 from bezmotion.pipeline.preview import write_preview

@@ -1,5 +1,6 @@
-"""The after-IK metrics (``bezmotion.pipeline.evaluation``): full-body handles error and MPJPE
-against NumPy, the true windows' poses, and the pipeline evaluation end to end.
+"""The after-IK metrics (``bezmotion.pipeline.evaluation`` and ``bezmotion.pipeline.window_figures``):
+full-body handles error and MPJPE against NumPy, the true windows' poses, per-window figures and
+their summaries, and the pipeline evaluation end to end.
 """
 
 from __future__ import annotations
@@ -20,10 +21,8 @@ from bezmotion.bmm.sampling import Handles
 from bezmotion.ik.protocol import IKTargets, Pose, targets_from_pose
 from bezmotion.pipeline import mpjpe
 from bezmotion.pipeline.evaluation import (
-    PipelineMetricsConfig,
     chain_frame_handles,
     chain_rows,
-    curve_miss,
     evaluate_pipeline,
     ground_truth_pose_metrics,
     pose_metrics,
@@ -33,6 +32,7 @@ from bezmotion.pipeline.evaluation import (
     window_keys,
     window_poses,
 )
+from bezmotion.pipeline.window_figures import PipelineMetricsConfig, curve_miss
 
 mpjpe_of = jax.jit(mpjpe)
 
@@ -187,7 +187,7 @@ def test_curve_error_is_how_far_the_six_joints_lie_from_their_curves(clip):
     """``window_pose_metrics(..., curves=…)``: 0 on the pose's own six trajectories; moving one
     joint's curve by 2 cm on one frame gives that as the largest, and 2 / (frames · 6) on average."""
     from bezmotion.ik.protocol import pose_fk
-    from bezmotion.pipeline.evaluation import summarize_windows, window_pose_metrics
+    from bezmotion.pipeline.window_figures import summarize_windows, window_pose_metrics
 
     c = clip.character
     pose = jax.tree.map(lambda x: jnp.stack([x[:FRAMES], x[5 : 5 + FRAMES]]), clip.pose)  # (2, 31, …)
@@ -211,7 +211,7 @@ def test_summaries_give_each_mean_over_windows_its_standard_error():
     """``summarize_windows``: ``…_se`` is the windows' sample standard deviation over √n (a
     window with several values, e.g. dense error per joint, counts once, by its mean), and
     None for one window."""
-    from bezmotion.pipeline.evaluation import standard_error, summarize_windows
+    from bezmotion.pipeline.window_figures import standard_error, summarize_windows
 
     skating = np.asarray([0.0, 0.1, 0.2, 0.5])
     dense = np.asarray([[1.0, 3.0], [2.0, 2.0], [4.0, 6.0], [0.0, 2.0]])  # (windows, joints): means 2, 2, 5, 1
@@ -225,7 +225,7 @@ def test_summaries_give_each_mean_over_windows_its_standard_error():
 def test_paired_differences_take_the_spread_of_the_differences_not_of_the_means():
     """Two IKs whose windows move together: each mean's own standard error is large, the
     difference's small; ``better_fraction`` counts windows where the second is lower."""
-    from bezmotion.pipeline.evaluation import paired_differences, summarize_windows
+    from bezmotion.pipeline.window_figures import paired_differences, summarize_windows
 
     base = {"mpjpe": np.asarray([2.0, 8.0, 4.0, 10.0]), "skating": np.asarray([0.1, 0.3, 0.2, 0.2])}
     other = {"mpjpe": base["mpjpe"] + np.asarray([0.5, 0.7, 0.6, -0.2]), "skating": base["skating"]}
@@ -240,3 +240,42 @@ def test_paired_differences_take_the_spread_of_the_differences_not_of_the_means(
     assert picked["mpjpe_cm"]["mean"] == pytest.approx(0.6) and picked["mpjpe_cm"]["windows"] == 2
     with pytest.raises(ValueError, match=r"mpjpe has shapes \(4,\) and \(3,\)"):
         paired_differences(base, {"mpjpe": np.zeros(3)})
+
+
+def test_a_hips_handle_that_no_pose_meets_with_another_handle_counts_as_unreachable(clip):
+    """``handle_unreachable``: a hips handle missed on a frame whose hand handle lies farther from
+    it than the hand can be from the hips (no pose meets both) is unreachable; a hips handle met
+    there is not (the hand is: beyond its arm), nor a hips handle missed with no such partner."""
+    from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
+    from bezmotion.ik.protocol import pose_fk
+    from bezmotion.ik.rig import make_rig
+    from bezmotion.pipeline.window_figures import reach_chains, window_pose_metrics
+
+    c = clip.character
+    hand = CHARACTERISTIC_JOINTS.index("right_hand")
+    chains = reach_chains(make_rig(c, "bandai_namco", rest_quat_local=np.asarray(clip.pose.quat_local[0])))
+    # The farthest the hand can be from the hips: every bone from the hips (exclusive) down to the hand.
+    j, path = c.characteristic[hand], 0.0
+    while j != c.characteristic[HIPS]:
+        path, j = path + float(np.linalg.norm(np.asarray(c.skeleton.offsets[j]))), c.skeleton.parents[j]
+    assert chains.from_hips[hand] == pytest.approx(path, rel=1e-6) and chains.from_hips[HIPS] == 0.0
+    assert chains.from_hips[CHARACTERISTIC_JOINTS.index("head")] == chains.length[CHARACTERISTIC_JOINTS.index("head")]
+
+    pose = jax.tree.map(lambda x: jnp.stack([x[:FRAMES]] * 3), clip.pose)  # (3 windows, 31, …): the truth
+    six = np.asarray(pose_fk(c, pose)[1])[..., np.asarray(c.characteristic), :]
+    far = np.asarray([0.0, 0.0, path + 30.0], np.float32)  # 30 cm beyond the hand's reach from the hips
+    hips5, hand5 = six[0, 5, HIPS], six[0, 5, hand]
+    position = np.stack([
+        [hips5, hips5 + far, hips5],  # met hips, hand out of reach of it: the hand is unreachable
+        [hand5 + far, hand5, hips5],  # hips 30+ cm off, the hand met: the hips is unreachable
+        [hips5 + np.float32([0.0, 10.0, 0.0]), hand5, hips5],  # hips 10 cm off, nothing against it: an avoidable miss
+    ])
+    handles = Handles(
+        joint=jnp.asarray([[HIPS, hand, HIPS]] * 3, jnp.int32),
+        frame=jnp.asarray([[5, 5, 9]] * 3, jnp.int32),
+        position=jnp.asarray(position),
+        valid=jnp.asarray([[True, True, False]] * 3),  # a padding slot on the hips, at another frame
+    )
+    w = window_pose_metrics(PipelineMetricsConfig(STRIDE, 30.0, 0.0), c, pose, pose, handles, chains=chains)
+    np.testing.assert_array_equal(w["handle_unreachable"], [[False, True, False], [True, False, False], [False, False, False]])
+    assert w["handle_error"][2, 0] == pytest.approx(10.0, abs=1e-3)
