@@ -74,10 +74,19 @@ from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.ik.exact import exact_settings
 from bezmotion.ik.protocol import Character, Pose, pose_fk, targets_from_pose
 from bezmotion.ik.protores import load_ik_model
+from bezmotion.ik.rig import make_rig
 from bezmotion.io import atomic_write_text
 from bezmotion.options import option, options
 from bezmotion.pipeline import inbetween, inbetween_chain, join_chain_curves, pose_to_bvh
-from bezmotion.pipeline.window_figures import curve_miss, largest_turn
+from bezmotion.pipeline.window_figures import (
+    HANDLE_MISS_CM,
+    ReachChains,
+    beyond_reach,
+    conflicting_handles,
+    curve_miss,
+    largest_turn,
+    reach_chains,
+)
 from bezmotion.pipeline.authoring import (
     CHANNEL_CHOICES,
     EXACT_HELP,
@@ -314,6 +323,62 @@ def resolve_handles(
     return (windows[0] if len(windows) == 1 else jax.tree.map(lambda *x: jnp.stack(x), *windows)), records
 
 
+def _records_as_handles(records: Sequence[dict[str, Any]]) -> Handles:
+    """The handle records (frames counted from the first key, as written) as one ``Handles``."""
+    return Handles(
+        joint=jnp.asarray([CHARACTERISTIC_JOINTS.index(r["joint"]) for r in records], jnp.int32),
+        frame=jnp.asarray([r["frame"] for r in records], jnp.int32),
+        position=jnp.asarray([r["position"] for r in records], jnp.float32),
+        valid=jnp.ones(len(records), bool),
+    )
+
+
+def _label(record: dict[str, Any]) -> str:
+    return f"{record['joint']}@{record['frame']}"
+
+
+def handle_conflicts(records: Sequence[dict[str, Any]], reach: ReachChains) -> list[str]:
+    """A warning for each pair of handles on one frame that no pose meets together (farther
+    apart than the skeleton reaches between their joints,
+    :func:`~bezmotion.pipeline.window_figures.conflicting_handles`)."""
+    if not records:
+        return []
+    handles = _records_as_handles(records)
+    conflict = np.triu(np.asarray(conflicting_handles(handles, reach)), 1)
+    warnings = []
+    for i, j in zip(*np.nonzero(conflict)):
+        a, b = records[i], records[j]
+        distance = float(np.linalg.norm(np.subtract(a["position"], b["position"])))
+        allowed = float(reach.apart[int(handles.joint[i]), int(handles.joint[j])])
+        warnings.append(
+            f"handles {_label(a)} and {_label(b)} lie {distance:.1f} cm apart, farther than the skeleton reaches between "
+            f"{a['joint']} and {b['joint']} ({allowed:.1f} cm): no pose meets both, and the IK will come as close to both as it can"
+        )
+    return warnings
+
+
+def handle_misses(records: Sequence[dict[str, Any]], errors: Sequence[float], positions: np.ndarray, reach: ReachChains) -> list[str]:
+    """A line for each handle missed by more than :data:`HANDLE_MISS_CM`, with why where it is
+    known: beyond its limb's reach from where the IK put the limb's root (``positions``
+    ``(frames, joints, 3)``, the in-between's every joint), or on a frame whose other handle
+    no pose meets together with it."""
+    if not records:
+        return []
+    handles = _records_as_handles(records)
+    beyond = np.asarray(beyond_reach(jnp.asarray(positions), handles, reach))
+    paired = np.asarray(conflicting_handles(handles, reach)).any(axis=-1)
+    lines = []
+    for record, error, out_of_reach, conflict in zip(records, errors, beyond, paired):
+        if error > HANDLE_MISS_CM:
+            why = (
+                ": beyond the limb's reach from where the IK put its root" if out_of_reach
+                else ": no pose meets it together with another handle on its frame" if conflict
+                else ""
+            )  # fmt: skip
+            lines.append(f"handle {_label(record)} missed by {error:.1f} cm{why}")
+    return lines
+
+
 # ------------------------------------------------------------------------------- plan
 
 
@@ -373,6 +438,7 @@ class Plan:
     folder: Path | None
     label: str
     key_velocity: Any = None  # (keys, 6, 3) cm/frame with --key-velocities
+    reach: ReachChains | None = None  # how far the character's joints reach, for the handles' reports
 
 
 def _outputs(args: InbetweenOptions) -> tuple[list[dict[str, Path]], Path | None]:
@@ -487,9 +553,10 @@ def plan(args: InbetweenOptions) -> Plan:
         raise ValueError(f"--ik {ik}: the learned IK {args.ik_model} does not fit this skeleton: {error}") from None
 
     handles, records = resolve_handles(requests, recognised, key_poses, bmm)
+    reach = reach_chains(make_rig(character, recognised.rig_spec, rest_quat_local=np.asarray(key_poses[0].quat_local)))
     return Plan(
         recognised, start_motion, key_poses, reference, bmm, ik, ik_fn, ik_params, transfer, handles, records, outputs, folder, label,
-        key_velocity,
+        key_velocity, reach,
     )  # fmt: skip
 
 
@@ -595,6 +662,9 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
         f"{n} sample(s) of {frames} frames" + (f" ({windows} windows, one chain)" if windows > 1 else "") + f", {args.steps} DDIM steps"
         + (", transferred from the BMM's skeleton" if p.transfer is not None else "")
     )
+    warnings = handle_conflicts(p.handle_records, p.reach) if p.reach is not None else []
+    for warning in warnings:
+        say(f"warning: {warning}")
     export = dict(fps=p.start_motion.nominal_fps, channels=None if args.channels == "default" else p.start_motion.channels, template=p.start_motion)
     samples = []
     for k in range(n):
@@ -639,9 +709,13 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
             entry["files"][suffix[1:]] = str(path)
             if suffix == ".bvh":
                 entry["bvh_fk_error_cm"] = bvh_fk_error_cm(path, character, result.pose)
+        misses = handle_misses(p.handle_records, errors, pos, p.reach) if p.reach is not None else []
+        entry["handle_misses"] = misses
         samples.append(entry)
         worst = f", handles hit within {max(errors):.2g} cm" if errors else ""
         print(f"sample {k}: {', '.join(entry['files'].values())}{worst} ({seconds:.1f} s)")
+        for line in misses:
+            say(line)
     summary = {
         "keys": p.label,
         "character": character.name,
@@ -656,6 +730,7 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
         "seed": args.seed,
         "transfer": p.transfer is not None,
         "handles": p.handle_records,
+        "handle_warnings": warnings,
         "samples": samples,
         "total_s": time.perf_counter() - started,
     }

@@ -16,6 +16,7 @@ import dataclasses
 import io
 import json
 import os
+import re
 import shutil
 
 import numpy as np
@@ -131,6 +132,29 @@ def test_progress_goes_to_stderr_and_results_to_stdout(run):
     _, _, _, stdout, stderr = run
     assert "sample 1/2" in stderr and "sample 2/2" in stderr and "compiling" in stderr
     assert stdout.count("handles hit within") == 2
+
+
+def test_handles_out_of_reach_are_reported_with_why(tmp_path):
+    """On frame 15 a hips handle and a left-foot handle 120 cm below the foot's straight line,
+    farther apart than the leg is long: a warning before sampling that no pose meets both. A
+    right-hand handle 200 cm above its straight line: reported after the run as missed, beyond
+    the arm's reach. A handle that is hit gets no line."""
+    out = tmp_path / "far"
+    code, _, stderr = run_cli(
+        DEMO_CLIP, "--frames", "0", "30", "--handle", "hips@15=+0,0,0", "--handle", "left_foot@15=+0,-120,0",
+        "--handle", "right_hand@20=+0,200,0", "--handle", "left_hand@12=+0,5,0", "--no-preview", "--out", out, *FAST,
+    )  # fmt: skip
+    assert code == 0, stderr
+    summary = json.loads((out / "summary.json").read_text())
+    (warning,) = summary["handle_warnings"]
+    apart, reach = map(float, re.match(r"handles hips@15 and left_foot@15 lie ([\d.]+) cm apart, .* \(([\d.]+) cm\): no pose meets both", warning).groups())
+    assert apart > 150.0 and 80.0 < reach < 100.0  # the foot's straight line lies ~80 cm below the hips'; the leg ~87 cm
+    misses = summary["samples"][0]["handle_misses"]
+    errors = dict(zip((f"{h['joint']}@{h['frame']}" for h in summary["handles"]), summary["samples"][0]["handle_errors_cm"]))
+    assert errors["right_hand@20"] > 100.0 and errors["left_foot@15"] > 20.0 and errors["left_hand@12"] < 1e-3
+    assert f"handle right_hand@20 missed by {errors['right_hand@20']:.1f} cm: beyond the limb's reach from where the IK put its root" in misses
+    assert any(m.startswith("handle left_foot@15 missed by") for m in misses)
+    assert not any("left_hand" in m or "hips" in m for m in misses)
 
 
 def test_two_files_and_a_gif(tmp_path):

@@ -56,40 +56,45 @@ HANDLE_MISS_CM = 1.0
 
 
 class ReachChains(NamedTuple):
-    """How far each characteristic joint can be from the root of its chain.
+    """How far each characteristic joint can be from the root of its chain, and from each other.
 
     Attributes:
       root: ``(6,)`` the chain root of each characteristic joint (upper arm for the hands,
         upper leg for the feet, the hips for the head); ``-1`` for the hips (the root moves
         freely: always reachable).
       length: ``(6,)`` the chain's length fully stretched, cm (sum of its bones' offsets).
-      from_hips: ``(6,)`` the farthest each joint can lie from the hips, cm: its chain's
-        length plus the bones from the hips to the chain's root (0 for the hips). Two handles
-        on one frame, the hips' and another joint's farther apart than this, cannot both be met.
+      apart: ``(6, 6)`` the farthest two characteristic joints can lie from each other, cm:
+        the bones on the skeleton's path between them. Two handles on one frame farther
+        apart than this cannot both be met (:func:`conflicting_handles`).
     """
 
     root: np.ndarray
     length: np.ndarray
-    from_hips: np.ndarray
+    apart: np.ndarray
 
 
 def reach_chains(rig: Rig) -> ReachChains:
     """The chains of ``rig``: its limbs (root, middle, end) and its spine (hips → head)."""
     bone = np.linalg.norm(np.asarray(rig.skeleton.offsets, np.float64), axis=-1)
+    parents = rig.skeleton.parents
     root = np.full(len(CHARACTERISTIC_JOINTS), -1, np.int64)
     length = np.zeros(len(CHARACTERISTIC_JOINTS))
     chains = {CHARACTERISTIC_JOINTS.index("head"): rig.spine}
     for role, limb in zip(("left_hand", "right_hand", "left_foot", "right_foot"), rig.limbs):
         chains[CHARACTERISTIC_JOINTS.index(role)] = limb
-    hips, parents = rig.spine[0], rig.skeleton.parents
-    from_hips = np.zeros(len(CHARACTERISTIC_JOINTS))
     for role, chain in chains.items():
         root[role], length[role] = chain[0], bone[list(chain[1:])].sum()
-        j, to_root = chain[0], 0.0
-        while j != hips:  # up the tree from the chain's root: the bones between it and the hips
-            to_root, j = to_root + bone[j], parents[j]
-        from_hips[role] = length[role] + to_root
-    return ReachChains(root, length, from_hips)
+    ends = [rig.spine[0]] + [chains[role][-1] for role in range(1, len(CHARACTERISTIC_JOINTS))]
+
+    def up(joint: int) -> dict[int, float]:  # each ancestor (and the joint): the bones down to the joint
+        out, total = {}, 0.0
+        while joint >= 0:
+            out[joint], total, joint = total, total + bone[joint], parents[joint]
+        return out
+
+    ancestry = [up(j) for j in ends]
+    apart = np.asarray([[min(a[j] + b[j] for j in a.keys() & b.keys()) for b in ancestry] for a in ancestry])
+    return ReachChains(root, length, apart)
 
 
 def handle_distances(positions: Float[Array, "*batch frames joints 3"], handles: Handles) -> Float[Array, "*batch handles"]:
@@ -134,9 +139,9 @@ def window_pose_metrics(
     skating, key pop, per-frame joint turns (:func:`_turn_figures`), and (given
     ``chains``) ``handle_unreachable``: the handle is farther from its chain's root *in the
     IK'd pose at that frame* than the chain's length plus :data:`HANDLE_MISS_CM` (a hand beyond the arm's reach from the shoulder the IK
-    chose), or a hips handle missed by more than :data:`HANDLE_MISS_CM` on a frame whose
-    other handle lies farther from it than that joint can lie from the hips (no pose meets
-    both; :func:`_apart_from_hips`). Such a handle is necessarily missed by more than
+    chose), or a handle missed by more than :data:`HANDLE_MISS_CM` on a frame whose other
+    handle no pose meets together with it (:func:`conflicting_handles`: a hips handle 16 cm
+    up and a foot handle 16 cm down may lie farther apart than the leg is long). Such a handle is necessarily missed by more than
     :data:`HANDLE_MISS_CM`, so unreachable handles are a subset of the missed ones: the
     rest are misses the limb itself could have avoided. (The tolerance keeps handles at
     full extension, an arm hanging straight, from counting: the mocap's own come within a
@@ -176,24 +181,28 @@ def _pose_figures(config, character, pose, truth, handles, chains, windows, curv
         out["curve_error"] = jnp.mean(off, axis=(-2, -1))
         out["curve_error_max"] = jnp.max(off, axis=(-2, -1))
     if chains is not None:
-        root = jnp.asarray(chains.root)[handles.joint]
-        at_root = handles._replace(joint=jnp.maximum(root, 0))
-        beyond = handle_distances(pos, at_root) > jnp.asarray(chains.length, pos.dtype)[handles.joint] + HANDLE_MISS_CM
-        out["handle_unreachable"] = (beyond & (root >= 0)) | (_apart_from_hips(handles, chains) & (out["handle_error"] > HANDLE_MISS_CM))
+        paired = jnp.any(conflicting_handles(handles, chains), axis=-1)
+        out["handle_unreachable"] = beyond_reach(pos, handles, chains) | (paired & (out["handle_error"] > HANDLE_MISS_CM))
     return out
 
 
-def _apart_from_hips(handles: Handles, chains: ReachChains) -> Bool[Array, "*batch handles"]:
-    """Hips handles whose frame holds another handle farther from them than that joint can lie
-    from the hips (``chains.from_hips`` + :data:`HANDLE_MISS_CM`): no pose meets both. (The
-    other handle, where the hips are met, lies beyond its own chain's reach, which
-    ``handle_unreachable`` counts already.)"""
+def beyond_reach(positions: Float[Array, "*batch frames joints 3"], handles: Handles, chains: ReachChains) -> Bool[Array, "*batch handles"]:
+    """Handles farther from their chain's root in ``positions`` (every joint of a posed
+    skeleton, cm: where the IK put the shoulder or hip) than the chain's length stretched out
+    plus :data:`HANDLE_MISS_CM`: out of the limb's reach. Hips handles never are."""
+    root = jnp.asarray(chains.root)[handles.joint]
+    at_root = handles._replace(joint=jnp.maximum(root, 0))
+    beyond = handle_distances(positions, at_root) > jnp.asarray(chains.length, positions.dtype)[handles.joint] + HANDLE_MISS_CM
+    return beyond & (root >= 0)
+
+
+def conflicting_handles(handles: Handles, chains: ReachChains) -> Bool[Array, "*batch handles handles"]:
+    """Pairs of valid handles on one frame that no pose can meet together: farther apart than
+    the skeleton allows between their joints (``chains.apart``) plus :data:`HANDLE_MISS_CM`."""
     same_frame = (handles.frame[..., :, None] == handles.frame[..., None, :]) & handles.valid[..., :, None] & handles.valid[..., None, :]
-    apart = jnp.linalg.norm(handles.position[..., :, None, :] - handles.position[..., None, :, :], axis=-1)
-    reach = jnp.asarray(chains.from_hips, apart.dtype)[handles.joint][..., None, :] + HANDLE_MISS_CM
-    is_hips = jnp.asarray(chains.root)[handles.joint] < 0
-    conflict = same_frame & ~is_hips[..., None, :] & (apart > reach)
-    return is_hips & jnp.any(conflict, axis=-1)
+    distance = jnp.linalg.norm(handles.position[..., :, None, :] - handles.position[..., None, :, :], axis=-1)
+    allowed = jnp.asarray(chains.apart, distance.dtype)[handles.joint[..., :, None], handles.joint[..., None, :]]
+    return same_frame & (distance > allowed + HANDLE_MISS_CM)
 
 
 def largest_turn(character: Character, quat_local: Float[Array | np.ndarray, "frames joints 4"]) -> dict[str, Any]:

@@ -242,24 +242,49 @@ def test_paired_differences_take_the_spread_of_the_differences_not_of_the_means(
         paired_differences(base, {"mpjpe": np.zeros(3)})
 
 
-def test_a_hips_handle_that_no_pose_meets_with_another_handle_counts_as_unreachable(clip):
-    """``handle_unreachable``: a hips handle missed on a frame whose hand handle lies farther from
-    it than the hand can be from the hips (no pose meets both) is unreachable; a hips handle met
-    there is not (the hand is: beyond its arm), nor a hips handle missed with no such partner."""
+def test_a_handle_that_no_pose_meets_with_another_counts_as_unreachable(clip):
+    """``reach_chains(...).apart``: the bones between two characteristic joints;
+    ``conflicting_handles``: two handles of one frame farther apart than that (+1 cm).
+    ``handle_unreachable``: a hips handle missed on a frame whose hand handle no pose meets
+    with it is unreachable; a hips handle met there is not (the hand is: beyond its arm), nor
+    a hips handle missed with no such partner."""
     from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
     from bezmotion.ik.protocol import pose_fk
     from bezmotion.ik.rig import make_rig
-    from bezmotion.pipeline.window_figures import reach_chains, window_pose_metrics
+    from bezmotion.pipeline.window_figures import conflicting_handles, reach_chains, window_pose_metrics
 
     c = clip.character
-    hand = CHARACTERISTIC_JOINTS.index("right_hand")
+    hand, left_hand, head = (CHARACTERISTIC_JOINTS.index(r) for r in ("right_hand", "left_hand", "head"))
     chains = reach_chains(make_rig(c, "bandai_namco", rest_quat_local=np.asarray(clip.pose.quat_local[0])))
-    # The farthest the hand can be from the hips: every bone from the hips (exclusive) down to the hand.
-    j, path = c.characteristic[hand], 0.0
-    while j != c.characteristic[HIPS]:
-        path, j = path + float(np.linalg.norm(np.asarray(c.skeleton.offsets[j]))), c.skeleton.parents[j]
-    assert chains.from_hips[hand] == pytest.approx(path, rel=1e-6) and chains.from_hips[HIPS] == 0.0
-    assert chains.from_hips[CHARACTERISTIC_JOINTS.index("head")] == chains.length[CHARACTERISTIC_JOINTS.index("head")]
+    bone = lambda j: float(np.linalg.norm(np.asarray(c.skeleton.offsets[j])))  # noqa: E731
+
+    def up_to(joint, stop):  # the bones from ``stop`` (exclusive) down to ``joint``
+        total = 0.0
+        while joint != stop:
+            total, joint = total + bone(joint), c.skeleton.parents[joint]
+        return total
+
+    path = up_to(c.characteristic[hand], c.characteristic[HIPS])
+    assert chains.apart[HIPS, hand] == pytest.approx(path, rel=1e-6) == chains.apart[hand, HIPS]
+    assert chains.apart[HIPS, head] == pytest.approx(chains.length[head]) and np.all(np.diag(chains.apart) == 0.0)
+    # The hands meet where their arms leave the spine (the chest), not at the hips.
+    chest = c.skeleton.names.index("Chest")
+    both = up_to(c.characteristic[hand], chest) + up_to(c.characteristic[left_hand], chest)
+    assert chains.apart[hand, left_hand] == pytest.approx(both, rel=1e-6) and both < 2 * path
+
+    spread = jnp.asarray([[0.0, 0.0, 0.0], [both + 0.5, 0.0, 0.0], [both + 2.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    pairs = Handles(
+        joint=jnp.asarray([left_hand, hand, hand, hand], jnp.int32),
+        frame=jnp.asarray([7, 7, 7, 8], jnp.int32),
+        position=spread,
+        valid=jnp.asarray([True, True, True, True]),
+    )
+    conflict = np.asarray(conflicting_handles(pairs, chains))
+    expected = np.zeros((4, 4), bool)
+    expected[0, 2] = expected[2, 0] = True  # 2 cm beyond the arms' span; 0.5 cm is within the tolerance
+    expected[1, 2] = expected[2, 1] = True  # one joint in two places 1.5 cm apart on one frame
+    np.testing.assert_array_equal(conflict, expected)
+    assert not np.asarray(conflicting_handles(pairs._replace(valid=jnp.asarray([True, True, False, True])), chains)).any()
 
     pose = jax.tree.map(lambda x: jnp.stack([x[:FRAMES]] * 3), clip.pose)  # (3 windows, 31, …): the truth
     six = np.asarray(pose_fk(c, pose)[1])[..., np.asarray(c.characteristic), :]
