@@ -35,7 +35,11 @@ through K + 1 keys; a frame between two keys, not on one):
   ``"position"`` is relative as above.
 
 ``JOINT`` is one of the six characteristic joints (``hips``, ``head``, ``left_hand``,
-``right_hand``, ``left_foot``, ``right_foot``) or the skeleton's own name for it.
+``right_hand``, ``left_foot``, ``right_foot``) or the skeleton's own name for it. Two
+handles of one frame that no pose meets together (farther apart than the skeleton reaches
+between their joints) get a warning before sampling (:func:`handle_conflicts`); after each
+sample, every handle missed by more than 1 cm gets a line saying by how much and, where
+known, why (:func:`handle_misses`). Both also go to ``summary.json``.
 
 **Character.** Recognised from the joint names (LaFAN1, Bandai-Namco), or named by
 ``--mapping MAP.json`` (:func:`bezmotion.pipeline.authoring.read_mapping`). A BMM

@@ -59,9 +59,9 @@ shared key, which both its windows take).
 - ``unreachable_fraction``: handles out of the limb's reach: farther from the root of
   their chain in the IK'd pose at that frame (the upper arm for a hand, the upper leg
   for a foot, the hips for the head) than the chain's length stretched out (sum of its
-  bones) plus 1 cm; and hips handles missed by more than 1 cm on a frame whose other
-  handle lies farther from them than that joint can lie from the hips (its chain's length
-  plus the bones up to the hips, plus 1 cm: no pose meets both). Such handles are missed
+  bones) plus 1 cm; and handles missed by more than 1 cm on a frame whose other handle
+  lies farther from them than the skeleton reaches between the two joints (the bones on
+  its path between them, plus 1 cm: no pose meets both). Such handles are missed
   by more than 1 cm whatever the limb does, so they are a subset of the missed ones; the rest
   (``handles_missed_fraction − unreachable_fraction``) are misses the limb could have
   avoided. (The 1 cm keeps handles at full extension, an arm hanging straight, from

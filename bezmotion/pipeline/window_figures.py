@@ -47,7 +47,6 @@ class PipelineMetricsConfig:
     floor_height: float
 
 
-
 # ------------------------------------------------------------------------------ handles after IK
 
 
@@ -61,7 +60,7 @@ class ReachChains(NamedTuple):
     Attributes:
       root: ``(6,)`` the chain root of each characteristic joint (upper arm for the hands,
         upper leg for the feet, the hips for the head); ``-1`` for the hips (the root moves
-        freely: always reachable).
+        freely: never beyond a chain's reach).
       length: ``(6,)`` the chain's length fully stretched, cm (sum of its bones' offsets).
       apart: ``(6, 6)`` the farthest two characteristic joints can lie from each other, cm:
         the bones on the skeleton's path between them. Two handles on one frame farther
@@ -138,14 +137,15 @@ def window_pose_metrics(
     MPJPE (and ``mpjpe_per_joint``, ``(windows, joints)``: where it comes from), foot
     skating, key pop, per-frame joint turns (:func:`_turn_figures`), and (given
     ``chains``) ``handle_unreachable``: the handle is farther from its chain's root *in the
-    IK'd pose at that frame* than the chain's length plus :data:`HANDLE_MISS_CM` (a hand beyond the arm's reach from the shoulder the IK
-    chose), or a handle missed by more than :data:`HANDLE_MISS_CM` on a frame whose other
-    handle no pose meets together with it (:func:`conflicting_handles`: a hips handle 16 cm
-    up and a foot handle 16 cm down may lie farther apart than the leg is long). Such a handle is necessarily missed by more than
-    :data:`HANDLE_MISS_CM`, so unreachable handles are a subset of the missed ones: the
-    rest are misses the limb itself could have avoided. (The tolerance keeps handles at
-    full extension, an arm hanging straight, from counting: the mocap's own come within a
-    few millimetres of the chain's length.)
+    IK'd pose at that frame* than the chain's length plus :data:`HANDLE_MISS_CM` (a hand
+    beyond the arm's reach from the shoulder the IK chose, :func:`beyond_reach`), or a
+    handle missed by more than :data:`HANDLE_MISS_CM` on a frame whose other handle no pose
+    meets together with it (:func:`conflicting_handles`: a hips handle 16 cm up and a foot
+    handle 16 cm down may lie farther apart than the leg is long). Such a handle is
+    necessarily missed by more than :data:`HANDLE_MISS_CM`, so unreachable handles are a
+    subset of the missed ones: the rest are misses that some pose would have avoided. (The
+    tolerance keeps handles at full extension, an arm hanging straight, from counting: the
+    mocap's own come within a few millimetres of the chain's length.)
 
     Chained segments: ``pose`` and ``truth`` ``(chains, frames, …)`` over the chains' joined
     frames, ``handles`` ``(chains, handles)`` at chain frames (:func:`~bezmotion.pipeline.evaluation.chain_frame_handles`)
