@@ -10,9 +10,10 @@ programs, not running them):
 - XLA's slower optimisation passes are off (``jax_disable_most_optimizations``): the same
   programs with the same semantics, compiled ~20 % faster. ``BEZMOTION_TEST_XLA_OPTIMIZE=1``
   runs the suite with XLA's full optimisation instead.
-- A persistent compilation cache in a temporary folder lives as long as the session, so a
-  program that several modules compile (the bundled models' sampler, say) is compiled once
-  although :func:`release_compiled_code` drops every executable after each module.
+- A persistent compilation cache in a temporary folder lives as long as the session and is
+  shared by xdist's workers, so a program that several modules compile (the bundled
+  models' sampler, say) is compiled once, in whichever worker needs it first, although
+  :func:`release_compiled_code` drops every executable after each module.
 """
 
 import atexit
@@ -40,9 +41,13 @@ from helpers import SHARED_DATA, requires_shared  # noqa: E402,F401  (re-exporte
 # Before any test compiles (see the module docstring).
 if os.environ.get("BEZMOTION_TEST_XLA_OPTIMIZE", "") in ("", "0"):
     jax.config.update("jax_disable_most_optimizations", True)
-_COMPILATION_CACHE = tempfile.mkdtemp(prefix="bezmotion-test-xla-")
-atexit.register(shutil.rmtree, _COMPILATION_CACHE, ignore_errors=True)
-jax.config.update("jax_compilation_cache_dir", _COMPILATION_CACHE)
+# The process that starts the session (pytest itself, before xdist spawns its workers, which
+# inherit the variable) makes the folder and removes it at exit; every worker shares it.
+_CACHE_VARIABLE = "BEZMOTION_TEST_XLA_CACHE"
+if _CACHE_VARIABLE not in os.environ:
+    os.environ[_CACHE_VARIABLE] = tempfile.mkdtemp(prefix="bezmotion-test-xla-")
+    atexit.register(shutil.rmtree, os.environ[_CACHE_VARIABLE], ignore_errors=True)
+jax.config.update("jax_compilation_cache_dir", os.environ[_CACHE_VARIABLE])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.3)
 
 
