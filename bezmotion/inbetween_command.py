@@ -332,7 +332,7 @@ def _records_as_handles(records: Sequence[dict[str, Any]]) -> Handles:
     return Handles(
         joint=jnp.asarray([CHARACTERISTIC_JOINTS.index(r["joint"]) for r in records], jnp.int32),
         frame=jnp.asarray([r["frame"] for r in records], jnp.int32),
-        position=jnp.asarray([r["position"] for r in records], jnp.float32),
+        position=jnp.asarray(np.reshape([r["position"] for r in records], (-1, 3)), jnp.float32),
         valid=jnp.ones(len(records), bool),
     )
 
@@ -341,19 +341,15 @@ def _label(record: dict[str, Any]) -> str:
     return f"{record['joint']}@{record['frame']}"
 
 
-def handle_conflicts(records: Sequence[dict[str, Any]], reach: ReachChains) -> list[str]:
-    """A warning for each pair of handles on one frame that no pose meets together (farther
-    apart than the skeleton reaches between their joints,
-    :func:`~bezmotion.pipeline.window_figures.conflicting_handles`)."""
-    if not records:
-        return []
-    handles = _records_as_handles(records)
-    conflict = np.triu(np.asarray(conflicting_handles(handles, reach)), 1)
+def handle_conflicts(records: Sequence[dict[str, Any]], conflict: np.ndarray, reach: ReachChains) -> list[str]:
+    """A warning for each pair of handles on one frame that no pose meets together:
+    ``conflict`` ``(handles, handles)``, from
+    :func:`~bezmotion.pipeline.window_figures.conflicting_handles`."""
     warnings = []
-    for i, j in zip(*np.nonzero(conflict)):
+    for i, j in zip(*np.nonzero(np.triu(conflict, 1))):
         a, b = records[i], records[j]
         distance = float(np.linalg.norm(np.subtract(a["position"], b["position"])))
-        allowed = float(reach.apart[int(handles.joint[i]), int(handles.joint[j])])
+        allowed = float(reach.apart[CHARACTERISTIC_JOINTS.index(a["joint"]), CHARACTERISTIC_JOINTS.index(b["joint"])])
         warnings.append(
             f"handles {_label(a)} and {_label(b)} lie {distance:.1f} cm apart, farther than the skeleton reaches between "
             f"{a['joint']} and {b['joint']} ({allowed:.1f} cm): no pose meets both, and the IK will come as close to both as it can"
@@ -361,16 +357,11 @@ def handle_conflicts(records: Sequence[dict[str, Any]], reach: ReachChains) -> l
     return warnings
 
 
-def handle_misses(records: Sequence[dict[str, Any]], errors: Sequence[float], positions: np.ndarray, reach: ReachChains) -> list[str]:
+def handle_misses(records: Sequence[dict[str, Any]], errors: Sequence[float], beyond: np.ndarray, paired: np.ndarray) -> list[str]:
     """A line for each handle missed by more than :data:`HANDLE_MISS_CM`, with why where it is
-    known: beyond its limb's reach from where the IK put the limb's root (``positions``
-    ``(frames, joints, 3)``, the in-between's every joint), or on a frame whose other handle
-    no pose meets together with it."""
-    if not records:
-        return []
-    handles = _records_as_handles(records)
-    beyond = np.asarray(beyond_reach(jnp.asarray(positions), handles, reach))
-    paired = np.asarray(conflicting_handles(handles, reach)).any(axis=-1)
+    known: ``beyond`` its limb's reach from where the IK put the limb's root
+    (:func:`~bezmotion.pipeline.window_figures.beyond_reach`), or ``paired`` with another
+    handle of its frame that no pose meets together with it (both ``(handles,)``)."""
     lines = []
     for record, error, out_of_reach, conflict in zip(records, errors, beyond, paired):
         if error > HANDLE_MISS_CM:
@@ -438,11 +429,11 @@ class Plan:
     transfer: Transfer | None
     handles: Handles
     handle_records: list[dict[str, Any]]
+    reach: ReachChains  # how far the character's joints reach, for the handles' reports
     outputs: list[dict[str, Path]]
     folder: Path | None
     label: str
     key_velocity: Any = None  # (keys, 6, 3) cm/frame with --key-velocities
-    reach: ReachChains | None = None  # how far the character's joints reach, for the handles' reports
 
 
 def _outputs(args: InbetweenOptions) -> tuple[list[dict[str, Path]], Path | None]:
@@ -559,8 +550,8 @@ def plan(args: InbetweenOptions) -> Plan:
     handles, records = resolve_handles(requests, recognised, key_poses, bmm)
     reach = reach_chains(make_rig(character, recognised.rig_spec, rest_quat_local=np.asarray(key_poses[0].quat_local)))
     return Plan(
-        recognised, start_motion, key_poses, reference, bmm, ik, ik_fn, ik_params, transfer, handles, records, outputs, folder, label,
-        key_velocity, reach,
+        recognised, start_motion, key_poses, reference, bmm, ik, ik_fn, ik_params, transfer, handles, records, reach, outputs, folder,
+        label, key_velocity,
     )  # fmt: skip
 
 
@@ -666,7 +657,10 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
         f"{n} sample(s) of {frames} frames" + (f" ({windows} windows, one chain)" if windows > 1 else "") + f", {args.steps} DDIM steps"
         + (", transferred from the BMM's skeleton" if p.transfer is not None else "")
     )
-    warnings = handle_conflicts(p.handle_records, p.reach) if p.reach is not None else []
+    # The handles as written, all in the in-between's frames (a chain's too), for their reports.
+    written = _records_as_handles(p.handle_records)
+    conflict = np.asarray(conflicting_handles(written, p.reach))
+    warnings = handle_conflicts(p.handle_records, conflict, p.reach)
     for warning in warnings:
         say(f"warning: {warning}")
     export = dict(fps=p.start_motion.nominal_fps, channels=None if args.channels == "default" else p.start_motion.channels, template=p.start_motion)
@@ -713,7 +707,7 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
             entry["files"][suffix[1:]] = str(path)
             if suffix == ".bvh":
                 entry["bvh_fk_error_cm"] = bvh_fk_error_cm(path, character, result.pose)
-        misses = handle_misses(p.handle_records, errors, pos, p.reach) if p.reach is not None else []
+        misses = handle_misses(p.handle_records, errors, np.asarray(beyond_reach(jnp.asarray(pos), written, p.reach)), conflict.any(axis=-1))
         entry["handle_misses"] = misses
         samples.append(entry)
         worst = f", handles hit within {max(errors):.2g} cm" if errors else ""
