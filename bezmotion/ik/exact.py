@@ -570,15 +570,23 @@ class ExactIKFn:
         each window to its own two keys and hold the frames on both sides of every key.
         """
         pose = jax.vmap(self.inner, in_axes=(None, 0))(params.inner, targets)
-        hold = jnp.zeros(pose.root_pos.shape[0], pose.root_pos.dtype)
+        frames = pose.root_pos.shape[0]
+        hold = jnp.zeros(frames, pose.root_pos.dtype)
+        at_key = np.zeros(frames, bool)
         if keys is not None:
             keys = key_chain(keys)  # (start, end), or a chain's keys
-            distance = key_distances(hold.shape[0], keys.root_pos.shape[0] - 1)  # raises for a non-chain
+            distance = key_distances(frames, keys.root_pos.shape[0] - 1)  # raises for a non-chain
             decay = jnp.asarray(params.key_hold_decay, hold.dtype) ** jnp.asarray(np.maximum(distance - 1, 0), hold.dtype)
             hold = params.key_hold_weight * decay
+            at_key = distance == 0
         planted = planted_feet(targets.position, params.plant_step)
-        pose = limit_turns(remove_spikes(pose, params.spike_turn), params.spike_turn)
-        for _ in range(params.window_passes):
+        pose = limit_turns(remove_spikes(pose, params.spike_turn), params.spike_turn, jnp.asarray(at_key))
+        # After a pass, a frame with a handle may have turned far from its neighbours (held near
+        # their start poses, they weigh less than the handle): the next pass starts from a ramp into it.
+        at_handle = jnp.asarray(at_key) if targets.pinned is None else jnp.asarray(at_key) | jnp.any(targets.pinned, axis=-1)
+        for p in range(params.window_passes):
+            if p > 0:
+                pose = limit_turns(pose, params.spike_turn, at_handle)
             start = smooth(pose, params.smoothing)
             if keys is not None:
                 start = blend_to_chain_keys(start, keys, key_blend_frames)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
 from bezmotion.data.characteristic import FEET
 from bezmotion.data.windows import foot_contacts
@@ -57,48 +57,80 @@ def remove_spikes(pose: Pose, turn: Float[Array, ""] | float) -> Pose:
     return Pose(pose.root_pos, jnp.where(spike[..., None], replacement, q))
 
 
-def limit_turns(pose: Pose, turn: Float[Array, ""] | float) -> Pose:
+def limit_turns(pose: Pose, turn: Float[Array, ""] | float, anchors: Bool[Array, " frames"] | None = None) -> Pose:
     """``pose`` ``(frames, …)`` with no joint turning more than ``turn`` rad from one frame to
-    the next, the frames at both ends of the window kept.
+    the next, the frames at both ends of the window and the ``anchors`` ``(frames,)`` kept.
 
     A learned IK sometimes flips a joint for good rather than for one frame (an arm's twist
     by ~180° between two frames, where the curves' hand orientation lies far from any pose it
     learned): :func:`remove_spikes` keeps such a step, and the key hold then holds the frames
     next to the key on whichever side of it they lie. Here each joint's rotation follows the
-    inner poses from the first frame forwards, and again from the last frame backwards,
+    poses forwards from each kept frame, and again backwards from the next kept frame,
     moving at most ``turn`` a frame (a step becomes a ramp over as many frames as it needs).
-    The result takes the forward pass up to the frame where the two passes agree best (both
-    back on the inner poses), the backward pass after it: the ramp lies on the side of the
-    step away from the nearer end, and the frames next to each key stay continuous with it.
-    Poses that never turn that fast are returned unchanged (bit for bit); ``turn ≤ 0`` turns
-    it off; the hips' position is never changed.
+    Between two kept frames the result takes the forward pass up to the frame where the two
+    passes agree best (both back on the given poses), the backward pass after it: the ramp
+    lies on the side of the step away from the nearer kept frame, and the frames next to each
+    stay continuous with it. The window solve keeps its keys, and between its passes also
+    the frames with a handle, so a bend that only the handle's frame made (the frames next to
+    it held at their start) becomes a ramp into it. Poses that never turn that fast are
+    returned unchanged (bit for bit); ``turn ≤ 0`` turns it off; the hips' position is never
+    changed.
     """
     q = pose.quat_local
     frames = q.shape[0]
     if frames < 3:
         return pose
     turn = jnp.asarray(turn, q.dtype)
+    ends = jnp.zeros(frames, bool).at[jnp.asarray([0, frames - 1])].set(True)
+    kept = ends if anchors is None else ends | anchors
 
-    def follow(sequence: Array) -> Array:
-        def step(previous, current):  # quat_angle and slerp take either sign of current
+    def follow(sequence: Array, keep: Array) -> Array:
+        def step(previous, inputs):  # quat_angle and slerp take either sign of current
+            current, restart = inputs
             angle = quat_angle(previous, current)[..., None]
-            limited = (turn > 0.0) & (angle > turn)
+            limited = (turn > 0.0) & (angle > turn) & ~restart
             fraction = jnp.where(limited, turn / jnp.where(limited, angle, 1.0), 1.0)
             moved = jnp.where(limited, slerp(previous, current, fraction[..., 0]), current)
             return moved, moved
 
-        _, rest = jax.lax.scan(step, sequence[0], sequence[1:])
+        _, rest = jax.lax.scan(step, sequence[0], (sequence[1:], keep[1:]))
         return jnp.concatenate([sequence[:1], rest])
 
-    forward, backward = follow(q), follow(q[::-1])[::-1]
-    # Per joint, the frame where the passes lie closest (ties: the one nearest the middle).
+    forward, backward = follow(q, kept), follow(q[::-1], kept[::-1])[::-1]
+    # Per joint and stretch between kept frames, the frame where the passes lie closest
+    # (ties: the one nearest the stretch's middle); the kept frames never.
     t = np.arange(frames)
-    score = quat_angle(forward, backward) + 1e-3 * jnp.asarray(np.abs(t - (frames - 1) / 2) / frames, q.dtype)[:, None]
-    split = jnp.argmin(score, axis=0)  # (joints,)
-    limited = jnp.where((t[:, None] < split[None, :])[..., None], forward, backward)
+    index = jnp.asarray(t)
+    before = jax.lax.cummax(jnp.where(kept, index, 0))  # the kept frame at or before t
+    after = jax.lax.cummin(jnp.where(kept, index, frames - 1), reverse=True)  # at or after t
+    middle = jnp.abs(index - 0.5 * (before + after)) / frames
+    score = quat_angle(forward, backward) + 1e-3 * middle.astype(q.dtype)[:, None]
+    score = jnp.where(kept[:, None], jnp.inf, score)
+    # t lies before its stretch's split when the lowest score so far in the stretch is above
+    # the lowest still to come in it (the split is the first lowest; kept frames score ∞, so
+    # the running minima start afresh at them).
+    so_far = _running_min(score, kept, reverse=False)
+    to_come = jnp.concatenate([_running_min(score, kept, reverse=True)[1:], jnp.full_like(score[:1], jnp.inf)])
+    take_forward = so_far > to_come
+    limited = jnp.where(take_forward[..., None], forward, backward)
+    limited = jnp.where(kept[:, None, None], q, limited)
     # Unchanged frames keep their own quaternion (not slerp's sign of it): a no-op stays exact.
     same = jnp.abs(jnp.sum(limited * q, axis=-1, keepdims=True)) >= 1.0 - 1e-7
     return Pose(pose.root_pos, jnp.where(same, q, limited))
+
+
+def _running_min(values: Array, restart: Array, reverse: bool) -> Array:
+    """``values`` ``(frames, …)``' running minimum over frames, starting afresh after each
+    frame where ``restart`` ``(frames,)`` (from the end when ``reverse``)."""
+
+    def step(low, inputs):
+        value, fresh = inputs
+        low = jnp.where(fresh, value, jnp.minimum(low, value))
+        return low, low
+
+    xs = (values[::-1], restart[::-1]) if reverse else (values, restart)
+    _, out = jax.lax.scan(step, jnp.full_like(values[0], jnp.inf), xs)
+    return out[::-1] if reverse else out
 
 
 def smooth(pose: Pose, weight: Float[Array, ""] | float) -> Pose:

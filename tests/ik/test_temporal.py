@@ -76,6 +76,40 @@ def test_lasting_flips_of_the_inner_ik_become_ramps_from_the_keys():
     np.testing.assert_array_equal(limit_turns(Pose(root, quat), 0.0).quat_local, quat)  # off
 
 
+def test_a_kept_frame_turned_alone_gets_ramps_into_it_from_both_sides():
+    """``limit_turns`` with ``anchors``: a frame turned 92° away from its neighbours (the window
+    solve's handle frame after a pass) is kept, and the frames on both sides ramp into it at
+    the limit a frame, back on the given poses after ⌈92° / limit⌉ − 1 frames; without the
+    anchor the same frame is cut down instead. Two anchors with a step between them keep both."""
+    frames, limit = 31, np.radians(43.0)
+    axis = jnp.asarray([0.0, 0.0, 1.0])
+    still = quat_from_axis_angle(jnp.broadcast_to(axis, (frames, 3)), jnp.full(frames, 0.2))
+    bend = quat_from_axis_angle(jnp.asarray([1.0, 0.0, 0.0]), jnp.asarray(np.radians(92.0)))
+    alone = still.at[6].set(quat_mul(still[6], bend))
+    quat = jnp.stack([alone, still], axis=1)
+    root = jnp.zeros((frames, 3))
+    anchors = jnp.zeros(frames, bool).at[6].set(True)
+    out = limit_turns(Pose(root, quat), limit, anchors).quat_local
+
+    np.testing.assert_array_equal(out[6, 0], alone[6])  # the anchor kept
+    np.testing.assert_array_equal(out[:, 1], still)  # the other joint untouched
+    turns = np.radians(np.asarray(rotation_change_deg(out)))
+    assert turns.max() <= limit + 1e-4
+    for side in (5, 7):  # one limit away from the anchor, two limits away on the next frame
+        assert float(quat_angle(out[side, 0], alone[6])) == pytest.approx(limit, abs=1e-4)
+        assert float(quat_angle(out[side, 0], still[side])) == pytest.approx(np.radians(92.0) - limit, abs=1e-4)
+    np.testing.assert_array_equal(out[:4, 0], still[:4])
+    np.testing.assert_array_equal(out[9:, 0], still[9:])
+    assert float(quat_angle(out[4, 0], still[4])) == pytest.approx(np.radians(92.0) - 2 * limit, abs=1e-4)
+    free = limit_turns(Pose(root, quat), limit).quat_local  # not kept: the spike itself is cut
+    assert float(quat_angle(free[6, 0], still[6])) <= limit + 1e-4
+    # Anchors one frame apart with a step beyond the limit between them: both kept as given.
+    stepped = still.at[10:].set(quat_mul(still[10:], bend))
+    both = limit_turns(Pose(root, jnp.stack([stepped, still], axis=1)), limit, jnp.zeros(frames, bool).at[9:11].set(True)).quat_local
+    np.testing.assert_array_equal(both[9:11, 0], stepped[9:11])
+    np.testing.assert_array_equal(limit_turns(Pose(root, quat), 0.0, anchors).quat_local, quat)  # off
+
+
 def test_smoothing_averages_each_frame_with_its_neighbours():
     """``smooth``: weights ``[w, 1 − 2w, w]`` on the hips' position and, about one axis, on the
     half-angles' quaternions (a sign-flipped neighbour counts as the same rotation); at the
