@@ -162,6 +162,14 @@ class ExactIKParams:
       robust_cm: cm: an unpinned, unplanted joint's position miss beyond this costs Huber's
         loss (linear in the distance) instead of its square, so a curve point far out of
         reach does not bend the whole body towards it; 0: least squares throughout.
+      handle_spread: in the window solve, how far a handle's weight reaches into the frames
+        next to it: ``d`` frames from a handle, the same joint's position weighs
+        ``handle_weight^(handle_spread^d)`` (from 0.05 of the exponent down: 1), so the frames
+        around an OOD handle follow the curve through it too instead of leaving the handle's
+        frame to bend alone. 0 (the default): off. 0.25 (2.2× next to the handle, 1.2× two
+        frames away) removes a third of the Bandai-Namco OOD windows turning a joint more
+        than 45° a frame and skates less, for 0.13 cm more OOD MPJPE (docs/precision.md,
+        *Bends into OOD handles*).
       iterations: Levenberg–Marquardt steps per frame and pass (static).
       window_passes: how many times the window solve smooths the poses over time and
         solves again from them (static; the first smooths the inner IK's poses). Each pass
@@ -186,6 +194,7 @@ class ExactIKParams:
     smoothing: Float[Array, ""] | float = 0.25
     spike_turn: Float[Array, ""] | float = 0.75
     robust_cm: Float[Array, ""] | float = 5.0
+    handle_spread: Float[Array, ""] | float = 0.0
     iterations: int = dataclasses.field(default=6, metadata=dict(static=True))
     window_passes: int = dataclasses.field(default=2, metadata=dict(static=True))
 
@@ -334,11 +343,13 @@ def _inverse_3x3(m: Float[Array, "*batch 3 3"]) -> Float[Array, "*batch 3 3"]:
     return jnp.stack([c0, c1, c2], axis=-1) / det
 
 
-def _position_scale(params: ExactIKParams, pinned: Array, planted: Array, dtype) -> Array:
+def _position_scale(params: ExactIKParams, pinned: Array, planted: Array, dtype, near: Array | None = None) -> Array:
     """``(6, 1)`` per-joint factors on the position residuals: the hips' ``hips_position_scale``,
-    times ``handle_weight`` where ``pinned`` ``(6,)``, else ``plant_weight`` where ``planted`` ``(6,)``."""
+    times ``handle_weight`` where ``pinned`` ``(6,)``, else ``plant_weight`` where ``planted`` ``(6,)``,
+    else ``handle_weight^near`` where ``near`` ``(6,)`` (0 … 1: next to a handle of that joint)."""
     scale = jnp.ones(6, dtype).at[0].set(params.hips_position_scale)
-    factor = jnp.where(pinned, params.handle_weight, jnp.where(planted, params.plant_weight, 1.0))
+    other = 1.0 if near is None else jnp.maximum(jnp.asarray(params.handle_weight, dtype) ** near, 1.0)
+    factor = jnp.where(pinned, params.handle_weight, jnp.where(planted, params.plant_weight, other))
     return (scale * factor.astype(dtype))[:, None]
 
 
@@ -488,14 +499,21 @@ def _levenberg_marquardt(params: ExactIKParams, problem: _Problem, iterations: i
 
 
 def _solve(
-    params: ExactIKParams, start: Pose, targets: IKTargets, iterations: int, hold: Array | float = 0.0, planted: Array | None = None
+    params: ExactIKParams,
+    start: Pose,
+    targets: IKTargets,
+    iterations: int,
+    hold: Array | float = 0.0,
+    planted: Array | None = None,
+    near: Array | None = None,
 ) -> Pose:
     """One frame: the least-squares pose from ``start`` (held there with weight ``hold`` per
-    rad), the feet marked in ``planted`` ``(6,)`` weighing ``plant_weight``."""
+    rad), the feet marked in ``planted`` ``(6,)`` weighing ``plant_weight``, the joints next
+    to a handle of theirs weighing ``handle_weight^near`` (``near`` ``(6,)``, :func:`_near_handles`)."""
     pinned = jnp.zeros(6, bool) if targets.pinned is None else targets.pinned
     planted = jnp.zeros(6, bool) if planted is None else planted
     dtype = start.root_pos.dtype
-    scale = _position_scale(params, pinned, planted, dtype)
+    scale = _position_scale(params, pinned, planted, dtype, near)
     # Handles and planted feet stay least squares: under Huber's loss a planted foot pulled
     # several cm gives way much further (demo frames 10–17 with the head pinned 12 cm up, at
     # plant_weight 10 and robust_cm 2: the feet 6.1 cm off their targets against least squares' 3.4).
@@ -503,6 +521,19 @@ def _solve(
     problem = _Problem(start, targets.position, quat_from_rot6d(targets.rot6d), scale, jnp.asarray(hold, dtype), robust)
     delta, root_delta, _ = _levenberg_marquardt(params, problem, iterations)
     return _apply(params.character, start, delta, root_delta)
+
+
+def _near_handles(pinned: Array | None, spread: Array | float, frames: int, dtype) -> Array:
+    """``(frames, 6)``: ``spread^d`` for a joint ``d ≥ 1`` frames from its nearest handle
+    (``pinned`` ``(frames, 6)``), 0 on the handle's own frame, where that falls below 0.05,
+    and without handles: the exponent of :func:`_position_scale`'s weight next to a handle."""
+    if pinned is None:
+        return jnp.zeros((frames, 6), dtype)
+    t = np.arange(frames)
+    distance = np.abs(t[:, None] - t[None, :])  # (frames, frames)
+    d = jnp.min(jnp.where(pinned[None, :, :], jnp.asarray(distance)[:, :, None], frames + 1), axis=1)  # (frames, 6)
+    strength = jnp.asarray(spread, dtype) ** d.astype(dtype)
+    return jnp.where((d > 0) & (strength >= 0.05), strength, 0.0)
 
 
 def _ancestry(character: Character) -> np.ndarray:
@@ -584,13 +615,14 @@ class ExactIKFn:
         # After a pass, a frame with a handle may have turned far from its neighbours (held near
         # their start poses, they weigh less than the handle): the next pass starts from a ramp into it.
         at_handle = jnp.asarray(at_key) if targets.pinned is None else jnp.asarray(at_key) | jnp.any(targets.pinned, axis=-1)
+        near = _near_handles(targets.pinned, params.handle_spread, frames, pose.root_pos.dtype)
         for p in range(params.window_passes):
             if p > 0:
                 pose = limit_turns(pose, params.spike_turn, at_handle)
             start = smooth(pose, params.smoothing)
             if keys is not None:
                 start = blend_to_chain_keys(start, keys, key_blend_frames)
-            pose = jax.vmap(lambda s, t, h, p: _solve(params, s, t, params.iterations, h, p))(start, targets, hold, planted)
+            pose = jax.vmap(lambda s, t, h, p, n: _solve(params, s, t, params.iterations, h, p, n))(start, targets, hold, planted, near)
         if keys is not None:
             pose = blend_to_chain_keys(pose, keys, 0)
         return ExactIKResult(pose, *_errors(params.character, pose, targets))
@@ -650,6 +682,7 @@ def exact_ik(
 _SETTING_RANGES = {
     "max_turn": (0.0, np.inf, True),
     "smoothing": (0.0, 0.5, False),
+    "handle_spread": (0.0, 1.0, False),
     "key_hold_decay": (0.0, 1.0, False),
     "window_passes": (1, np.inf, False),
 }

@@ -175,6 +175,7 @@ def test_bad_settings(bandai):
     # Out of range, NaN, or a fractional step count: named with the value.
     for setting, message in (
         ({"smoothing": 0.7}, r"smoothing=0.7: must lie in \[0.0, 0.5\]"),
+        ({"handle_spread": 1.5}, r"handle_spread=1.5: must lie in \[0.0, 1.0\]"),
         ({"plant_weight": -1.0}, r"plant_weight=-1.0: must lie in \[0.0, ∞\)"),
         ({"robust_cm": float("nan")}, r"robust_cm=nan"),
         ({"max_turn": 0.0}, r"max_turn=0.0: must lie in \(0.0, ∞\)"),
@@ -355,6 +356,34 @@ def test_second_pass_starts_from_ramps_into_a_handle_frame(bandai, monkeypatch):
     unramped, unramped_miss = solve()
     assert unramped > 65.0 and ramped < 55.0, (unramped, ramped)
     assert ramped_miss <= unramped_miss + 0.02, (ramped_miss, unramped_miss)
+
+
+def test_handle_spread_weighs_a_handles_neighbours_more(bandai):
+    """``handle_spread``: a joint ``d`` frames from its handle weighs ``handle_weight^(spread^d)``
+    (2.2× next to it at 0.25, 1.2× two frames away, 1 where the exponent falls under 0.05),
+    the handle itself ``handle_weight``, other joints and 0 unchanged; the neighbours of an OOD
+    head handle then lie nearer their curve."""
+    pinned = jnp.zeros((12, 6), bool).at[6, 1].set(True)
+    near = np.asarray(exact_module._near_handles(pinned, 0.25, 12, jnp.float32))
+    np.testing.assert_allclose(near[[4, 5, 6, 7, 8], 1], [0.0625, 0.25, 0.0, 0.25, 0.0625])
+    assert not near[[0, 1, 2, 3, 9, 10, 11], 1].any() and not near[:, [0, 2, 3, 4, 5]].any()
+    assert not np.asarray(exact_module._near_handles(pinned, 0.0, 12, jnp.float32)).any()
+    _, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character)
+    scale = exact_module._position_scale(params, pinned[5], jnp.zeros(6, bool), jnp.float32, jnp.asarray(near[5]))
+    np.testing.assert_allclose(np.asarray(scale[:, 0]), [1.0, 25.0**0.25, 1.0, 1.0, 1.0, 1.0], rtol=1e-6)
+
+    motion = read_bvh(DEMO_CLIP)
+    truth = pose_from_motion(bandai.character, jnp.asarray(motion.quat_local[:31]), jnp.asarray(motion.pos_local[:31]))
+    targets = targets_from_pose(bandai.character, truth)
+    bump = jnp.exp(-0.5 * ((jnp.arange(31) - 6) / 3.0) ** 2)
+    targets = targets._replace(position=targets.position.at[:, 1, 1].add(-20.0 * bump), pinned=jnp.zeros((31, 6), bool).at[6, 1].set(True))
+    keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
+    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character)
+    solve = jax.jit(lambda p: fn.solve_window_with_residual(p, targets, keys, 6))
+    off, spread = solve(params), solve(dataclasses.replace(params, handle_spread=0.25))
+    neighbours = lambda r: float(jnp.mean(r.position_error[jnp.asarray([4, 5, 7, 8]), 1]))  # noqa: E731
+    assert neighbours(spread) < neighbours(off) - 0.05, (neighbours(off), neighbours(spread))
+    assert float(spread.position_error[6, 1]) < 0.05
 
 
 def test_robust_loss_lets_a_far_unpinned_target_go_and_keeps_near_ones(bandai):
