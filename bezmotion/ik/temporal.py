@@ -99,8 +99,7 @@ def limit_turns(pose: Pose, turn: Float[Array, ""] | float, anchors: Bool[Array,
     forward, backward = follow(q, kept), follow(q[::-1], kept[::-1])[::-1]
     # Per joint and stretch between kept frames, the frame where the passes lie closest
     # (ties: the one nearest the stretch's middle); the kept frames never.
-    t = np.arange(frames)
-    index = jnp.asarray(t)
+    index = jnp.arange(frames)
     before = jax.lax.cummax(jnp.where(kept, index, 0))  # the kept frame at or before t
     after = jax.lax.cummin(jnp.where(kept, index, frames - 1), reverse=True)  # at or after t
     middle = jnp.abs(index - 0.5 * (before + after)) / frames
@@ -120,8 +119,8 @@ def limit_turns(pose: Pose, turn: Float[Array, ""] | float, anchors: Bool[Array,
 
 
 def _running_min(values: Array, restart: Array, reverse: bool) -> Array:
-    """``values`` ``(frames, …)``' running minimum over frames, starting afresh after each
-    frame where ``restart`` ``(frames,)`` (from the end when ``reverse``)."""
+    """``values`` ``(frames, …)``' running minimum over frames, starting afresh at each frame
+    where ``restart`` ``(frames,)`` (from the last frame backwards when ``reverse``)."""
 
     def step(low, inputs):
         value, fresh = inputs
