@@ -166,10 +166,10 @@ class ExactIKParams:
         next to it: ``d`` frames from a handle, the same joint's position weighs
         ``handle_weight^(handle_spread^d)`` (from 0.05 of the exponent down: 1), so the frames
         around an OOD handle follow the curve through it too instead of leaving the handle's
-        frame to bend alone. 0 (the default): off. 0.25 (2.2× next to the handle, 1.2× two
-        frames away) removes a third of the Bandai-Namco OOD windows turning a joint more
-        than 45° a frame and skates less, for 0.13 cm more OOD MPJPE (docs/precision.md,
-        *Bends into OOD handles*).
+        frame to bend alone; 0: off. At 0.25 (2.2× next to the handle, 1.2× two frames
+        away, nothing from three) a third of the Bandai-Namco OOD windows turning a joint
+        more than 45° a frame go (LaFAN1: 9 → 5 of 1,000), with less skating, for 0.13 cm
+        (LaFAN1 0.03) more OOD MPJPE (docs/precision.md, *Ramps into handle frames*).
       iterations: Levenberg–Marquardt steps per frame and pass (static).
       window_passes: how many times the window solve smooths the poses over time and
         solves again from them (static; the first smooths the inner IK's poses). Each pass
@@ -194,7 +194,7 @@ class ExactIKParams:
     smoothing: Float[Array, ""] | float = 0.25
     spike_turn: Float[Array, ""] | float = 0.75
     robust_cm: Float[Array, ""] | float = 5.0
-    handle_spread: Float[Array, ""] | float = 0.0
+    handle_spread: Float[Array, ""] | float = 0.25
     iterations: int = dataclasses.field(default=6, metadata=dict(static=True))
     window_passes: int = dataclasses.field(default=2, metadata=dict(static=True))
 

@@ -344,7 +344,7 @@ def test_second_pass_starts_from_ramps_into_a_handle_frame(bandai, monkeypatch):
     pinned = jnp.zeros((31, 6), bool).at[6, :2].set(True)
     targets = targets._replace(position=position, pinned=pinned)
     keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
-    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character)
+    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, handle_spread=0.0)  # the ramp alone
 
     def solve():
         result = jax.jit(lambda p, t: fn.solve_window_with_residual(p, t, keys, 6))(params, targets)
@@ -380,7 +380,7 @@ def test_handle_spread_weighs_a_handles_neighbours_more(bandai):
     keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
     fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character)
     solve = jax.jit(lambda p: fn.solve_window_with_residual(p, targets, keys, 6))
-    off, spread = solve(params), solve(dataclasses.replace(params, handle_spread=0.25))
+    off, spread = solve(dataclasses.replace(params, handle_spread=0.0)), solve(params)  # the default: 0.25
     neighbours = lambda r: float(jnp.mean(r.position_error[jnp.asarray([4, 5, 7, 8]), 1]))  # noqa: E731
     assert neighbours(spread) < neighbours(off) - 0.05, (neighbours(off), neighbours(spread))
     assert float(spread.position_error[6, 1]) < 0.05
