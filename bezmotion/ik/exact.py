@@ -533,7 +533,7 @@ def _near_handles(pinned: Array | None, spread: Array | float, frames: int, dtyp
     distance = np.abs(t[:, None] - t[None, :])  # (frames, frames)
     d = jnp.min(jnp.where(pinned[None, :, :], jnp.asarray(distance)[:, :, None], frames + 1), axis=1)  # (frames, 6)
     strength = jnp.asarray(spread, dtype) ** d.astype(dtype)
-    return jnp.where((d > 0) & (strength >= 0.05), strength, 0.0)
+    return jnp.where((d > 0) & (d <= frames) & (strength >= 0.05), strength, 0.0)  # d > frames: no handle
 
 
 def _ancestry(character: Character) -> np.ndarray:
