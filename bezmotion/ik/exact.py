@@ -70,7 +70,7 @@ from typing import Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, Bool, Float
 
 from bezmotion.geometry.rotations import (
     matrix_from_quat,
@@ -523,12 +523,11 @@ def _solve(
     return _apply(params.character, start, delta, root_delta)
 
 
-def _near_handles(pinned: Array | None, spread: Array | float, frames: int, dtype) -> Array:
+def _near_handles(pinned: Bool[Array, "frames 6"], spread: Array | float, dtype) -> Array:
     """``(frames, 6)``: ``spread^d`` for a joint ``d ≥ 1`` frames from its nearest handle
-    (``pinned`` ``(frames, 6)``), 0 on the handle's own frame, where that falls below 0.05,
-    and without handles: the exponent of :func:`_position_scale`'s weight next to a handle."""
-    if pinned is None:
-        return jnp.zeros((frames, 6), dtype)
+    (``pinned``); 0 on the handle's own frame, where that falls below 0.05, and for a joint
+    without handles. The exponent of :func:`_position_scale`'s weight next to a handle."""
+    frames = pinned.shape[0]
     t = np.arange(frames)
     distance = np.abs(t[:, None] - t[None, :])  # (frames, frames)
     d = jnp.min(jnp.where(pinned[None, :, :], jnp.asarray(distance)[:, :, None], frames + 1), axis=1)  # (frames, 6)
@@ -603,19 +602,20 @@ class ExactIKFn:
         pose = jax.vmap(self.inner, in_axes=(None, 0))(params.inner, targets)
         frames = pose.root_pos.shape[0]
         hold = jnp.zeros(frames, pose.root_pos.dtype)
-        at_key = np.zeros(frames, bool)
+        at_key = jnp.zeros(frames, bool)
         if keys is not None:
             keys = key_chain(keys)  # (start, end), or a chain's keys
             distance = key_distances(frames, keys.root_pos.shape[0] - 1)  # raises for a non-chain
             decay = jnp.asarray(params.key_hold_decay, hold.dtype) ** jnp.asarray(np.maximum(distance - 1, 0), hold.dtype)
             hold = params.key_hold_weight * decay
-            at_key = distance == 0
+            at_key = jnp.asarray(distance == 0)
         planted = planted_feet(targets.position, params.plant_step)
-        pose = limit_turns(remove_spikes(pose, params.spike_turn), params.spike_turn, jnp.asarray(at_key))
+        pinned = jnp.zeros((frames, 6), bool) if targets.pinned is None else targets.pinned
+        pose = limit_turns(remove_spikes(pose, params.spike_turn), params.spike_turn, at_key)
         # After a pass, a frame with a handle may have turned far from its neighbours (held near
         # their start poses, they weigh less than the handle): the next pass starts from a ramp into it.
-        at_handle = jnp.asarray(at_key) if targets.pinned is None else jnp.asarray(at_key) | jnp.any(targets.pinned, axis=-1)
-        near = _near_handles(targets.pinned, params.handle_spread, frames, pose.root_pos.dtype)
+        at_handle = at_key | jnp.any(pinned, axis=-1)
+        near = _near_handles(pinned, params.handle_spread, pose.root_pos.dtype)
         for p in range(params.window_passes):
             if p > 0:
                 pose = limit_turns(pose, params.spike_turn, at_handle)

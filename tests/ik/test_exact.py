@@ -364,11 +364,11 @@ def test_handle_spread_weighs_a_handles_neighbours_more(bandai):
     the handle itself ``handle_weight``, other joints and 0 unchanged; the neighbours of an OOD
     head handle then lie nearer their curve."""
     pinned = jnp.zeros((12, 6), bool).at[6, 1].set(True)
-    near = np.asarray(exact_module._near_handles(pinned, 0.25, 12, jnp.float32))
+    near = np.asarray(exact_module._near_handles(pinned, 0.25, jnp.float32))
     np.testing.assert_allclose(near[[4, 5, 6, 7, 8], 1], [0.0625, 0.25, 0.0, 0.25, 0.0625])
     assert not near[[0, 1, 2, 3, 9, 10, 11], 1].any() and not near[:, [0, 2, 3, 4, 5]].any()
-    assert not np.asarray(exact_module._near_handles(pinned, 0.0, 12, jnp.float32)).any()
-    everywhere = np.asarray(exact_module._near_handles(pinned, 1.0, 12, jnp.float32))  # 1: every frame of the handle's joint
+    assert not np.asarray(exact_module._near_handles(pinned, 0.0, jnp.float32)).any()
+    everywhere = np.asarray(exact_module._near_handles(pinned, 1.0, jnp.float32))  # 1: every frame of the handle's joint
     assert everywhere[np.arange(12) != 6, 1].all() and not everywhere[:, [0, 2, 3, 4, 5]].any()
     _, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character)
     scale = exact_module._position_scale(params, pinned[5], jnp.zeros(6, bool), jnp.float32, jnp.asarray(near[5]))
