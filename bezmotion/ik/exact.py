@@ -387,26 +387,27 @@ def _step(params: ExactIKParams, problem: _Problem, delta: Array, root_delta: Ar
     n_free = len(free)
     dtype = delta.dtype
     # d(q ⊗ exp(δ)) turns the joint's subtree about the world axis G·J_r(δ)·dδ: a point p
-    # moves by axis × (p − joint), a frame column c by axis × c.
+    # moves by axis × (p − joint), a frame column c by axis × c. The Jacobian is built
+    # transposed, ``(free joint, k, row)``, the layout every product below reads without a
+    # copy (row-major, the rows' transpose cost a quarter of the step).
     axes = jnp.swapaxes(rot[free] @ _right_jacobian(delta), -1, -2)  # (free, k, xyz)
-    mask = jnp.asarray(_ancestry(character), dtype)[:, :, None, None]  # (6, free, 1, 1)
-    lever = pos[idx][:, None, :] - pos[free][None, :, :]  # (6, free, xyz)
-    j_pos = mask * jnp.cross(axes[None], lever[:, :, None, :])  # (6, free, k, xyz)
-    j_pos = j_pos * scale[:, :, None, None]
+    mask = jnp.asarray(_ancestry(character).T, dtype)[:, None, :, None]  # (free, 1, 6, 1)
+    lever = pos[idx][None, :, :] - pos[free][:, None, :]  # (free, 6, xyz)
+    j_pos = mask * jnp.cross(axes[:, :, None, :], lever[:, None, :, :]) * scale[None, None]  # (free, k, 6, xyz)
     # A world turn ω of the joint changes 2·vec(q_rel) by (w I − [v]×) ω, (w, v) = q_rel.
     w, v = rel[:, :1, None], rel[:, 1:]
     turn = w * jnp.eye(3, dtype=dtype) - _skew(v)  # (6, xyz out, xyz in)
-    j_rot = mask * jnp.einsum("eab,fkb->efka", turn, axes)  # (6, free, k, xyz)
-    # Rows: 18 positions then 18 orientations; columns: (free joint, k), then the root.
-    jac_free = jnp.concatenate([jnp.moveaxis(j_pos, -1, 1).reshape(18, n_free, 3), jnp.moveaxis(j_rot, -1, 1).reshape(18, n_free, 3)])
-    jac_root = jnp.concatenate([(scale[:, :, None] * jnp.eye(3, dtype=dtype)).reshape(18, 3), jnp.zeros((18, 3), dtype)])
+    j_rot = mask * jnp.einsum("eab,fkb->fkea", turn, axes)  # (free, k, 6, xyz)
+    # Rows: 18 positions then 18 orientations (joint-major); columns: (free joint, k), then the root.
+    jac_free = jnp.concatenate([j_pos.reshape(n_free, 3, 18), j_rot.reshape(n_free, 3, 18)], axis=-1)  # (free, k, 36)
+    jac_root = jnp.concatenate([(scale[:, :, None] * jnp.eye(3, dtype=dtype)).reshape(18, 3).T, jnp.zeros((3, 18), dtype)], axis=-1)
     res = jnp.concatenate([e_pos.reshape(-1), e_rot.reshape(-1)])
     row_weight_sq = jnp.maximum(
         jnp.concatenate([jnp.full(18, params.position_weight**2, dtype), jnp.full(18, params.rotation_weight**2, dtype)]),
         _MIN_ROW_WEIGHT_SQ,
     )
     # Marquardt's scaling: the damping of each unknown in proportion to its curvature.
-    curvature = jnp.einsum("r,rfa->fa", row_weight_sq, jac_free * jac_free)  # (free, 3)
+    curvature = jnp.sum(row_weight_sq * jac_free * jac_free, axis=-1)  # (free, 3)
     root_curvature = params.position_weight**2 * jnp.sum(scale * scale)  # each root axis alike
 
     d_excess = _limit_jacobian(params, limit_rel, delta)
@@ -425,14 +426,14 @@ def _step(params: ExactIKParams, problem: _Problem, delta: Array, root_delta: Ar
     root_grad = params.root_weight**2 * (root_delta - anchor[1]) + hold_root**2 * root_delta
 
     inv_blocks = _inverse_3x3(blocks)
-    jd_free = jnp.einsum("rfa,fab->rfb", jac_free, inv_blocks)  # J D⁻¹
-    jd_root = jac_root / root_block
-    rows = jac_free.shape[0]
-    schur = jd_free.reshape(rows, -1) @ jac_free.reshape(rows, -1).T + jd_root @ jac_root.T + jnp.diag(1.0 / row_weight_sq)
-    rhs = res - jnp.einsum("rfa,fa->r", jd_free, block_grad) - jd_root @ root_grad
+    jd_free = jnp.swapaxes(inv_blocks, -1, -2) @ jac_free  # (J D⁻¹)ᵀ, (free, k, 36)
+    jd_root = jac_root / root_block[:, None]
+    rows = jac_free.shape[-1]
+    schur = jd_free.reshape(-1, rows).T @ jac_free.reshape(-1, rows) + jd_root.T @ jac_root + jnp.diag(1.0 / row_weight_sq)
+    rhs = res - jnp.einsum("fkr,fk->r", jd_free, block_grad) - root_grad @ jd_root
     mu = cholesky_solve(schur, rhs)
-    move_free = -jnp.einsum("fab,fb->fa", inv_blocks, block_grad + jnp.einsum("rfa,r->fa", jac_free, mu))
-    move_root = -(root_grad + jac_root.T @ mu) / root_block
+    move_free = -jnp.einsum("fab,fb->fa", inv_blocks, block_grad + jac_free @ mu)
+    move_root = -(root_grad + jac_root @ mu) / root_block
     return move_free, move_root
 
 
