@@ -389,7 +389,7 @@ def _step(params: ExactIKParams, problem: _Problem, delta: Array, root_delta: Ar
     # d(q ⊗ exp(δ)) turns the joint's subtree about the world axis G·J_r(δ)·dδ: a point p
     # moves by axis × (p − joint), a frame column c by axis × c. The Jacobian is built
     # transposed, ``(free joint, k, row)``, the layout every product below reads without a
-    # copy (row-major, the rows' transpose cost a quarter of the step).
+    # copy (built rows first, its transposes took about a quarter of the step).
     axes = jnp.swapaxes(rot[free] @ _right_jacobian(delta), -1, -2)  # (free, k, xyz)
     mask = jnp.asarray(_ancestry(character).T, dtype)[:, None, :, None]  # (free, 1, 6, 1)
     lever = pos[idx][None, :, :] - pos[free][:, None, :]  # (free, 6, xyz)
