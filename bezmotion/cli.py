@@ -39,7 +39,7 @@ class DemoOptions:
     ik: str = option(
         "exact", choices=IK_CHOICES,
         help="exact: the learned IK then a least-squares solve onto all six curves (default); refined: the learned IK then "
-        "exact two-bone limbs; learned: the learned IK alone; rig: analytic, no data",
+        "exact two-bone limbs; learned: the learned IK alone; rig: analytic, no data; exact_rig: the rig then the same solve",
     )  # fmt: skip
     steps: int = option(10, help="DDIM steps (default 10)")
     seed: int = 0

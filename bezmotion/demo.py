@@ -36,6 +36,7 @@ from bezmotion.pipeline.window_figures import curve_miss, largest_turn
 from bezmotion.pipeline.authoring import (
     CHANNEL_CHOICES,
     IK_CHOICES,
+    LEARNED_IK_CHOICES,
     ResultFiles,
     bvh_fk_error_cm,
     load_profile,
@@ -145,20 +146,22 @@ def demo(
       ik: ``"exact"`` (default: the learned IK, then a whole-body least-squares solve onto
         all six targets, with the joint limits stored beside the IK model), ``"refined"``
         (the bundled learned IK, then exact two-bone arms and legs), ``"learned"`` (the
-        learned IK alone) or ``"rig"`` (analytic, no data).
+        learned IK alone), ``"rig"`` (analytic, no data) or ``"exact_rig"`` (the rig, then the
+        exact solve, without joint limits).
       steps, seed: DDIM steps and PRNG seed of the sampler.
       bmm_dir, bmm_corpus: the BMM — a pretrained model's name (:mod:`bezmotion.assets.registry`,
         ``bezmotion models``) or a saved BMM's folder — and the corpus it was trained on (one
         with a profile in :data:`~bezmotion.assets.PROFILES_DIR`; default: a named model's
         own, else ``"bandai_namco"``; another skeleton's curves are transferred).
-      ik_dir: the learned IK, a name or a folder (for every ``ik`` but ``"rig"``).
+      ik_dir: the learned IK, a name or a folder (for the ``ik`` choices that start from it,
+        :data:`~bezmotion.pipeline.authoring.LEARNED_IK_CHOICES`).
       channels: the BVH files' channels: ``"default"`` (positions on the root and the hips,
         rotations elsewhere) or ``"clip"`` (the clip's own layout). Either way the files
         carry the clip's OFFSETs and End Sites and its whole frame rate.
       foot_lock: hold each foot still while the BMM says it is planted
         (:func:`~bezmotion.bmm.foot_lock.lock_feet`; ours, not the paper's): on the demo the
         left foot slides 2.6 cm on the ground instead of 17.3 (the mocap 3.9; the summary's ``ground_slide_cm``).
-      exact_settings: :class:`~bezmotion.ik.exact.ExactIKParams` keywords of ``ik="exact"``
+      exact_settings: :class:`~bezmotion.ik.exact.ExactIKParams` keywords of the exact IKs
         (``--exact NAME=VALUE``), e.g. ``{"plant_weight": 10.0}``.
     """
     if ik not in IK_CHOICES:
@@ -174,7 +177,7 @@ def demo(
     started = time.perf_counter()
     bmm_folder, trained_on = _resolve("--bmm", bmm_dir, resolve_bmm)
     bmm_corpus = bmm_corpus if bmm_corpus is not None else trained_on or "bandai_namco"
-    ik_folder = None if ik == "rig" else _resolve("--ik-model", ik_dir, resolve_ik_model)
+    ik_folder = _resolve("--ik-model", ik_dir, resolve_ik_model) if ik in LEARNED_IK_CHOICES else None
     motion = read_bvh(clip)
     bmm = load_model(bmm_folder)
     # The clip's own skeleton (its offsets) throughout: the files' FK is the pipeline's.

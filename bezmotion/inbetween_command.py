@@ -47,8 +47,8 @@ trained on another skeleton drives it through a transfer (BMM §5.2) with the ch
 bundled profile, or for other skeletons a profile measured on the input files' frames.
 ``--ik auto`` (default) takes the exact IK (the learned IK, then a least-squares solve that
 puts all six joints on their curves, handles on the hips and head included, without
-popping at the keys) when the learned IK was trained on this skeleton, else the analytic
-rig, which needs no training.
+popping at the keys) when the learned IK was trained on this skeleton, else the same solve
+from the analytic rig's poses (``exact_rig``), which needs no training.
 
 **Output.** ``--out x.bvh`` / ``x.glb`` / ``x.gif``: that file (``x_0.bvh``, ``x_1.bvh``, …
 with ``--samples N``); ``--out FOLDER``: ``inbetween.bvh``, ``inbetween.glb``,
@@ -94,8 +94,10 @@ from bezmotion.pipeline.window_figures import (
 from bezmotion.pipeline.authoring import (
     CHANNEL_CHOICES,
     EXACT_HELP,
+    EXACT_IK_CHOICES,
     FOOT_LOCK_HELP,
     IK_CHOICES,
+    LEARNED_IK_CHOICES,
     RecognisedCharacter,
     ResultFiles,
     bvh_fk_error_cm,
@@ -145,9 +147,10 @@ class InbetweenOptions:
     steps: int = option(10, metavar="N", help="DDIM steps (default 10)")
     ik: str = option(
         "auto", choices=("auto", *IK_CHOICES),
-        help="auto (default): exact when the learned IK fits the skeleton, else rig; refined: learned IK then "
+        help="auto (default): exact when the learned IK fits the skeleton, else exact_rig; refined: learned IK then "
         "exact two-bone limbs; learned: the learned IK alone; rig: analytic, any skeleton, no training; "
-        "exact: the learned IK then a least-squares solve onto all six curves (hips and head too)",
+        "exact: the learned IK then a least-squares solve onto all six curves (hips and head too); "
+        "exact_rig: the rig then the same solve (any skeleton, no training)",
     )  # fmt: skip
     model: str = option(
         "bandai_namco", metavar="NAME|PATH", help="the BMM: a pretrained model's name (bandai_namco, default; bezmotion models lists them) or a saved BMM's folder"
@@ -523,7 +526,7 @@ def plan(args: InbetweenOptions) -> Plan:
     settings = exact_settings(args.exact)  # its errors name the item
     ik = args.ik
     ik_model = ik_folder = None
-    if ik != "rig":
+    if ik == "auto" or ik in LEARNED_IK_CHOICES:
         try:
             ik_folder = resolve_ik_model(args.ik_model)
             ik_model = load_ik_model(ik_folder)
@@ -534,12 +537,13 @@ def plan(args: InbetweenOptions) -> Plan:
                 check_ik_model(ik_model, character)
                 ik = "exact"
             except ValueError:
-                ik, ik_model = "rig", None
-    if settings and ik != "exact":
+                ik, ik_model, ik_folder = "exact_rig", None, None
+    if settings and ik not in EXACT_IK_CHOICES:
         chose = f"--ik auto chose {ik} for this skeleton" if args.ik == "auto" else f"not of --ik {ik}"
         raise ValueError(f"--exact {' '.join(args.exact)}: the settings of the exact IK, {chose}")
     try:
-        # The exact IK's soft joint limits: those measured beside the learned IK, if any.
+        # The exact IK's soft joint limits: those measured beside the learned IK, if any
+        # (none for the rig's start: no limits were measured on an unknown skeleton).
         limits = ik_model_joint_limits(ik_folder, character) if ik == "exact" else None
         ik_fn, ik_params = make_ik(
             ik, recognised, rest_quat_local=np.asarray(key_poses[0].quat_local), ik_model=ik_model, limits=limits, exact_settings=settings

@@ -181,7 +181,7 @@ from bezmotion.pipeline.inbetweening import KEY_BLEND_FRAMES, WindowCurves
 from _common import window_labels
 
 CORPORA = ("bandai_namco", "lafan1")
-IKS = ("learned", "refined", "rig", "exact", "exact_refined")
+IKS = ("learned", "refined", "rig", "exact", "exact_refined", "exact_rig")
 CONDITIONS = ("id", "ood")
 
 
@@ -271,6 +271,7 @@ def build_iks(args: Options, ik_model, rig) -> tuple[dict[str, tuple], bool]:
         "rig": lambda: (rig_ik, rig),
         "exact": lambda: exact_ik(protores_ik_fn, ik_model, character, limits=limits, **settings),
         "exact_refined": lambda: exact_ik(protores_refined_ik_fn, (ik_model, rig), character, limits=limits, **settings),
+        "exact_rig": lambda: exact_ik(rig_ik, rig, character, limits=limits, **settings),
     }
     return {name: makers[name]() for name in dict.fromkeys(args.ik)}, limits is not None
 

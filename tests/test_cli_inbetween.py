@@ -203,6 +203,27 @@ def test_another_skeleton_through_a_mapping_file_and_the_rig(tmp_path):
     np.testing.assert_allclose(fk_positions(motion)[12, hand], straight_line(HAND, 12) + [0, 25, 0], atol=1e-3)
 
 
+def test_another_skeleton_gets_the_exact_solve_from_the_rig_by_default(tmp_path):
+    """``--ik auto`` on a skeleton no learned IK knows: the rig's poses, then the exact solve
+    (``exact_rig``). A foot handle 12 cm below the straight line lies beyond the leg's reach
+    from where the rig keeps the hips (on their curve: it misses by ~9 cm); the exact solve
+    lowers the hips (unpinned, they give way to the handle) and meets it."""
+    clip = renamed_clip(tmp_path)
+    mapping = tmp_path / "map.json"
+    mapping.write_text(json.dumps({role: f"my_{name}" for role, name in ROLES.items()}))
+    argv = [clip, "--frames", "0", "30", "--mapping", mapping, "--handle", "left_foot@12=+0,-12,0", "--handle", "my_Hand_R@18=+0,25,0", "--steps", "2", "--no-progress"]
+    misses = {}
+    for ik in ("auto", "rig"):
+        code, _, err = run_cli(*argv, "--ik", ik, "--out", tmp_path / f"{ik}.bvh")
+        assert code == 0, err
+        motion = read_bvh(tmp_path / f"{ik}.bvh")
+        foot, hand = (motion.skeleton.names.index(f"my_{j}") for j in (FOOT, HAND))
+        positions = fk_positions(motion)
+        misses[ik] = float(np.linalg.norm(positions[12, foot] - straight_line(FOOT, 12) - [0, -12, 0]))
+        np.testing.assert_allclose(positions[18, hand], straight_line(HAND, 18) + [0, 25, 0], atol=1e-2)
+    assert misses["auto"] < 0.05 and misses["rig"] > 5.0, misses
+
+
 def test_the_rig_chains_come_from_the_hierarchy_or_the_mapping_file(tmp_path):
     motion = read_bvh(renamed_clip(tmp_path))
     toml = tmp_path / "map.toml"
@@ -414,7 +435,7 @@ def test_the_learned_ik_refuses_another_skeleton(tmp_path):
     mapping = tmp_path / "map.json"
     mapping.write_text(json.dumps({role: f"my_{name}" for role, name in ROLES.items()}))
     code, _, err = run_cli(clip, "--frames", "0", "30", "--mapping", mapping, "--ik", "learned", "--out", tmp_path / "o.bvh")
-    assert code == 2 and "--ik learned: the learned IK bandai_namco does not fit this skeleton" in err and "use --ik rig" in err
+    assert code == 2 and "--ik learned: the learned IK bandai_namco does not fit this skeleton" in err and "use --ik exact_rig or rig" in err
     assert not (tmp_path / "o.bvh").exists()
 
 

@@ -45,10 +45,17 @@ from bezmotion.ik.protores import ProtoResModel, protores_ik_fn, protores_refine
 from bezmotion.ik.rig import RigSpec, make_rig, rig_ik
 from bezmotion.pipeline.transfer import CharacterProfile, Transfer
 
-IK_CHOICES = ("refined", "learned", "rig", "exact")
+IK_CHOICES = ("refined", "learned", "rig", "exact", "exact_rig")
 """``refined``: the learned IK, then exact two-bone arms and legs; ``learned``: the learned
 IK alone; ``rig``: the analytic rig (no data, any skeleton); ``exact``: the learned IK, then
-a least-squares solve of the whole body onto all six targets (:mod:`bezmotion.ik.exact`)."""
+a least-squares solve of the whole body onto all six targets (:mod:`bezmotion.ik.exact`);
+``exact_rig``: the same solve from the rig's poses (any skeleton, no training)."""
+
+LEARNED_IK_CHOICES = ("refined", "learned", "exact")
+"""The IK choices that start from a learned IK (the others need no trained model)."""
+
+EXACT_IK_CHOICES = ("exact", "exact_rig")
+"""The IK choices that end in the exact solve (and take ``--exact`` settings)."""
 
 CHANNEL_CHOICES = ("default", "clip")
 """BVH channels: positions on the root and the hips only, or the clip's own layout."""
@@ -292,7 +299,7 @@ def check_ik_model(model: ProtoResModel, character: Character) -> None:
         raise ValueError(
             f"it was trained on the {model.character.name} skeleton ({theirs.num_joints} joints, "
             f"{list(theirs.names)[:4]}…), not this one ({character.num_joints} joints, "
-            f"{list(character.skeleton.names)[:4]}…); use --ik rig (no training)"
+            f"{list(character.skeleton.names)[:4]}…); use --ik exact_rig or rig (no training)"
         )
 
 
@@ -308,36 +315,41 @@ def make_ik(
     """``(ik_fn, ik_params)`` of an IK choice (:data:`IK_CHOICES`) for the clip's character.
 
     Args:
-      kind: ``"refined"``, ``"learned"`` or ``"rig"``.
+      kind: one of :data:`IK_CHOICES`.
       recognised: the character and its rig chains.
       rest_quat_local: ``(joints, 4)`` the rotations the rig keeps on joints it does not
         solve (clavicles, toes): typically the start pose's.
       ik_model: the learned IK (for ``"learned"``, ``"refined"`` and ``"exact"``), checked
         against the character (:func:`check_ik_model`).
-      limits: joint limits for ``"exact"`` (:func:`ik_model_joint_limits`); default none.
-      exact_settings: :class:`~bezmotion.ik.exact.ExactIKParams` keywords for ``"exact"``
-        (:func:`~bezmotion.ik.exact.exact_settings` parses them from ``NAME=VALUE``); none
-        for the other IKs.
+      limits: joint limits for ``"exact"`` and ``"exact_rig"`` (:func:`ik_model_joint_limits`); default none.
+      exact_settings: :class:`~bezmotion.ik.exact.ExactIKParams` keywords for the exact IKs
+        (:data:`EXACT_IK_CHOICES`; :func:`~bezmotion.ik.exact.exact_settings` parses them
+        from ``NAME=VALUE``); none for the other IKs.
     Raises:
-      ValueError: an unknown ``kind``, settings for an IK other than ``"exact"``, or a
+      ValueError: an unknown ``kind``, settings for an IK other than the exact ones, or a
         learned IK that does not fit the character.
     """
     if kind not in IK_CHOICES:
         raise ValueError(f"must be one of {IK_CHOICES}, got {kind!r}")
-    if exact_settings and kind != "exact":
+    if exact_settings and kind not in EXACT_IK_CHOICES:
         shown = " ".join(f"{k}={v}" for k, v in exact_settings.items())
         raise ValueError(f"--exact {shown}: the settings of the exact IK, not of --ik {kind}")
     character = recognised.character
-    if kind != "rig":
+    settings = dict(exact_settings or {})
+    if kind in LEARNED_IK_CHOICES:
         if ik_model is None:
             raise ValueError(f"--ik {kind} needs a learned IK model")
         check_ik_model(ik_model, character)
         if kind == "learned":
             return protores_ik_fn, ik_model
         if kind == "exact":
-            return exact_ik(protores_ik_fn, ik_model, character, limits=limits, **dict(exact_settings or {}))
+            return exact_ik(protores_ik_fn, ik_model, character, limits=limits, **settings)
     rig = make_rig(character, recognised.rig_spec, rest_quat_local=np.asarray(rest_quat_local))
-    return (rig_ik, rig) if kind == "rig" else (protores_refined_ik_fn, (ik_model, rig))
+    if kind == "rig":
+        return rig_ik, rig
+    if kind == "exact_rig":
+        return exact_ik(rig_ik, rig, character, limits=limits, **settings)
+    return protores_refined_ik_fn, (ik_model, rig)
 
 
 # ------------------------------------------------------------------------------ output
@@ -431,7 +443,9 @@ __all__ = [
     "CHANNEL_CHOICES",
     "EXACT_HELP",
     "FOOT_LOCK_HELP",
+    "EXACT_IK_CHOICES",
     "IK_CHOICES",
+    "LEARNED_IK_CHOICES",
     "WRITERS",
     "RecognisedCharacter",
     "ResultFiles",
