@@ -25,9 +25,11 @@ the rig's exact two-bone limbs; ``rig``: the analytic rig alone; ``exact``: the 
 IK then the exact damped least-squares stage (:mod:`bezmotion.ik.exact`) with the joint
 limits stored beside the IK model, told the keys (it starts from poses joined to them
 and holds the frames next to them) and the handles (pinned: hit first where the targets
-conflict); ``exact_refined``: the same on top of ``refined``.
+conflict); ``exact_refined``: the same on top of ``refined``; ``exact_rig``: the same on
+top of the rig (``bezmotion inbetween``'s choice for a skeleton no learned IK knows;
+``--no-limits`` measures it as it runs there).
 ``--exact NAME=VALUE`` (repeatable) sets an :class:`~bezmotion.ik.exact.ExactIKParams`
-field of both exact IKs, e.g. ``--exact iterations=20 --exact hips_position_scale=0.3``.
+field of every exact IK, e.g. ``--exact iterations=20 --exact hips_position_scale=0.3``.
 
 **Chained segments.** ``--segments K`` (K > 1) evaluates chains instead of windows: K
 windows of one clip, each starting 30 frames after the previous, so consecutive windows
