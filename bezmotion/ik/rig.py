@@ -45,8 +45,10 @@ from bezmotion.geometry.rotations import (
     matrix_from_quat,
     matrix_from_rot6d,
     normalize,
+    quat_conjugate,
     quat_from_matrix,
     quat_identity,
+    quat_mul,
     safe_norm,
     slerp,
 )
@@ -171,7 +173,8 @@ class Rig:
     Attributes:
       skeleton: the character's skeleton (rest offsets in cm).
       rest_quat_local: ``(joints, 4)`` local rotations of the joints the rig does not
-        solve (clavicles, toes, …); identity unless :func:`make_rig` was given others.
+        solve (clavicles, toes, …), and the reference of the solved ones (the spine's
+        shape, each limb's twist); identity unless :func:`make_rig` was given others.
       spine: joint indices from the hips to the head.
       limbs: ``(root, middle, end)`` joint indices of the left arm, right arm, left leg,
         right leg.
@@ -230,8 +233,12 @@ def make_rig(
         does not solve keep — clavicles, toes, fingers. Default: identity, the skeleton's
         zero-rotation rest pose. A bind pose helps skeletons whose zero rotation is not a
         natural pose: LaFAN1's and Bandai-Namco's clavicles point up along the neck at
-        zero rotation. Entries of the solved joints are ignored; joints above the hips
-        must be identity (a :class:`~bezmotion.ik.protocol.Pose` holds them there).
+        zero rotation. The solved joints start from it too: the spine from its spine (the
+        turn to the targets' hips-to-head rotation spread along it), each limb's elbow /
+        knee and wrist / ankle with its rotations about their bones (twist), which no
+        target fixes (from the zero rotation, Bandai-Namco's first spine joint came out
+        69° from the mocap's on average: docs/precision.md). Joints above the hips must be identity (a
+        :class:`~bezmotion.ik.protocol.Pose` holds them there).
       spine_iterations: FABRIK iterations for spine targets that the first guess cannot
         reach (each costs two passes over the spine).
     Raises:
@@ -458,6 +465,8 @@ def _two_bone(
     target: Float[Array, "*batch 3"],
     rot_end: Float[Array, "*batch 3 3"],
     hint: Float[Array, "*batch 3"],
+    mid_local: Float[Array, "*batch 3 3"],
+    end_local: Float[Array, "*batch 3 3"],
 ) -> tuple[Float[Array, "*batch 3 3"], Float[Array, "*batch 3 3"]]:
     """Global rotations (matrices) of the upper and lower bones of two-bone limbs.
 
@@ -468,6 +477,9 @@ def _two_bone(
       target: where the end joint should be (cm); clamped to the reachable shell.
       rot_end: the end joint's target global rotation (sets the limb's twist).
       hint: world direction towards which the middle joint should bend.
+      mid_local, end_local: a reference pose's local rotations of the middle and end
+        joints (elbow and wrist): how the limb shares its twist between its joints (identity:
+        none at the elbow and the wrist).
     Returns:
       ``(rot_upper, rot_lower)`` global rotations of the root and middle joints.
     """
@@ -476,10 +488,13 @@ def _two_bone(
     up = jnp.asarray([0.0, 1.0, 0.0], p_root.dtype)
     fallback = _where_normalize(_apply(rot_end, bone_upper + bone_lower), up)
     p_mid, p_end = _bend(p_root, safe_norm(bone_upper), safe_norm(bone_lower), target, hint, fallback)
-    # Lower bone: the least swing from the end rotation (so the wrist / ankle does not
-    # twist); upper bone: the least swing from the lower one (a hinge in the bend plane).
-    rot_lower = _swing(_apply(rot_end, bone_lower), p_end - p_mid) @ rot_end
-    rot_upper = _swing(_apply(rot_lower, bone_upper), p_mid - p_root) @ rot_lower
+    # Lower bone: the least swing from where the end rotation puts it with the reference's
+    # wrist / ankle rotation; upper bone: the least swing from where the lower one puts it
+    # with the reference's elbow / knee. Each keeps the reference's twist about its bone.
+    guess_lower = rot_end @ jnp.swapaxes(end_local, -1, -2)
+    rot_lower = _swing(_apply(guess_lower, bone_lower), p_end - p_mid) @ guess_lower
+    guess_upper = rot_lower @ jnp.swapaxes(mid_local, -1, -2)
+    rot_upper = _swing(_apply(guess_upper, bone_upper), p_mid - p_root) @ guess_upper
     return rot_upper, rot_lower
 
 
@@ -507,11 +522,18 @@ def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
     n = len(spine) - 1  # spine[n] is the head; spine[1:n] bend the chain
     rot_hips = rot_target[0]
 
-    # First guess: every joint from spine[1] to the head takes the same share of the
-    # hips-to-head rotation, so the twist and the bend spread along the spine.
-    hips_to_head = quat_from_matrix(rot_hips.T @ rot_target[_HEAD])  # w >= 0: the short way
+    # First guess: the rest pose's spine, and every joint from spine[1] to the head takes the
+    # same share of the turn between its hips-to-head rotation and the targets', so the
+    # twist and the bend spread along the spine (from the zero rotation: all of it).
+    rest_chain = [rest[spine[1]]]
+    for j in spine[2:]:
+        rest_chain.append(quat_mul(rest_chain[-1], rest[j]))  # spine[1] … spine[k] composed
+    rest_chain = jnp.stack(rest_chain)
+    hips_to_head = quat_from_matrix(rot_hips.T @ rot_target[_HEAD])
+    turn = quat_mul(hips_to_head, quat_conjugate(rest_chain[-1]))
+    turn = jnp.where(turn[:1] < 0.0, -turn, turn)  # the short way
     shares = jnp.arange(1, n, dtype=dtype) / n
-    guess = rot_hips @ matrix_from_quat(slerp(quat_identity((), dtype), hips_to_head, shares))  # spine[1:n]
+    guess = rot_hips @ matrix_from_quat(quat_mul(slerp(quat_identity((), dtype), turn, shares), rest_chain[:-1]))  # spine[1:n]
     bones = _apply(guess, offsets[np.asarray(spine[2:])])  # spine[k] → spine[k + 1], k = 1..n-1
     start = pos_target[0] + rot_hips @ offsets[spine[1]]
     points = jnp.concatenate([start[None], start + jnp.cumsum(bones, axis=0)])
@@ -555,8 +577,9 @@ def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
     ends = np.asarray(_LIMB_TARGET)
     rot_end = rot_target[ends]
     upper, lower = _two_bone(
-        roots, offsets[limbs[:, 1]], offsets[limbs[:, 2]], pos_target[ends], rot_end, jnp.concatenate([elbows, knees])
-    )
+        roots, offsets[limbs[:, 1]], offsets[limbs[:, 2]], pos_target[ends], rot_end, jnp.concatenate([elbows, knees]),
+        rest_rot[limbs[:, 1]], rest_rot[limbs[:, 2]],
+    )  # fmt: skip
 
     # Local rotations: parentᵀ · child, converted to quaternions in one batch.
     spine_local = jnp.swapaxes(rot_spine[:-1], -1, -2) @ rot_spine[1:]
@@ -576,7 +599,8 @@ def refine_limbs(rig: Rig, pose: Pose, targets: IKTargets) -> Pose:
     their target orientations.
 
     The limb roots stay where ``pose`` puts them and each elbow and knee keeps the side
-    ``pose`` bends it to; the hips, spine, head and every other joint are unchanged.
+    ``pose`` bends it to and the twist its rotations give it about the limb's bones; the
+    hips, spine, head and every other joint are unchanged.
     Satisfies nothing by itself: compose it after an ``ik_fn``
     (:func:`bezmotion.ik.protores.protores_refined_ik_fn`).
     """
@@ -588,9 +612,11 @@ def refine_limbs(rig: Rig, pose: Pose, targets: IKTargets) -> Pose:
     ends = np.asarray(_LIMB_TARGET)
     rot_end = matrix_from_rot6d(targets.rot6d[ends])
     roots = pos_global[limbs[:, 0]]
+    own = matrix_from_quat(pose.quat_local[limbs[:, 1:]])  # (limb, mid / end, 3, 3): the pose's own twists
     upper, lower = _two_bone(
-        roots, offsets[limbs[:, 1]], offsets[limbs[:, 2]], targets.position[ends], rot_end, pos_global[limbs[:, 1]] - roots
-    )
+        roots, offsets[limbs[:, 1]], offsets[limbs[:, 2]], targets.position[ends], rot_end, pos_global[limbs[:, 1]] - roots,
+        own[:, 0], own[:, 1],
+    )  # fmt: skip
     root_parents = matrix_from_quat(quat_global[np.asarray([rig.skeleton.parents[r] for r in limbs[:, 0]])])
     limb_parents = jnp.stack([root_parents, upper, lower], axis=1)
     limb_local = jnp.swapaxes(limb_parents, -1, -2) @ jnp.stack([upper, lower, rot_end], axis=1)
