@@ -5,8 +5,10 @@ The rig turns :class:`~bezmotion.ik.protocol.IKTargets` into a full-body
 skeleton whose chains are named in a :class:`RigSpec`:
 
 1. **Hips** take the target position and global orientation.
-2. **Spine** (hips → head): the hips-to-head rotation the targets ask for is shared
-   evenly by the spine joints (this sets the twist and a natural curve); the chain is
+2. **Spine** (hips → head): from the rest pose's spine (the bind pose given to
+   :func:`make_rig`; identity by default), the turn to the hips-to-head rotation the
+   targets ask for is shared evenly by the spine joints (this sets the twist and a
+   natural curve); the chain is
    then bent at its middle joint, as two rigid halves, by the law of cosines so the head
    joint reaches its target exactly. When the halves cannot reach it, a fixed number of
    FABRIK iterations reshapes the chain (they leave a chain that reaches unchanged) and
@@ -18,8 +20,10 @@ skeleton whose chains are named in a :class:`RigSpec`:
    space (never from assumed joint axes, so it works for LaFAN1's zero-rotation rest pose
    and for Bandai-Namco's alike): knees in the plane across the foot's lateral axis, on
    the side of the toes and the pelvis' forward; elbows behind, below and outside the
-   chest. The hand / foot then takes its target orientation; the elbow / knee rotation
-   is a pure swing and the wrist / ankle rotation has no twist about the forearm / shin.
+   chest. The hand / foot then takes its target orientation; the forearm / shin keeps the
+   rest pose's wrist / ankle rotation against it, and the upper bone the rest pose's
+   elbow / knee rotation, each then swung least onto its bone (no data fixes a bone's
+   twist: the rest pose does; from identity, none at the elbow or the wrist).
 4. Every other joint (clavicles, toes, joints above the hips) keeps its rest local
    rotation: identity, or a bind pose given to :func:`make_rig`.
 
@@ -237,8 +241,8 @@ def make_rig(
         turn to the targets' hips-to-head rotation spread along it), each limb's elbow /
         knee and wrist / ankle with its rotations about their bones (twist), which no
         target fixes (from the zero rotation, Bandai-Namco's first spine joint came out
-        69° from the mocap's on average: docs/precision.md). Joints above the hips must be identity (a
-        :class:`~bezmotion.ik.protocol.Pose` holds them there).
+        69° from the mocap's on average: docs/precision.md). Joints above the hips must
+        be identity (a :class:`~bezmotion.ik.protocol.Pose` holds them there).
       spine_iterations: FABRIK iterations for spine targets that the first guess cannot
         reach (each costs two passes over the spine).
     Raises:
