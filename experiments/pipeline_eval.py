@@ -361,10 +361,13 @@ def joined(args: Options, curves: WindowCurves) -> WindowCurves:
 
 def solve_items(args: Options, fn, params, curves: WindowCurves, truth: Pose, handles: Handles):
     """Every IK'd item ``(items, frames, …)`` and its timing (chains: one IK per chain);
-    ``handles``: the curves' (``Items.handles``), pinned for the IK."""
+    ``handles``: the curves' (``Items.handles``), pinned for the IK; a rig (``rig``,
+    ``exact_rig``) rests in each item's start key."""
     if args.segments == 1:
-        return solve_window_curves(fn, params, curves, truth, handles=handles, key_blend_frames=args.key_blend, chunk=args.chunk)
-    return solve_chain_curves(fn, params, curves, truth, handles=handles, key_blend_frames=args.key_blend, chunk=chain_chunk(args))
+        solve, chunk = solve_window_curves, args.chunk
+    else:
+        solve, chunk = solve_chain_curves, chain_chunk(args)
+    return solve(fn, params, curves, truth, handles=handles, key_blend_frames=args.key_blend, chunk=chunk, rest_from_keys=True)
 
 
 def reference_positions(items: Items, cond: str, layout) -> jax.Array:
@@ -446,7 +449,9 @@ def main(argv: list[str] | None = None) -> dict:
     labels = window_labels(corpus, dataset, "validation", first_rows)
     n = int(truth.root_pos.shape[0])
     config = PipelineMetricsConfig(dataset.layout.stride, dataset.fps, floor_height_from(dataset))
-    # The joints the rig does not solve (clavicles, toes) keep one real pose's rotations.
+    # The rig's rest pose (the rotations of the joints it does not solve, clavicles and toes, and
+    # where its spine and twists start) is each window's start key (solve_items), as `bezmotion
+    # inbetween` gives it the take's; this one only checks the rig and measures its chains.
     rig = make_rig(character, args.corpus, rest_quat_local=np.asarray(truth.quat_local[0, 0]))
     chains = reach_chains(rig)
     iks, limited = build_iks(args, ik_model, rig)

@@ -27,7 +27,7 @@ from bezmotion.ik.protores import (
     save_ik_model,
     solve_effectors,
 )
-from bezmotion.ik.rig import RIG_PRESETS, Rig, RigSpec, make_rig, refine_limbs, rig_ik
+from bezmotion.ik.rig import RIG_PRESETS, Rig, RigSpec, make_rig, refine_limbs, rig_ik, with_rest_pose
 
 __all__ = [
     "RIG_PRESETS",
@@ -60,4 +60,5 @@ __all__ = [
     "solve_frames",
     "solve_effectors",
     "targets_from_pose",
+    "with_rest_pose",
 ]

@@ -130,9 +130,11 @@ class ExactIKParams:
       plant_weight: in the window solve, the position weight of a foot whose target stands
         (nearly) still, relative to the others' (1: like any target): where a handle cannot
         be met with the feet where the curves put them, the feet would otherwise give way
-        and slide. 4 is the smallest that no longer skates more than ``refined`` OOD.
-      plant_step: cm per frame: a foot target moving less than this to the next frame
-        stands still (0.25: 7.5 cm/s at 30 fps, the skating metric's speed).
+        and slide. A trade against the handles: on Bandai-Namco's OOD handles 4 misses them
+        by 0.46 cm and skates 0.011 more than ``refined``, 50 by 1.14 cm and 0.006 more
+        (docs/precision.md, *Feet against handles*).
+      plant_step: cm per frame: a foot target moving less than this horizontally to the next
+        frame stands still (0.25: 7.5 cm/s at 30 fps, the skating metric's speed).
       rotation_weight: per unit of ortho6D difference of the six joints' orientations (≈ per rad).
       prior_weight: per radian of a joint's rotation away from its start (inner IK) pose.
         Frames are solved independently, so this is also what keeps neighbouring frames

@@ -38,6 +38,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 from collections.abc import Mapping, Sequence
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -312,6 +313,24 @@ def make_rig(
             )
         rest = jnp.asarray(rest / norms[:, None], offsets.dtype)
     return Rig(skeleton, rest, spine, limbs, tuple(limb_bases), toes, spine_iterations)  # type: ignore[arg-type]
+
+
+def with_rest_pose(params: Any, quat_local: Float[Array, "joints 4"]) -> Any:
+    """``params`` (any pytree: a :class:`Rig`, an exact IK's params on one, …) with every
+    :class:`Rig` in it taking ``quat_local`` as its ``rest_quat_local``.
+
+    For a rest pose per window under ``vmap`` (e.g. each window's start key, as ``bezmotion
+    inbetween`` gives the rig the take's start key). Unchecked, so it traces: pass a
+    :class:`~bezmotion.ik.protocol.Pose`'s rotations (unit, identity above the hips), or check
+    them once with :func:`make_rig`.
+    """
+
+    def replace(node: Any) -> Any:
+        if not isinstance(node, Rig):
+            return node
+        return dataclasses.replace(node, rest_quat_local=jnp.asarray(quat_local, node.rest_quat_local.dtype))
+
+    return jax.tree.map(replace, params, is_leaf=lambda node: isinstance(node, Rig))
 
 
 # ------------------------------------------------------------------------------ solving

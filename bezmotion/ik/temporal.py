@@ -19,11 +19,20 @@ from bezmotion.data.windows import foot_contacts
 from bezmotion.geometry.rotations import quat_angle, quat_normalize, slerp
 from bezmotion.ik.protocol import Pose
 
+_HORIZONTAL = np.asarray([1.0, 0.0, 1.0], np.float32)  # X and Z; +Y is up
+
 
 def planted_feet(position: Float[Array, "frames 6 3"], plant_step: Float[Array, ""] | float) -> Array:
-    """``(frames, 6)``: the feet whose targets move less than ``plant_step`` cm to the next
-    frame (the last frame repeats the one before it); hips, head and hands never."""
-    contact = foot_contacts(position, FEET, threshold=jnp.square(plant_step))
+    """``(frames, 6)``: the feet whose targets move less than ``plant_step`` cm horizontally
+    to the next frame (the last frame repeats the one before it); hips, head and hands never.
+
+    Horizontally, like the foot-skating metric (:func:`~bezmotion.metrics.foot_skating_ratio`)
+    and the curves' foot lock (:func:`~bezmotion.bmm.foot_lock.lock_feet`, which holds X and Z
+    only): a locked foot whose heel rises is still planted. Counting height too left 43 % of
+    the still feet at the frames where the exact IK skated more than ``refined`` unplanted
+    (docs/precision.md, *Feet against handles*).
+    """
+    contact = foot_contacts(position * _HORIZONTAL, FEET, threshold=jnp.square(plant_step))
     return jnp.zeros(position.shape[:-1], bool).at[..., np.asarray(FEET)].set(contact)
 
 

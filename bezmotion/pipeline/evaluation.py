@@ -33,6 +33,7 @@ from bezmotion.data.characteristic import HIPS
 from bezmotion.data.corpus import MotionClips
 from bezmotion.data.curves import CurveDataset
 from bezmotion.ik.protocol import Character, IKFn, Pose, pose_fk, pose_from_motion, targets_from_pose
+from bezmotion.ik.rig import with_rest_pose
 from bezmotion.metrics import foot_skating_ratio, handles_error, key_pop_deg, mean_position_error, rotation_change_deg
 from bezmotion.pipeline.inbetweening import (
     KEY_BLEND_FRAMES,
@@ -273,13 +274,14 @@ def sample_window_curves(
     return _chunked(run, (first, last, handles, keys, velocity), chunk)[0]
 
 
-@functools.partial(jax.jit, static_argnames=("ik_fn", "key_blend_frames"))
-def _ik_chunk(ik_params, inputs, *, ik_fn, key_blend_frames) -> Pose:
+@functools.partial(jax.jit, static_argnames=("ik_fn", "key_blend_frames", "rest_from_keys"))
+def _ik_chunk(ik_params, inputs, *, ik_fn, key_blend_frames, rest_from_keys) -> Pose:
     positions, rot6d, start, end, handles = inputs
 
     def one(p, r, s, e, h):
         window = WindowCurves(None, p, r)  # pose_from_curves reads the dense trajectories only
-        return pose_from_curves(ik_fn, ik_params, window, s, e, keep_keyframes=True, key_blend_frames=key_blend_frames, handles=h)
+        params = with_rest_pose(ik_params, s.quat_local) if rest_from_keys else ik_params
+        return pose_from_curves(ik_fn, params, window, s, e, keep_keyframes=True, key_blend_frames=key_blend_frames, handles=h)
 
     return jax.vmap(one)(positions, rot6d, start, end, handles)
 
@@ -312,11 +314,15 @@ def solve_window_curves(
     handles: Handles | None = None,
     key_blend_frames: int = KEY_BLEND_FRAMES,
     chunk: int = 128,
+    rest_from_keys: bool = False,
 ) -> tuple[Pose, IKTiming]:
     """IK of every frame of every window's curves (batched, from :func:`sample_window_curves`),
     the start and end poses of ``truth`` blended in as keys; ``(poses (windows, frames, …), timing)``.
     ``handles`` ``(windows, handles)``: the curves' handles, pinned for the IK
     (:func:`~bezmotion.pipeline.inbetweening.pose_from_curves`); ``None``: none.
+    ``rest_from_keys``: every :class:`~bezmotion.ik.rig.Rig` in ``ik_params`` takes each
+    window's start key as its rest pose (:func:`~bezmotion.ik.rig.with_rest_pose`), as
+    ``bezmotion inbetween`` gives the rig the take's start key; otherwise the rig's own.
 
     A warm-up call on the first chunk compiles the chunked IK (``compile_s``: compiling and
     one call; about the call alone when this IK, chunk and settings were compiled before),
@@ -324,7 +330,8 @@ def solve_window_curves(
     first = jax.tree.map(lambda x: x[:, 0], truth)
     last = jax.tree.map(lambda x: x[:, -1], truth)
     inputs = (curves.positions, curves.rot6d, first, last, handles)
-    return _timed(functools.partial(_ik_chunk, ik_params, ik_fn=ik_fn, key_blend_frames=key_blend_frames), inputs, chunk)
+    run = functools.partial(_ik_chunk, ik_params, ik_fn=ik_fn, key_blend_frames=key_blend_frames, rest_from_keys=rest_from_keys)
+    return _timed(run, inputs, chunk)
 
 
 def _timed(run, inputs: Any, chunk: int) -> tuple[Pose, IKTiming]:
@@ -449,13 +456,14 @@ def sample_chain_curves(
     return _chunked(run, (chain_keys(truth, windows), handles, keys, velocity), chunk)[0]
 
 
-@functools.partial(jax.jit, static_argnames=("ik_fn", "key_blend_frames"))
-def _chain_ik_chunk(ik_params, inputs, *, ik_fn, key_blend_frames) -> Pose:
+@functools.partial(jax.jit, static_argnames=("ik_fn", "key_blend_frames", "rest_from_keys"))
+def _chain_ik_chunk(ik_params, inputs, *, ik_fn, key_blend_frames, rest_from_keys) -> Pose:
     positions, rot6d, keys, handles = inputs
 
     def one(p, r, k, h):
         windows = WindowCurves(None, p, r)  # pose_from_chain_curves reads the dense trajectories only
-        return pose_from_chain_curves(ik_fn, ik_params, windows, k, keep_keyframes=True, key_blend_frames=key_blend_frames, handles=h)
+        params = with_rest_pose(ik_params, k.quat_local[0]) if rest_from_keys else ik_params
+        return pose_from_chain_curves(ik_fn, params, windows, k, keep_keyframes=True, key_blend_frames=key_blend_frames, handles=h)
 
     return jax.vmap(one)(positions, rot6d, keys, handles)
 
@@ -469,11 +477,14 @@ def solve_chain_curves(
     handles: Handles | None = None,
     key_blend_frames: int = KEY_BLEND_FRAMES,
     chunk: int = 128,
+    rest_from_keys: bool = False,
 ) -> tuple[Pose, IKTiming]:
     """:func:`solve_window_curves` for chains: one IK over each chain's joined frames
     (curves ``(chains, windows, …)`` of :func:`sample_chain_curves`), each window blended to
     its two keys from ``truth``; ``(poses (chains, frames, …), timing)``, the timing per
     chain (``windows_run`` counts chains). ``handles`` ``(chains, windows, handles)`` at
-    window frames, pinned for the IK; ``None``: none."""
+    window frames, pinned for the IK; ``None``: none. ``rest_from_keys``: the rig's rest
+    pose is each chain's first key."""
     inputs = (curves.positions, curves.rot6d, chain_keys(truth, curves.positions.shape[1]), handles)
-    return _timed(functools.partial(_chain_ik_chunk, ik_params, ik_fn=ik_fn, key_blend_frames=key_blend_frames), inputs, chunk)
+    run = functools.partial(_chain_ik_chunk, ik_params, ik_fn=ik_fn, key_blend_frames=key_blend_frames, rest_from_keys=rest_from_keys)
+    return _timed(run, inputs, chunk)

@@ -380,3 +380,22 @@ def test_refine_limbs_keeps_the_poses_own_twist(bandai):
     refined = jax.jit(jax.vmap(refine_limbs, in_axes=(None, 0, 0)))(c.rig, c.truth, c.targets)
     limbs = np.asarray(c.rig.limbs).reshape(-1)
     assert _angle(refined.quat_local[:, limbs], c.truth.quat_local[:, limbs]).max() < 2e-3
+
+
+def test_a_traced_rest_pose_per_frame_matches_rigs_made_with_it(bandai):
+    """``with_rest_pose`` gives every :class:`Rig` in a params pytree (the rig's own, the exact
+    IK's) a rest pose that may be traced: vmapped over frames, each frame's pose is the one a
+    rig made with that frame's rest gives (what the pipeline evaluation does per window)."""
+    from bezmotion.ik.exact import exact_ik
+    from bezmotion.ik.rig import with_rest_pose
+
+    c = bandai
+    rests, targets = c.truth.quat_local[:3], jax.tree.map(lambda x: x[:3], c.targets)
+    traced = jax.jit(jax.vmap(lambda r, t: rig_ik(with_rest_pose(c.rig, r), t)))(rests, targets)
+    for i in range(3):
+        made = make_rig(c.character, "bandai_namco", rest_quat_local=np.asarray(rests[i]))
+        alone = rig_ik(made, jax.tree.map(lambda x, i=i: x[i], targets))
+        assert _angle(traced.quat_local[i], alone.quat_local).max() < 1e-4
+    assert _angle(traced.quat_local, solve(c.rig, targets).quat_local).max() > 0.1  # the fixture's rig rests elsewhere
+    _, params = exact_ik(rig_ik, c.rig, c.character)
+    np.testing.assert_array_equal(with_rest_pose(params, rests[1]).inner.rest_quat_local, rests[1])

@@ -14,9 +14,11 @@ from bezmotion.metrics import rotation_change_deg
 
 
 def test_planted_feet_marks_still_foot_targets_only():
-    """A foot target moving less than ``plant_step`` cm to the next frame is planted (the last
-    frame repeats the one before); hips, head and hands never are."""
+    """A foot target moving less than ``plant_step`` cm horizontally to the next frame is
+    planted, whatever its height does (the last frame repeats the one before); hips, head and
+    hands never are."""
     position = jnp.zeros((4, 6, 3)).at[:, 5, 0].set(jnp.asarray([0.0, 1.0, 1.1, 5.0]))  # right foot: still, then moving
+    position = position.at[:, 4, 1].set(jnp.asarray([0.0, 2.0, 4.0, 6.0]))  # left foot: its heel rising, still planted
     position = position.at[:, 3, 0].set(0.0)  # a still hand stays unplanted
     planted = np.asarray(planted_feet(position, 0.5))
     np.testing.assert_array_equal(planted[:, 4], [True, True, True, True])
