@@ -73,9 +73,14 @@ _LIMB_TARGET: tuple[int, ...] = (_LEFT_HAND, _RIGHT_HAND, _LEFT_FOOT, _RIGHT_FOO
 # (sums of unit vectors), which also stands in when the foot's lateral axis lies along
 # the leg. This assumes only that the zero-rotation rest pose does not twist a leg about
 # its own axis (a half turn is fine: LaFAN1's legs point up at rest, Bandai-Namco's left
-# leg up and its right leg down). Elbows: behind the chest, and a little down and out.
+# leg up and its right leg down). A bind pose whose knees bend says which way they go
+# instead (_bind_knee_bends): the rough hint fails where the toes point along the leg.
+# Elbows: behind the chest, and a little down and out.
 _KNEE_FORWARD_WEIGHT = 1.0
 _KNEE_PLANE_MIN = 0.2  # |lateral × leg axis| below this: the plane is ill-defined
+# A bind pose whose knee bends this much about the foot's lateral axis (|thigh × shin| · lateral,
+# ~6°) or more tells the knees' side instead (_bind_knee_bends).
+_BIND_KNEE_MIN = 0.1
 _ELBOW_DOWN_WEIGHT = 0.5
 _ELBOW_OUT_WEIGHT = 0.5
 
@@ -242,8 +247,10 @@ def make_rig(
         turn to the targets' hips-to-head rotation spread along it), each limb's elbow /
         knee and wrist / ankle with its rotations about their bones (twist), which no
         target fixes (from the zero rotation, Bandai-Namco's first spine joint came out
-        69° from the mocap's on average: docs/precision.md). Joints above the hips must
-        be identity (a :class:`~bezmotion.ik.protocol.Pose` holds them there).
+        69° from the mocap's on average: docs/precision.md), and a bent knee says which
+        way the knees bend (without one, toes pointing along the leg can flip them).
+        Joints above the hips must be identity (a :class:`~bezmotion.ik.protocol.Pose`
+        holds them there).
       spine_iterations: FABRIK iterations for spine targets that the first guess cannot
         reach (each costs two passes over the spine).
     Raises:
@@ -521,6 +528,24 @@ def _two_bone(
     return rot_upper, rot_lower
 
 
+def _bind_knee_bends(
+    rig: Rig, offsets: Float[Array, "joints 3"], rest: Float[Array, "joints 4"], lateral: Float[Array, "3"]
+) -> tuple[Array, Array]:
+    """``(sense (2, 1), bent (2, 1))`` per leg: which way the bind pose's knee bends about the
+    foot's ``lateral`` axis (its frame's, as at zero rotation), the sign of ``(thigh × shin) ·
+    lateral``, and whether that product is at least ``_BIND_KNEE_MIN`` (a straight leg, e.g.
+    the zero rotation's, says nothing). Unlike where the knee lies, the sense does not change
+    as the knee bends further or the ankle flexes."""
+    senses, bent = [], []
+    for _, mid, end in rig.limbs[2:]:
+        knee_turn, ankle_turn = matrix_from_quat(rest[mid]), matrix_from_quat(rest[end])
+        thigh, shin = normalize(offsets[mid]), normalize(knee_turn @ offsets[end])  # in the thigh's frame
+        bend = jnp.sum(_cross(thigh, shin) * (knee_turn @ ankle_turn @ lateral))
+        senses.append(jnp.where(bend < 0.0, -1.0, 1.0))
+        bent.append(jnp.abs(bend) > _BIND_KNEE_MIN)
+    return jnp.stack(senses)[:, None], jnp.stack(bent)[:, None]
+
+
 def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
     """Solve one frame: six characteristic-joint targets → a full-body pose.
 
@@ -591,9 +616,16 @@ def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
     # At zero rotation every joint frame is the world frame, so the legs' rest positions
     # are sums of offsets and their difference is the lateral axis in every joint's frame.
     rest_hip = [offsets[np.asarray([*spine[1 : k + 1], *path])].sum(axis=0) for k, path in rig.limb_bases[2:]]
-    lateral = _apply(rot_target[feet], normalize(rest_hip[0] - rest_hip[1]))
+    rest_lateral = normalize(rest_hip[0] - rest_hip[1])
+    lateral = _apply(rot_target[feet], rest_lateral)
     across = _cross(lateral, _where_normalize(pos_target[feet] - roots[2:], normalize(toward)))
     side = jnp.where(jnp.sum(across * toward, axis=-1, keepdims=True) < 0.0, -1.0, 1.0)
+    # A bent bind pose knows better which way the knees bend about the lateral axis: a knee on
+    # +across bends with (thigh × shin) · lateral < 0 (that product is −|thigh × shin| there).
+    # Toes and pelvis can point along the leg (lying, a pointed foot), where the rough hint's
+    # side flips between frames and the leg turns half a turn.
+    bind_sense, bind_bent = _bind_knee_bends(rig, offsets, rest, rest_lateral)
+    side = jnp.where(bind_bent, -bind_sense, side)
     knees = jnp.where(safe_norm(across, keepdims=True) > _KNEE_PLANE_MIN, side * across, toward)
 
     limbs = np.asarray(rig.limbs)
