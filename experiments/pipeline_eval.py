@@ -21,7 +21,9 @@ the paper), between them (``off_grid``) or on any intermediate frame (``any``).
 ``fold_in(--sample-seed, window row)``, in distribution and OOD) and every IK of ``--ik``
 runs on those same dense trajectories, the start and end poses blended in over
 ``--key-blend`` frames. ``learned``: the bundled / given learned IK; ``refined``: it plus
-the rig's exact two-bone limbs; ``rig``: the analytic rig alone; ``exact``: the learned
+the rig's exact two-bone limbs; ``rig``: the analytic rig alone, resting in each window's
+start key (its bind pose: the joints it does not solve, where its spine and twists start,
+which way the knees bend), as ``bezmotion inbetween`` gives it the take's; ``exact``: the learned
 IK then the exact damped least-squares stage (:mod:`bezmotion.ik.exact`) with the joint
 limits stored beside the IK model, told the keys (it starts from poses joined to them
 and holds the frames next to them) and the handles (pinned: hit first where the targets
