@@ -528,22 +528,27 @@ def _two_bone(
     return rot_upper, rot_lower
 
 
+def _rest_lateral(rig: Rig, offsets: Float[Array, "joints 3"]) -> Float[Array, "3"]:
+    """The legs' lateral axis (right hip to left hip) at zero rotation: every joint frame is
+    then the world frame, so the hips' rest positions are sums of offsets and their
+    difference is the lateral axis in every joint's frame."""
+    hips = [offsets[np.asarray([*rig.spine[1 : k + 1], *path])].sum(axis=0) for k, path in rig.limb_bases[2:]]
+    return normalize(hips[0] - hips[1])
+
+
 def _bind_knee_bends(
-    rig: Rig, offsets: Float[Array, "joints 3"], rest: Float[Array, "joints 4"], lateral: Float[Array, "3"]
+    rig: Rig, offsets: Float[Array, "joints 3"], rest_rot: Float[Array, "joints 3 3"], lateral: Float[Array, "3"]
 ) -> tuple[Array, Array]:
     """``(sense (2, 1), bent (2, 1))`` per leg: which way the bind pose's knee bends about the
     foot's ``lateral`` axis (its frame's, as at zero rotation), the sign of ``(thigh × shin) ·
     lateral``, and whether that product is at least ``_BIND_KNEE_MIN`` (a straight leg, e.g.
     the zero rotation's, says nothing). Unlike where the knee lies, the sense does not change
     as the knee bends further or the ankle flexes."""
-    senses, bent = [], []
-    for _, mid, end in rig.limbs[2:]:
-        knee_turn, ankle_turn = matrix_from_quat(rest[mid]), matrix_from_quat(rest[end])
-        thigh, shin = normalize(offsets[mid]), normalize(knee_turn @ offsets[end])  # in the thigh's frame
-        bend = jnp.sum(_cross(thigh, shin) * (knee_turn @ ankle_turn @ lateral))
-        senses.append(jnp.where(bend < 0.0, -1.0, 1.0))
-        bent.append(jnp.abs(bend) > _BIND_KNEE_MIN)
-    return jnp.stack(senses)[:, None], jnp.stack(bent)[:, None]
+    _, knee, ankle = np.asarray(rig.limbs[2:]).T
+    knee_turn = rest_rot[knee]
+    thigh, shin = normalize(offsets[knee]), normalize(_apply(knee_turn, offsets[ankle]))  # in the thigh's frame
+    bend = jnp.sum(_cross(thigh, shin) * _apply(knee_turn @ rest_rot[ankle], lateral), axis=-1, keepdims=True)
+    return jnp.where(bend < 0.0, -1.0, 1.0), jnp.abs(bend) > _BIND_KNEE_MIN
 
 
 def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
@@ -613,10 +618,7 @@ def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
     feet = np.asarray(_LIMB_TARGET[2:])
     toes = jnp.stack([rot_target[t] @ offsets[toe] if toe >= 0 else jnp.zeros(3, dtype) for t, toe in zip(feet, rig.toes)])
     toward = normalize(toes) + _KNEE_FORWARD_WEIGHT * forward[1]
-    # At zero rotation every joint frame is the world frame, so the legs' rest positions
-    # are sums of offsets and their difference is the lateral axis in every joint's frame.
-    rest_hip = [offsets[np.asarray([*spine[1 : k + 1], *path])].sum(axis=0) for k, path in rig.limb_bases[2:]]
-    rest_lateral = normalize(rest_hip[0] - rest_hip[1])
+    rest_lateral = _rest_lateral(rig, offsets)
     lateral = _apply(rot_target[feet], rest_lateral)
     across = _cross(lateral, _where_normalize(pos_target[feet] - roots[2:], normalize(toward)))
     side = jnp.where(jnp.sum(across * toward, axis=-1, keepdims=True) < 0.0, -1.0, 1.0)
@@ -624,7 +626,7 @@ def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
     # +across bends with (thigh × shin) · lateral < 0 (that product is −|thigh × shin| there).
     # Toes and pelvis can point along the leg (lying, a pointed foot), where the rough hint's
     # side flips between frames and the leg turns half a turn.
-    bind_sense, bind_bent = _bind_knee_bends(rig, offsets, rest, rest_lateral)
+    bind_sense, bind_bent = _bind_knee_bends(rig, offsets, rest_rot, rest_lateral)
     side = jnp.where(bind_bent, -bind_sense, side)
     knees = jnp.where(safe_norm(across, keepdims=True) > _KNEE_PLANE_MIN, side * across, toward)
 

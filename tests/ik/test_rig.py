@@ -17,9 +17,10 @@ from jaxtyping import Array
 
 from bezmotion.assets import DEMO_CLIP
 from bezmotion.data.bvh import read_bvh
-from bezmotion.geometry.rotations import quat_conjugate, quat_from_rot6d, quat_identity, quat_mul, quat_rotate
+from bezmotion.geometry.rotations import quat_conjugate, quat_from_axis_angle, quat_from_rot6d, quat_identity, quat_mul, quat_rotate
+from bezmotion.ik.exact import exact_ik
 from bezmotion.ik.protocol import Character, IKTargets, Pose, pose_fk, pose_from_motion, targets_from_pose
-from bezmotion.ik.rig import RIG_PRESETS, Rig, RigSpec, make_rig, rig_ik
+from bezmotion.ik.rig import RIG_PRESETS, Rig, RigSpec, _rest_lateral, make_rig, refine_limbs, rig_ik, with_rest_pose
 
 LAFAN1_ZIP = SHARED_DATA / "lafan1" / "lafan1-subset.zip"
 requires_lafan1 = pytest.mark.skipif(not LAFAN1_ZIP.exists(), reason=f"LaFAN1 subset not found at {LAFAN1_ZIP}")
@@ -333,8 +334,6 @@ def test_wrong_skeleton_preset_and_bad_rest_raise(bandai_character):
 def test_refine_limbs_puts_hands_and_feet_on_their_targets_and_keeps_the_rest(bandai):
     """``refine_limbs`` after another IK (here: the truth with every limb joint bent off):
     hands and feet land on moved targets exactly, only the 12 limb joints change."""
-    from bezmotion.ik.rig import refine_limbs
-
     c = bandai
     limbs = np.asarray(c.rig.limbs).reshape(-1)
     # A perturbed starting pose: each limb joint turned by ~17° about a fixed axis.
@@ -374,8 +373,6 @@ def test_the_rest_pose_sets_the_spine_and_the_limbs_twist(bandai):
 def test_refine_limbs_keeps_the_poses_own_twist(bandai):
     """``refine_limbs`` of a pose onto its own targets changes nothing: each limb keeps the
     pose's elbow side and the share of twist its elbow and wrist carry."""
-    from bezmotion.ik.rig import refine_limbs
-
     c = bandai
     refined = jax.jit(jax.vmap(refine_limbs, in_axes=(None, 0, 0)))(c.rig, c.truth, c.targets)
     limbs = np.asarray(c.rig.limbs).reshape(-1)
@@ -386,9 +383,6 @@ def test_a_traced_rest_pose_per_frame_matches_rigs_made_with_it(bandai):
     """``with_rest_pose`` gives every :class:`Rig` in a params pytree (the rig's own, the exact
     IK's) a rest pose that may be traced: vmapped over frames, each frame's pose is the one a
     rig made with that frame's rest gives (what the pipeline evaluation does per window)."""
-    from bezmotion.ik.exact import exact_ik
-    from bezmotion.ik.rig import with_rest_pose
-
     c = bandai
     rests = c.truth.quat_local  # each frame rests in its own pose
     traced = jax.jit(jax.vmap(lambda r, t: rig_ik(with_rest_pose(c.rig, r), t)))(rests, c.targets)
@@ -407,12 +401,8 @@ def test_a_bent_bind_pose_keeps_the_knees_side_when_the_toes_point_along_the_leg
     rotation the rig bends knees backwards in a third of the demo clip's frames (45 cm off). A
     bind pose with a bent knee tells which way knees bend about the foot's lateral axis, at any
     bend: every knee stays on its side."""
-    from bezmotion.geometry.rotations import quat_from_axis_angle
-
     c, rig = bandai, bandai.rig
-    offsets = np.asarray(c.character.skeleton.offsets)
-    hips = [offsets[np.asarray([*rig.spine[1 : k + 1], *path])].sum(axis=0) for k, path in rig.limb_bases[2:]]
-    lateral = jnp.asarray((hips[0] - hips[1]) / np.linalg.norm(hips[0] - hips[1]), jnp.float32)  # every foot frame's, at rest
+    lateral = _rest_lateral(rig, jnp.asarray(c.character.skeleton.offsets))  # every foot frame's, at rest
     quat = c.truth.quat_local
     frames = quat.shape[0]
     point = quat_from_axis_angle(jnp.broadcast_to(lateral, (frames, 3)), jnp.full(frames, -2.0))
