@@ -19,8 +19,9 @@ skeleton whose chains are named in a :class:`RigSpec`:
    cannot. The bend plane comes from a pole hint built from bone directions in world
    space (never from assumed joint axes, so it works for LaFAN1's zero-rotation rest pose
    and for Bandai-Namco's alike): knees in the plane across the foot's lateral axis, on
-   the side of the toes and the pelvis' forward; elbows behind, below and outside the
-   chest. The hand / foot then takes its target orientation; the forearm / shin keeps the
+   the side of the toes and the pelvis' forward; elbows where the least rotation from an
+   arm pointing forward and down (elbow back, down and out) to the hand's direction
+   carries them. The hand / foot then takes its target orientation; the forearm / shin keeps the
    rest pose's wrist / ankle rotation against it, and the upper bone the rest pose's
    elbow / knee rotation, each then swung least onto its bone (no data fixes a bone's
    twist: the rest pose does; from identity, none at the elbow or the wrist).
@@ -75,14 +76,20 @@ _LIMB_TARGET: tuple[int, ...] = (_LEFT_HAND, _RIGHT_HAND, _LEFT_FOOT, _RIGHT_FOO
 # its own axis (a half turn is fine: LaFAN1's legs point up at rest, Bandai-Namco's left
 # leg up and its right leg down). A bind pose whose knees bend says which way they go
 # instead (_bind_knee_bends): the rough hint fails where the toes point along the leg.
-# Elbows: behind the chest, and a little down and out.
+# Elbows: where the least rotation from a reference arm carries its elbow. The arm pointing
+# forward and down bends its elbow back, down and out; the arm turned from there to any
+# reach direction turns its elbow with it. Only one reach direction has no least rotation
+# (the opposite one: behind the head, 45° up, where shoulders do not reach), so the
+# elbow's side changes smoothly everywhere a hand goes; a fixed hint's part across the
+# arm vanishes twice (arms raised forward, arms pushing back and down) and flips there.
 _KNEE_FORWARD_WEIGHT = 1.0
 _KNEE_PLANE_MIN = 0.2  # |lateral × leg axis| below this: the plane is ill-defined
 # A bind pose whose knee bends this much about the foot's lateral axis (|thigh × shin| · lateral,
 # ~6°) or more tells the knees' side instead (_bind_knee_bends).
 _BIND_KNEE_MIN = 0.1
-_ELBOW_DOWN_WEIGHT = 0.5
-_ELBOW_OUT_WEIGHT = 0.5
+# In body axes (forward, up, outward); sums of unit vectors, not normalised here.
+_ARM_REFERENCE_REACH = (1.0, -1.0, 0.0)
+_ARM_REFERENCE_ELBOW = (-1.0, -1.0, 1.0)
 
 # Below this (cm, or cm² for squared lengths) a length counts as zero.
 _EPS = 1e-6
@@ -614,7 +621,10 @@ def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
     left = normalize(roots[np.asarray([0, 2])] - roots[np.asarray([1, 3])])  # chest, pelvis
     forward = normalize(_cross(left, up))
     outward = left[0] * jnp.asarray([[1.0], [-1.0]], dtype)
-    elbows = -forward[0] - _ELBOW_DOWN_WEIGHT * up + _ELBOW_OUT_WEIGHT * outward
+    body = lambda weights: weights[0] * forward[0] + weights[1] * up + weights[2] * outward  # noqa: E731
+    reference_reach = normalize(body(_ARM_REFERENCE_REACH))
+    reach = _where_normalize(pos_target[np.asarray(_LIMB_TARGET[:2])] - roots[:2], reference_reach)
+    elbows = _apply(_swing(reference_reach, reach), body(_ARM_REFERENCE_ELBOW))
     feet = np.asarray(_LIMB_TARGET[2:])
     toes = jnp.stack([rot_target[t] @ offsets[toe] if toe >= 0 else jnp.zeros(3, dtype) for t, toe in zip(feet, rig.toes)])
     toward = normalize(toes) + _KNEE_FORWARD_WEIGHT * forward[1]

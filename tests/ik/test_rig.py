@@ -423,3 +423,44 @@ def test_a_bent_bind_pose_keeps_the_knees_side_when_the_toes_point_along_the_leg
     assert (knee_error(rig) > 10.0).sum() >= 8  # measured 16 of 40 frames, 45 cm at worst
     with_bind = knee_error(make_rig(c.character, "bandai_namco", rest_quat_local=np.asarray(c.truth.quat_local[bent])))
     assert with_bind.max() < 3.0, with_bind.max()  # measured 2.0 cm
+
+
+def test_elbows_turn_with_the_hand_all_around_the_shoulder(bandai):
+    """The elbow's side is the least rotation of a reference arm (forward and down, elbow
+    back, down and out) onto the hand's direction, so it moves continuously wherever the hand
+    goes except straight behind the head. The left hand sweeps a circle about its shoulder
+    through an arm raised forward and up and one pushing back and down, where the part of a
+    fixed pole hint across the arm vanishes (the old hint, behind the chest and a little down
+    and out, turned the elbow half a turn about the arm there)."""
+    c, rig = bandai, bandai.rig
+    frames = c.targets.position.shape[0]  # the module's batch: no recompilation
+    _, pos = fk(c.character, jax.tree.map(lambda x: x[0], c.pose))
+    pos = np.asarray(pos, np.float64)
+    (shoulder, elbow, _), (right_shoulder, _, _) = rig.limbs[:2]
+    up = pos[rig.spine[-1]] - pos[rig.spine[0]]
+    left = pos[shoulder] - pos[right_shoulder]
+    forward = np.cross(left, up)
+    forward, left = forward / np.linalg.norm(forward), left / np.linalg.norm(left)
+    up = np.cross(forward, left)
+    body = np.stack([forward, up, left])  # rows: the body's forward, up and the left arm's outward
+    old_hint, behind_the_head = np.asarray([-1.0, -0.5, 0.5]) @ body, np.asarray([-1.0, 1.0, 0.0]) @ body
+    old_hint /= np.linalg.norm(old_hint)
+    across = np.cross(old_hint, behind_the_head)  # the circle through ±old_hint, 73° from behind the head
+    across /= np.linalg.norm(across)
+    angle = np.linspace(0.0, 2.0 * np.pi, frames, endpoint=False)[:, None]
+    reach = 0.8 * sum(_lengths(rig, 0))
+    hand = pos[shoulder] + reach * (np.cos(angle) * old_hint + np.sin(angle) * across)
+    first = jax.tree.map(lambda x: jnp.broadcast_to(x[:1], x.shape), c.targets)
+    swept = first._replace(position=first.position.at[:, 2].set(jnp.asarray(hand, jnp.float32)))
+    _, got = fk(c.character, solve(rig, swept))
+    got = np.asarray(got)
+    np.testing.assert_allclose(got[:, shoulder], np.broadcast_to(pos[shoulder], (frames, 3)), atol=1e-3)
+    np.testing.assert_allclose(got[:, rig.limbs[0][2]], hand, atol=END_TOL_CM)
+    # The elbow's bend direction across the arm turns by about the sweep's 9° a step.
+    arm = got[:, rig.limbs[0][2]] - got[:, shoulder]
+    arm /= np.linalg.norm(arm, axis=-1, keepdims=True)
+    bend = got[:, elbow] - got[:, shoulder]
+    bend -= np.sum(bend * arm, axis=-1, keepdims=True) * arm
+    bend /= np.linalg.norm(bend, axis=-1, keepdims=True)
+    turns = np.degrees(np.arccos(np.clip(np.sum(bend * np.roll(bend, -1, axis=0), axis=-1), -1.0, 1.0)))
+    assert turns.max() < 30.0, turns.max()  # measured 22.5° (the old hint: 50.6°)
