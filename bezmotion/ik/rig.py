@@ -621,10 +621,10 @@ def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
     left = normalize(roots[np.asarray([0, 2])] - roots[np.asarray([1, 3])])  # chest, pelvis
     forward = normalize(_cross(left, up))
     outward = left[0] * jnp.asarray([[1.0], [-1.0]], dtype)
-    body = lambda weights: weights[0] * forward[0] + weights[1] * up + weights[2] * outward  # noqa: E731
-    reference_reach = normalize(body(_ARM_REFERENCE_REACH))
+    arm_axes = jnp.stack(jnp.broadcast_arrays(forward[0], up, outward), axis=-2)  # (arm, forward / up / outward, 3)
+    reference_reach = normalize(jnp.asarray(_ARM_REFERENCE_REACH, dtype) @ arm_axes)
     reach = _where_normalize(pos_target[np.asarray(_LIMB_TARGET[:2])] - roots[:2], reference_reach)
-    elbows = _apply(_swing(reference_reach, reach), body(_ARM_REFERENCE_ELBOW))
+    elbows = _apply(_swing(reference_reach, reach), jnp.asarray(_ARM_REFERENCE_ELBOW, dtype) @ arm_axes)
     feet = np.asarray(_LIMB_TARGET[2:])
     toes = jnp.stack([rot_target[t] @ offsets[toe] if toe >= 0 else jnp.zeros(3, dtype) for t, toe in zip(feet, rig.toes)])
     toward = normalize(toes) + _KNEE_FORWARD_WEIGHT * forward[1]
