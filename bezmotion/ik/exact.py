@@ -156,6 +156,10 @@ class ExactIKParams:
         steps suit a close start (a learned IK's); from a far start (the rig's) use 0.2.
       smoothing: weight of each neighbouring frame in the window solve's temporal filter
         (:func:`~bezmotion.ik.temporal.smooth`; 0: none, 0.5 at most).
+      key_smoothing: the same filter's weight on the frames within the key blend's frames of
+        a key (:meth:`ExactIKFn.solve_window`'s ``key_blend_frames``), where an inner IK that
+        spins a joint fast makes the key pop; 0 … 0.5, the default as ``smoothing``'s
+        (docs/precision.md: 0.5 took both corpora's key pops down, handles and skating unchanged).
       spike_turn: rad: in the window solve, the inner IK's one-frame flips beyond this are
         replaced by their neighbours (:func:`~bezmotion.ik.temporal.remove_spikes`), and
         lasting flips become ramps turning at most this much a frame
@@ -194,6 +198,7 @@ class ExactIKParams:
     root_weight: Float[Array, ""] | float = 0.05
     limit_weight: Float[Array, ""] | float = 10.0
     smoothing: Float[Array, ""] | float = 0.25
+    key_smoothing: Float[Array, ""] | float = 0.25
     spike_turn: Float[Array, ""] | float = 0.75
     robust_cm: Float[Array, ""] | float = 5.0
     handle_spread: Float[Array, ""] | float = 0.25
@@ -606,12 +611,14 @@ class ExactIKFn:
         frames = pose.root_pos.shape[0]
         hold = jnp.zeros(frames, pose.root_pos.dtype)
         at_key = jnp.zeros(frames, bool)
+        filter_weight = jnp.full(frames, params.smoothing, pose.root_pos.dtype)
         if keys is not None:
             keys = key_chain(keys)  # (start, end), or a chain's keys
             distance = key_distances(frames, keys.root_pos.shape[0] - 1)  # raises for a non-chain
             decay = jnp.asarray(params.key_hold_decay, hold.dtype) ** jnp.asarray(np.maximum(distance - 1, 0), hold.dtype)
             hold = params.key_hold_weight * decay
             at_key = jnp.asarray(distance == 0)
+            filter_weight = jnp.where(jnp.asarray(distance < key_blend_frames), params.key_smoothing, filter_weight)
         planted = planted_feet(targets.position, params.plant_step)
         pinned = jnp.zeros((frames, 6), bool) if targets.pinned is None else targets.pinned
         pose = limit_turns(remove_spikes(pose, params.spike_turn), params.spike_turn, at_key)
@@ -622,7 +629,7 @@ class ExactIKFn:
         for p in range(params.window_passes):
             if p > 0:
                 pose = limit_turns(pose, params.spike_turn, at_handle)
-            start = smooth(pose, params.smoothing)
+            start = smooth(pose, filter_weight)
             if keys is not None:
                 start = blend_to_chain_keys(start, keys, key_blend_frames)
             pose = jax.vmap(lambda s, t, h, p, n: _solve(params, s, t, params.iterations, h, p, n))(start, targets, hold, planted, near)
@@ -685,6 +692,7 @@ def exact_ik(
 _SETTING_RANGES = {
     "max_turn": (0.0, np.inf, True),
     "smoothing": (0.0, 0.5, False),
+    "key_smoothing": (0.0, 0.5, False),
     "handle_spread": (0.0, 1.0, False),
     "key_hold_decay": (0.0, 1.0, False),
     "window_passes": (1, np.inf, False),

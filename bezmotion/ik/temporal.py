@@ -141,18 +141,20 @@ def _running_min(values: Array, restart: Array, reverse: bool) -> Array:
     return out[::-1] if reverse else out
 
 
-def smooth(pose: Pose, weight: Float[Array, ""] | float) -> Pose:
-    """``pose`` ``(frames, …)`` filtered over time by ``[w, 1 − 2w, w]``, ``w = weight`` (0 … 0.5).
+def smooth(pose: Pose, weight: Float[Array, " frames"] | Float[Array, ""] | float) -> Pose:
+    """``pose`` ``(frames, …)`` filtered over time by ``[w, 1 − 2w, w]``, ``w = weight`` (0 … 0.5;
+    one for every frame, or ``(frames,)``: each frame's own).
 
     Each frame's local rotations (its neighbours' turned to its hemisphere, the sum
     normalised) and the hips' position are averaged with the neighbouring frames'. At the
     window's ends the missing neighbour is the frame itself, so it keeps ``1 − w``.
     """
+    w = jnp.broadcast_to(jnp.asarray(weight, pose.root_pos.dtype), pose.root_pos.shape[:1])[:, None]  # (frames, 1)
     q = pose.quat_local
     prev = jnp.concatenate([q[:1], q[:-1]])
     nxt = jnp.concatenate([q[1:], q[-1:]])
     align = lambda a: jnp.where(jnp.sum(a * q, axis=-1, keepdims=True) < 0.0, -a, a)  # noqa: E731
-    quat = quat_normalize((1.0 - 2.0 * weight) * q + weight * (align(prev) + align(nxt)))
+    quat = quat_normalize((1.0 - 2.0 * w[..., None]) * q + w[..., None] * (align(prev) + align(nxt)))
     r = pose.root_pos
-    root = (1.0 - 2.0 * weight) * r + weight * (jnp.concatenate([r[:1], r[:-1]]) + jnp.concatenate([r[1:], r[-1:]]))
+    root = (1.0 - 2.0 * w) * r + w * (jnp.concatenate([r[:1], r[:-1]]) + jnp.concatenate([r[1:], r[-1:]]))
     return Pose(root, quat)

@@ -269,6 +269,28 @@ def test_window_solve_joins_the_keys_and_holds_their_neighbours(bandai):
     assert errors[0] < 0.01 < 5.0 < errors[1], errors
 
 
+def test_key_smoothing_filters_only_the_frames_next_to_the_keys(bandai):
+    """``key_smoothing`` weighs the between-pass filter on the frames within the key blend's
+    frames of a key (here 3 of 12); frames further in are solved from the same starts, so they
+    come out bit for bit the same, while the frames next to the keys change (a traced weight:
+    no recompile)."""
+    motion = read_bvh(DEMO_CLIP)
+    window = slice(4, 20)
+    truth = pose_from_motion(bandai.character, jnp.asarray(motion.quat_local[window]), jnp.asarray(motion.pos_local[window]))
+    targets = targets_from_pose(bandai.character, truth)
+    targets = targets._replace(position=targets.position.at[:, 3].add(jnp.asarray([0.0, 15.0, 0.0])))
+    keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
+    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character)
+    solve = jax.jit(lambda p, t: fn.solve_window(p, t, keys, 3))
+    default, stronger = (solve(dataclasses.replace(params, key_smoothing=w), targets).quat_local for w in (params.smoothing, 0.5))
+    # Frames 0–2 and 13–15 lie within 3 of a key; a frame's second-pass start reads its
+    # neighbours' first-pass poses, so frames 4–11 start alike.
+    np.testing.assert_array_equal(np.asarray(default[4:12]), np.asarray(stronger[4:12]))
+    assert float(jnp.max(quat_angle(default[1:3], stronger[1:3]))) > 1e-3
+    with pytest.raises(ValueError, match="key_smoothing=0.6"):
+        exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, key_smoothing=0.6)
+
+
 def test_planted_feet_hold_their_targets_against_a_handle(bandai):
     """The head's target 12 cm up, pinned, on 8 consecutive frames of the demo clip: reaching
     it lifts the hips and the feet give way. Planted feet (``plant_weight``) keep their targets

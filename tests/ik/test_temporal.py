@@ -137,3 +137,10 @@ def test_smoothing_averages_each_frame_with_its_neighbours():
     unchanged = smooth(Pose(root, quat), 0.0)
     np.testing.assert_allclose(unchanged.quat_local, quat, atol=1e-7)
     np.testing.assert_array_equal(unchanged.root_pos, root)
+    # A weight per frame: each frame filtered with its own, from the same neighbours.
+    weights = jnp.asarray([0.5, 0.0, 0.25, 0.1, 0.5])
+    each = smooth(Pose(root, quat), weights)
+    for t, wt in enumerate(np.asarray(weights)):
+        alone = smooth(Pose(root, quat), float(wt))
+        np.testing.assert_allclose(each.root_pos[t], alone.root_pos[t], atol=1e-6)
+        np.testing.assert_allclose(each.quat_local[t], alone.quat_local[t], atol=1e-6)
