@@ -149,12 +149,13 @@ def smooth(pose: Pose, weight: Float[Array, " frames"] | Float[Array, ""] | floa
     normalised) and the hips' position are averaged with the neighbouring frames'. At the
     window's ends the missing neighbour is the frame itself, so it keeps ``1 − w``.
     """
-    w = jnp.broadcast_to(jnp.asarray(weight, pose.root_pos.dtype), pose.root_pos.shape[:1])[:, None]  # (frames, 1)
+    w = jnp.broadcast_to(jnp.asarray(weight, pose.root_pos.dtype), pose.root_pos.shape[:1])  # (frames,)
     q = pose.quat_local
     prev = jnp.concatenate([q[:1], q[:-1]])
     nxt = jnp.concatenate([q[1:], q[-1:]])
     align = lambda a: jnp.where(jnp.sum(a * q, axis=-1, keepdims=True) < 0.0, -a, a)  # noqa: E731
-    quat = quat_normalize((1.0 - 2.0 * w[..., None]) * q + w[..., None] * (align(prev) + align(nxt)))
-    r = pose.root_pos
-    root = (1.0 - 2.0 * w) * r + w * (jnp.concatenate([r[:1], r[:-1]]) + jnp.concatenate([r[1:], r[-1:]]))
+    wq = w[:, None, None]  # over joints and quaternion components
+    quat = quat_normalize((1.0 - 2.0 * wq) * q + wq * (align(prev) + align(nxt)))
+    r, wr = pose.root_pos, w[:, None]
+    root = (1.0 - 2.0 * wr) * r + wr * (jnp.concatenate([r[:1], r[:-1]]) + jnp.concatenate([r[1:], r[-1:]]))
     return Pose(root, quat)

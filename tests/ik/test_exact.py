@@ -21,7 +21,7 @@ from bezmotion.assets import BUNDLED_IK, DEMO_CLIP
 from bezmotion.data.bvh import read_bvh
 from bezmotion.geometry.rotations import quat_angle, quat_from_axis_angle, quat_mul
 import bezmotion.ik.exact as exact_module
-from bezmotion.ik.exact import ExactIKFn, exact_ik
+from bezmotion.ik.exact import ExactIKFn, _errors, exact_ik
 from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.protocol import Character, Pose, pose_from_motion, solve_frames, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn
@@ -96,8 +96,6 @@ def test_reaches_reachable_targets(request, name):
     # The orientations are weighted, not hard, but reachable ones are met closely.
     assert float(jnp.max(result.rotation_error)) < np.radians(1.0)
     # The rig alone does not reach them all (the spine's bend is its own guess).
-    from bezmotion.ik.exact import _errors
-
     rig_errors = jax.jit(lambda rig, t: _errors(case.character, jax.vmap(rig_ik, in_axes=(None, 0))(rig, t), t)[0])
     assert float(jnp.max(rig_errors(case.params.inner, targets))) > 10 * REACH_TOL_CM
 
