@@ -158,8 +158,9 @@ class ExactIKParams:
         (:func:`~bezmotion.ik.temporal.smooth`; 0: none, 0.5 at most).
       key_smoothing: the same filter's weight on the frames within the key blend's frames of
         a key (:meth:`ExactIKFn.solve_window`'s ``key_blend_frames``), where an inner IK that
-        spins a joint fast makes the key pop; 0 … 0.5, the default as ``smoothing``'s
-        (docs/precision.md: 0.5 took both corpora's key pops down, handles and skating unchanged).
+        spins a joint fast makes the key pop; 0 … 0.5 (``smoothing``'s 0.25 was the default
+        before: docs/precision.md, 0.5 takes both corpora's key pops under the mocap's with
+        handles and skating unchanged).
       spike_turn: rad: in the window solve, the inner IK's one-frame flips beyond this are
         replaced by their neighbours (:func:`~bezmotion.ik.temporal.remove_spikes`), and
         lasting flips become ramps turning at most this much a frame
@@ -198,7 +199,7 @@ class ExactIKParams:
     root_weight: Float[Array, ""] | float = 0.05
     limit_weight: Float[Array, ""] | float = 10.0
     smoothing: Float[Array, ""] | float = 0.25
-    key_smoothing: Float[Array, ""] | float = 0.25
+    key_smoothing: Float[Array, ""] | float = 0.5
     spike_turn: Float[Array, ""] | float = 0.75
     robust_cm: Float[Array, ""] | float = 5.0
     handle_spread: Float[Array, ""] | float = 0.25

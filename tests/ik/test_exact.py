@@ -280,11 +280,12 @@ def test_key_smoothing_filters_only_the_frames_next_to_the_keys(bandai):
     keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
     fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character)
     solve = jax.jit(lambda p, t: fn.solve_window(p, t, keys, 3))
-    default, stronger = (solve(dataclasses.replace(params, key_smoothing=w), targets).quat_local for w in (params.smoothing, 0.5))
+    assert params.key_smoothing == 0.5 != params.smoothing
+    as_elsewhere, stronger = (solve(dataclasses.replace(params, key_smoothing=w), targets).quat_local for w in (params.smoothing, 0.5))
     # Frames 0–2 and 13–15 lie within 3 of a key; a frame's second-pass start reads its
     # neighbours' first-pass poses, so frames 4–11 start alike.
-    np.testing.assert_array_equal(np.asarray(default[4:12]), np.asarray(stronger[4:12]))
-    assert float(jnp.max(quat_angle(default[1:3], stronger[1:3]))) > 1e-3
+    np.testing.assert_array_equal(np.asarray(as_elsewhere[4:12]), np.asarray(stronger[4:12]))
+    assert float(jnp.max(quat_angle(as_elsewhere[1:3], stronger[1:3]))) > 1e-3
     with pytest.raises(ValueError, match="key_smoothing=0.6"):
         exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, key_smoothing=0.6)
 
