@@ -256,7 +256,9 @@ def test_window_solve_joins_the_keys_and_holds_their_neighbours(bandai):
         np.testing.assert_array_equal(np.asarray(result.pose.root_pos[-1]), np.asarray(keys[1].root_pos))
     assert float(free.position_error[1, 3]) < 0.01  # without the hold, frame 1 reaches the jump
     turns = [turn_next_to_start_deg(r) for r in (free, default, hard)]
-    assert turns[0] > turns[1] > turns[2] and turns[2] < 0.5 * turns[0], turns
+    # (With key_smoothing's 0.5 next to the keys the default hold already keeps frame 1 as
+    # close as the hard one does, to within 0.01°.)
+    assert turns[0] > turns[1] > turns[2] - 0.01 and turns[2] < 0.5 * turns[0], turns
     assert float(hard.position_error[1, 3]) > 5.0  # held hard, it stays near the key
 
     # key_hold_decay: the hold d frames from the key is key_hold_weight · decay^(d − 1). The

@@ -38,10 +38,11 @@ def run_group(run_dir: Path, steps: int, out: Path, num_processes: int, cache: P
 
     The workers share a persistent XLA compilation cache (``cache``): the five processes
     compile the same few programs, and only the first compilation of each need run. They
-    compile with the same optimisation setting as this session (``conftest``).
+    compile with the same optimisation setting and XLA flags as this session (``conftest``;
+    none of a user's own ``XLA_FLAGS``, which might set the device count).
     """
     env = {
-        **os.environ, "XLA_FLAGS": "", "JAX_PLATFORMS": "cpu",
+        **os.environ, "XLA_FLAGS": os.environ.get("BEZMOTION_TEST_XLA_FLAGS", ""), "JAX_PLATFORMS": "cpu",
         "JAX_COMPILATION_CACHE_DIR": str(cache), "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
         "JAX_DISABLE_MOST_OPTIMIZATIONS": str(int(jax.config.read("jax_disable_most_optimizations"))),
     }  # fmt: skip
