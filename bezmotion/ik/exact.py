@@ -85,7 +85,7 @@ from bezmotion.geometry.rotations import (
 from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.key_blend import blend_to_chain_keys, key_chain, key_distances
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, pose_fk
-from bezmotion.ik.temporal import limit_turns, planted_feet, remove_spikes, smooth
+from bezmotion.ik.temporal import FLIP_TURN, limit_turns, planted_feet, remove_flips, smooth
 from bezmotion.linalg import cholesky_solve
 
 _SMALL_ANGLE = 1e-4  # rad: below this the right Jacobians use their Taylor series
@@ -200,7 +200,7 @@ class ExactIKParams:
     limit_weight: Float[Array, ""] | float = 10.0
     smoothing: Float[Array, ""] | float = 0.25
     key_smoothing: Float[Array, ""] | float = 0.5
-    spike_turn: Float[Array, ""] | float = 0.75
+    spike_turn: Float[Array, ""] | float = FLIP_TURN
     robust_cm: Float[Array, ""] | float = 5.0
     handle_spread: Float[Array, ""] | float = 0.25
     iterations: int = dataclasses.field(default=6, metadata=dict(static=True))
@@ -622,7 +622,7 @@ class ExactIKFn:
             filter_weight = jnp.where(jnp.asarray(distance < key_blend_frames), params.key_smoothing, filter_weight)
         planted = planted_feet(targets.position, params.plant_step)
         pinned = jnp.zeros((frames, 6), bool) if targets.pinned is None else targets.pinned
-        pose = limit_turns(remove_spikes(pose, params.spike_turn), params.spike_turn, at_key)
+        pose = remove_flips(pose, params.spike_turn, at_key)
         # After a pass, a frame with a handle may have turned far from its neighbours (held near
         # their start poses, they weigh less than the handle): the next pass starts from a ramp into it.
         at_handle = at_key | jnp.any(pinned, axis=-1)

@@ -1,13 +1,17 @@
 """Filters over a window's frames: what the exact IK's window solve does to the poses it starts from.
 
 A learned IK solves every frame on its own, so its poses jitter, and now and then one joint
-flips for a frame (:func:`remove_spikes`) or for good (:func:`limit_turns`). The window
-solve (:meth:`bezmotion.ik.exact.ExactIKFn.solve_window`) takes those out, then smooths the
-poses over time (:func:`smooth`) before each of its passes; :func:`planted_feet` marks the
-frames whose foot targets stand still. Every function takes one window ``(frames, …)``.
+flips for a frame (:func:`remove_spikes`) or for good (:func:`limit_turns`); :func:`remove_flips`
+does both. The window solve (:meth:`bezmotion.ik.exact.ExactIKFn.solve_window`) takes those out,
+then smooths the poses over time (:func:`smooth`) before each of its passes; a per-frame IK's
+window gets :func:`remove_flips` in :func:`~bezmotion.ik.protocol.solve_frames`.
+:func:`planted_feet` marks the frames whose foot targets stand still. Every function takes one
+window ``(frames, …)``.
 """
 
 from __future__ import annotations
+
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
@@ -17,8 +21,12 @@ from jaxtyping import Array, Bool, Float
 from bezmotion.data.characteristic import FEET
 from bezmotion.data.windows import foot_contacts
 from bezmotion.geometry.rotations import quat_angle, quat_normalize, slerp
-from bezmotion.ik.protocol import Pose
+if TYPE_CHECKING:  # protocol.solve_frames removes flips: no import cycle at run time
+    from bezmotion.ik.protocol import Pose
 
+# rad: the LaFAN1 mocap's largest turn of any joint in one frame (43°); a per-frame IK's turn
+# beyond it is a flip (the default of remove_flips in solve_frames and of the exact IK's spike_turn).
+FLIP_TURN = 0.75
 _HORIZONTAL = np.asarray([1.0, 0.0, 1.0], np.float32)  # X and Z; +Y is up
 
 
@@ -63,7 +71,7 @@ def remove_spikes(pose: Pose, turn: Float[Array, ""] | float) -> Pose:
     replacement = quat_normalize((1.0 - share) * a + share * b)
     away = jnp.minimum(quat_angle(q, a), quat_angle(q, b))
     spike = (away > turn) & (quat_angle(a, b) < 0.5 * away) & (turn > 0.0)
-    return Pose(pose.root_pos, jnp.where(spike[..., None], replacement, q))
+    return pose._replace(quat_local=jnp.where(spike[..., None], replacement, q))
 
 
 def limit_turns(pose: Pose, turn: Float[Array, ""] | float, anchors: Bool[Array, " frames"] | None = None) -> Pose:
@@ -124,7 +132,14 @@ def limit_turns(pose: Pose, turn: Float[Array, ""] | float, anchors: Bool[Array,
     limited = jnp.where(kept[:, None, None], q, limited)
     # Unchanged frames keep their own quaternion (not slerp's sign of it): a no-op stays exact.
     same = jnp.abs(jnp.sum(limited * q, axis=-1, keepdims=True)) >= 1.0 - 1e-7
-    return Pose(pose.root_pos, jnp.where(same, q, limited))
+    return pose._replace(quat_local=jnp.where(same, q, limited))
+
+
+def remove_flips(pose: Pose, turn: Float[Array, ""] | float = FLIP_TURN, anchors: Bool[Array, " frames"] | None = None) -> Pose:
+    """``pose`` ``(frames, …)`` with one-frame flips replaced by their neighbours
+    (:func:`remove_spikes`) and lasting ones ramped at most ``turn`` rad a frame
+    (:func:`limit_turns`, the window's ends and ``anchors`` kept); ``turn ≤ 0``: unchanged."""
+    return limit_turns(remove_spikes(pose, turn), turn, anchors)
 
 
 def _running_min(values: Array, restart: Array, reverse: bool) -> Array:
@@ -158,4 +173,4 @@ def smooth(pose: Pose, weight: Float[Array, " frames"] | Float[Array, ""] | floa
     quat = quat_normalize((1.0 - 2.0 * wq) * q + wq * (align(prev) + align(nxt)))
     r, wr = pose.root_pos, w[:, None]
     root = (1.0 - 2.0 * wr) * r + wr * (jnp.concatenate([r[:1], r[:-1]]) + jnp.concatenate([r[1:], r[-1:]]))
-    return Pose(root, quat)
+    return pose._replace(root_pos=root, quat_local=quat)

@@ -13,8 +13,10 @@ import pytest
 from helpers import assert_same_rotation, np_forward_kinematics, random_quat_np
 from ik.demo_poses import clip, fk, frame, motion_to_pose, np_pose_positions, np_rot6d, targets_of  # noqa: F401  (clip: a fixture)
 
+from bezmotion.geometry.rotations import quat_angle, quat_from_axis_angle, quat_identity
 from bezmotion.geometry.skeleton import Skeleton
-from bezmotion.ik.protocol import Character, pose_from_global
+from bezmotion.ik.protocol import Character, IKTargets, Pose, pose_from_global, solve_frames
+from bezmotion.ik.temporal import FLIP_TURN
 
 global_to_pose = jax.jit(pose_from_global)
 
@@ -104,3 +106,33 @@ def test_character_rejects_bad_joints_and_mappings(clip):
     assert Character.from_skeleton(skeleton, custom).characteristic == clip.character.characteristic
     with pytest.raises(ValueError, match="Pelvis"):
         Character.from_skeleton(skeleton, {**custom, "hips": "Pelvis"})
+
+
+def test_solve_frames_takes_a_per_frame_iks_flips_out():
+    """A per-frame IK that twists joint 1 by 149° for one frame (5) and for good from frame 12
+    on: ``solve_frames`` replaces the one-frame flip by its neighbours and ramps into the
+    lasting one at most :data:`FLIP_TURN` a frame, keeping the window's ends (the keys' frames)
+    bit for bit; ``flip_turn=0`` returns the IK's poses as they are."""
+    angle = np.linspace(0.0, 0.5, 20)
+    angle[5] += 2.6
+    angle[12:] += 2.6
+
+    def twisting_ik(params, targets):
+        twist = quat_from_axis_angle(jnp.asarray([1.0, 0.0, 0.0]), targets.position[0, 0])
+        return Pose(targets.position[0], quat_identity((3,)).at[1].set(twist))
+
+    position = np.zeros((20, 6, 3), np.float32)
+    position[:, 0, 0] = angle
+    targets = IKTargets(jnp.asarray(position), jnp.zeros((20, 6, 6)))
+    solve = jax.jit(solve_frames, static_argnums=0, static_argnames="flip_turn")
+    raw, clean = solve(twisting_ik, None, targets, flip_turn=0.0), solve(twisting_ik, None, targets)
+
+    def turns(pose):
+        return np.asarray(quat_angle(pose.quat_local[1:, 1], pose.quat_local[:-1, 1]))
+
+    assert turns(raw).max() > 2.5
+    assert turns(clean).max() <= FLIP_TURN + 1e-5
+    assert turns(clean)[3:6].max() < 0.1  # frame 5 between its neighbours
+    for kept in (0, 19):
+        np.testing.assert_array_equal(np.asarray(clean.quat_local[kept]), np.asarray(raw.quat_local[kept]))
+    np.testing.assert_array_equal(np.asarray(clean.root_pos), np.asarray(raw.root_pos))
