@@ -25,8 +25,10 @@ programs, not running them):
 
 import atexit
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
 
 _OPTIMIZE = os.environ.get("BEZMOTION_TEST_XLA_OPTIMIZE", "") not in ("", "0")
 _FAST_COMPILE_FLAGS = ("--xla_cpu_use_fusion_emitters=false", "--xla_cpu_use_thunk_runtime=false")
@@ -50,10 +52,8 @@ def _accepted_flags(flags: tuple[str, ...]) -> str:
 if _FLAGS_VARIABLE not in os.environ:
     os.environ[_FLAGS_VARIABLE] = "" if _OPTIMIZE else _accepted_flags(_FAST_COMPILE_FLAGS)
     os.environ["XLA_FLAGS"] = f"{os.environ.get('XLA_FLAGS', '')} {os.environ[_FLAGS_VARIABLE]}".strip()
-import shutil
-import tempfile
 
-from jaxtyping import install_import_hook
+from jaxtyping import install_import_hook  # noqa: E402  (after the flags)
 
 install_import_hook("bezmotion", "beartype.beartype")
 

@@ -184,7 +184,7 @@ def solve_frames(
     *,
     keys: tuple[Pose, Pose] | Pose | None = None,
     key_blend_frames: int = 0,
-    flip_turn: float | None = None,
+    flip_turn: float = FLIP_TURN,
 ) -> Pose:
     """Poses of a window of frames: ``targets`` are ``(frames, 6, …)``.
 
@@ -203,8 +203,8 @@ def solve_frames(
         :class:`Pose`, each window joined to its own two
         (:func:`~bezmotion.ik.key_blend.blend_to_chain_keys`); ``None``: the IK's own poses there.
       flip_turn: rad, a per-frame IK's largest turn of a joint in one frame before it counts
-        as a flip (``None``: :data:`~bezmotion.ik.temporal.FLIP_TURN`, 43°, the LaFAN1
-        mocap's largest; 0: the IK's poses as they are, the paper's). On 1,500 Bandai-Namco
+        as a flip (:data:`~bezmotion.ik.temporal.FLIP_TURN`, 43°, the LaFAN1 mocap's largest;
+        0: the IK's poses as they are, the paper's). On 1,500 Bandai-Namco
         windows it took ``refined``'s largest turn in one frame from 174° to 44° for +0.006 cm
         of handle error (docs/precision.md, *Flips of the per-frame IKs*).
     """
@@ -215,7 +215,7 @@ def solve_frames(
     # The keys' frames are kept (chains: every key's); handle frames are not: kept, a flip there
     # would pop the keys (LaFAN1's rig: 66° → 99°), and ramped, they move 0.006 cm on average.
     at_keys = None if keys is None else jnp.asarray(key_distances(pose.root_pos.shape[0], key_chain(keys).root_pos.shape[0] - 1) == 0)
-    pose = remove_flips(pose, FLIP_TURN if flip_turn is None else flip_turn, at_keys)
+    pose = remove_flips(pose, flip_turn, at_keys)
     return pose if keys is None else blend_to_chain_keys(pose, keys, key_blend_frames)
 
 

@@ -21,6 +21,7 @@ from jaxtyping import Array, Bool, Float
 from bezmotion.data.characteristic import FEET
 from bezmotion.data.windows import foot_contacts
 from bezmotion.geometry.rotations import quat_angle, quat_normalize, slerp
+
 if TYPE_CHECKING:  # protocol.solve_frames removes flips: no import cycle at run time
     from bezmotion.ik.protocol import Pose
 
