@@ -83,7 +83,7 @@ from bezmotion.geometry.rotations import (
     safe_norm,
 )
 from bezmotion.ik.joint_limits import JointLimits
-from bezmotion.ik.key_blend import blend_to_chain_keys, key_chain, key_distances
+from bezmotion.ik.key_blend import blend_to_chain_keys, distances_to_keys
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, pose_fk
 from bezmotion.ik.temporal import FLIP_TURN, limit_turns, planted_feet, remove_flips, smooth
 from bezmotion.linalg import cholesky_solve
@@ -614,8 +614,7 @@ class ExactIKFn:
         at_key = jnp.zeros(frames, bool)
         filter_weight = jnp.full(frames, params.smoothing, pose.root_pos.dtype)
         if keys is not None:
-            keys = key_chain(keys)  # (start, end), or a chain's keys
-            distance = key_distances(frames, keys.root_pos.shape[0] - 1)  # raises for a non-chain
+            distance = distances_to_keys(frames, keys)  # raises for a non-chain
             decay = jnp.asarray(params.key_hold_decay, hold.dtype) ** jnp.asarray(np.maximum(distance - 1, 0), hold.dtype)
             hold = params.key_hold_weight * decay
             at_key = jnp.asarray(distance == 0)

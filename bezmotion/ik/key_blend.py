@@ -97,6 +97,12 @@ def key_distances(num_frames: int, num_windows: int) -> np.ndarray:
     return np.minimum(into, window_frames - 1 - into)
 
 
+def distances_to_keys(num_frames: int, keys: tuple[Pose, Pose] | Pose) -> np.ndarray:
+    """:func:`key_distances` for the windows between ``keys`` (a ``(start, end)`` pair, or a
+    chain's keys batched ``(K + 1, …)``)."""
+    return key_distances(num_frames, key_chain(keys).root_pos.shape[0] - 1)
+
+
 def blend_to_chain_keys(pose: Pose, keys: tuple[Pose, Pose] | Pose, frames: int) -> Pose:
     """:func:`blend_to_keys` for a chain: ``pose`` ``(K·(W − 1) + 1, …)``, every window of
     ``W`` frames joined to its two keys of ``keys`` (batched ``(K + 1, …)``, or a

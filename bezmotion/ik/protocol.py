@@ -31,7 +31,7 @@ from bezmotion.data.bvh import BvhMotion
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS, characteristic_indices
 from bezmotion.geometry.rotations import quat_identity, rot6d_from_quat
 from bezmotion.geometry.skeleton import Skeleton, forward_kinematics, inverse_kinematics
-from bezmotion.ik.key_blend import blend_to_chain_keys, key_chain, key_distances
+from bezmotion.ik.key_blend import blend_to_chain_keys, distances_to_keys
 from bezmotion.ik.temporal import FLIP_TURN, remove_flips
 
 
@@ -214,7 +214,7 @@ def solve_frames(
     pose = jax.vmap(ik_fn, in_axes=(None, 0))(params, targets)
     # The keys' frames are kept (chains: every key's); handle frames are not: kept, a flip there
     # would pop the keys (LaFAN1's rig: 66° → 99°), and ramped, they move 0.006 cm on average.
-    at_keys = None if keys is None else jnp.asarray(key_distances(pose.root_pos.shape[0], key_chain(keys).root_pos.shape[0] - 1) == 0)
+    at_keys = None if keys is None else jnp.asarray(distances_to_keys(pose.root_pos.shape[0], keys) == 0)
     pose = remove_flips(pose, flip_turn, at_keys)
     return pose if keys is None else blend_to_chain_keys(pose, keys, key_blend_frames)
 
