@@ -32,7 +32,7 @@ from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS, character
 from bezmotion.geometry.rotations import quat_identity, rot6d_from_quat
 from bezmotion.geometry.skeleton import Skeleton, forward_kinematics, inverse_kinematics
 from bezmotion.ik.key_blend import blend_to_chain_keys, distances_to_keys
-from bezmotion.ik.temporal import FLIP_TURN, remove_flips
+from bezmotion.ik.temporal import FLIP_TURN, KEY_TURN, limit_turns, remove_flips, turns_near_keys
 
 
 class IKTargets(NamedTuple):
@@ -185,6 +185,7 @@ def solve_frames(
     keys: tuple[Pose, Pose] | Pose | None = None,
     key_blend_frames: int = 0,
     flip_turn: float = FLIP_TURN,
+    key_turn: float = KEY_TURN,
 ) -> Pose:
     """Poses of a window of frames: ``targets`` are ``(frames, 6, …)``.
 
@@ -214,9 +215,14 @@ def solve_frames(
     pose = jax.vmap(ik_fn, in_axes=(None, 0))(params, targets)
     # The keys' frames are kept (chains: every key's); handle frames are not: kept, a flip there
     # would pop the keys (LaFAN1's rig: 66° → 99°), and ramped, they move 0.006 cm on average.
-    at_keys = None if keys is None else jnp.asarray(distances_to_keys(pose.root_pos.shape[0], keys) == 0)
-    pose = remove_flips(pose, flip_turn, at_keys)
-    return pose if keys is None else blend_to_chain_keys(pose, keys, key_blend_frames)
+    if keys is None:
+        return remove_flips(pose, flip_turn)
+    distance = distances_to_keys(pose.root_pos.shape[0], keys)
+    at_keys = jnp.asarray(distance == 0)
+    pose = blend_to_chain_keys(remove_flips(pose, flip_turn, at_keys), keys, key_blend_frames)
+    if key_turn <= 0.0:
+        return pose
+    return limit_turns(pose, jnp.asarray(turns_near_keys(distance, key_turn, flip_turn, key_blend_frames)), at_keys)
 
 
 def targets_from_pose(character: Character, pose: Pose) -> IKTargets:

@@ -28,6 +28,9 @@ if TYPE_CHECKING:  # protocol.solve_frames removes flips: no import cycle at run
 # rad: the LaFAN1 mocap's largest turn of any joint in one frame (43°); a per-frame IK's turn
 # beyond it is a flip (the default of remove_flips in solve_frames and of the exact IK's spike_turn).
 FLIP_TURN = 0.75
+# rad: a per-frame IK's largest turn of a joint on the step next to a key (solve_frames), easing to
+# FLIP_TURN over the key blend's frames. Under both corpora's mocap key pops (29.0° Bandai-Namco, 36.1° LaFAN1).
+KEY_TURN = 0.4
 _HORIZONTAL = np.asarray([1.0, 0.0, 1.0], np.float32)  # X and Z; +Y is up
 
 
@@ -75,9 +78,12 @@ def remove_spikes(pose: Pose, turn: Float[Array, ""] | float) -> Pose:
     return pose._replace(quat_local=jnp.where(spike[..., None], replacement, q))
 
 
-def limit_turns(pose: Pose, turn: Float[Array, ""] | float, anchors: Bool[Array, " frames"] | None = None) -> Pose:
+def limit_turns(
+    pose: Pose, turn: Float[Array, ""] | Float[Array, " steps"] | float, anchors: Bool[Array, " frames"] | None = None
+) -> Pose:
     """``pose`` ``(frames, …)`` with no joint turning more than ``turn`` rad from one frame to
-    the next, the frames at both ends of the window and the ``anchors`` ``(frames,)`` kept.
+    the next, the frames at both ends of the window and the ``anchors`` ``(frames,)`` kept;
+    ``turn`` is one limit, or one per step ``(steps,)`` = ``(frames − 1,)`` (step ``t``: frame ``t`` → ``t + 1``).
 
     A learned IK sometimes flips a joint for good rather than for one frame (an arm's twist
     by ~180° between two frames, where the curves' hand orientation lies far from any pose it
@@ -91,30 +97,30 @@ def limit_turns(pose: Pose, turn: Float[Array, ""] | float, anchors: Bool[Array,
     stay continuous with it. The window solve keeps its keys, and between its passes also
     the frames with a handle, so a bend that only the handle's frame made (the frames next to
     it held at their start) becomes a ramp into it. Poses that never turn that fast are
-    returned unchanged (bit for bit); ``turn ≤ 0`` turns it off; the hips' position is never
-    changed.
+    returned unchanged (bit for bit); ``turn ≤ 0`` turns it off (per step: that step); the
+    hips' position is never changed.
     """
     q = pose.quat_local
     frames = q.shape[0]
     if frames < 3:
         return pose
-    turn = jnp.asarray(turn, q.dtype)
+    turns = jnp.broadcast_to(jnp.asarray(turn, q.dtype), (frames - 1,))
     ends = jnp.zeros(frames, bool).at[jnp.asarray([0, frames - 1])].set(True)
     kept = ends if anchors is None else ends | anchors
 
-    def follow(sequence: Array, keep: Array) -> Array:
+    def follow(sequence: Array, keep: Array, limit: Array) -> Array:
         def step(previous, inputs):  # quat_angle and slerp take either sign of current
-            current, restart = inputs
+            current, restart, turn = inputs
             angle = quat_angle(previous, current)[..., None]
             limited = (turn > 0.0) & (angle > turn) & ~restart
             fraction = jnp.where(limited, turn / jnp.where(limited, angle, 1.0), 1.0)
             moved = jnp.where(limited, slerp(previous, current, fraction[..., 0]), current)
             return moved, moved
 
-        _, rest = jax.lax.scan(step, sequence[0], (sequence[1:], keep[1:]))
+        _, rest = jax.lax.scan(step, sequence[0], (sequence[1:], keep[1:], limit))
         return jnp.concatenate([sequence[:1], rest])
 
-    forward, backward = follow(q, kept), follow(q[::-1], kept[::-1])[::-1]
+    forward, backward = follow(q, kept, turns), follow(q[::-1], kept[::-1], turns[::-1])[::-1]
     # Per joint and stretch between kept frames, the frame where the passes lie closest
     # (ties: the one nearest the stretch's middle); the kept frames never.
     index = jnp.arange(frames)
@@ -141,6 +147,15 @@ def remove_flips(pose: Pose, turn: Float[Array, ""] | float = FLIP_TURN, anchors
     (:func:`remove_spikes`) and lasting ones ramped at most ``turn`` rad a frame
     (:func:`limit_turns`, the window's ends and ``anchors`` kept); ``turn ≤ 0``: unchanged."""
     return limit_turns(remove_spikes(pose, turn), turn, anchors)
+
+
+def turns_near_keys(distance: np.ndarray, key_turn: float, turn: float, frames: int) -> np.ndarray:
+    """``(frames − 1,)`` per-step turn limits for :func:`limit_turns`: ``key_turn`` rad on the
+    steps that touch a key (``distance`` ``(frames,)``: each frame's distance to the nearest
+    key, 0 at the keys), easing linearly to ``turn`` over ``frames`` frames from it."""
+    step_distance = np.minimum(distance[:-1], distance[1:])
+    share = np.minimum(step_distance / max(frames, 1), 1.0)
+    return key_turn + (turn - key_turn) * share
 
 
 def _running_min(values: Array, restart: Array, reverse: bool) -> Array:

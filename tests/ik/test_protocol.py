@@ -16,7 +16,7 @@ from ik.demo_poses import clip, fk, frame, motion_to_pose, np_pose_positions, np
 from bezmotion.geometry.rotations import quat_angle, quat_from_axis_angle, quat_identity
 from bezmotion.geometry.skeleton import Skeleton
 from bezmotion.ik.protocol import Character, IKTargets, Pose, pose_from_global, solve_frames
-from bezmotion.ik.temporal import FLIP_TURN
+from bezmotion.ik.temporal import FLIP_TURN, KEY_TURN
 
 global_to_pose = jax.jit(pose_from_global)
 
@@ -136,3 +136,35 @@ def test_solve_frames_takes_a_per_frame_iks_flips_out():
     for kept in (0, 19):
         np.testing.assert_array_equal(np.asarray(clean.quat_local[kept]), np.asarray(raw.quat_local[kept]))
     np.testing.assert_array_equal(np.asarray(clean.root_pos), np.asarray(raw.root_pos))
+
+
+def test_solve_frames_turns_slowly_out_of_the_keys():
+    """A per-frame IK that poses joint 1 as the keys do on the keys' frames, twisted by 80° on the
+    frames next to them and by 138° on all others (not a one-frame flip: the two frames after
+    a key disagree): its flips taken out, it still turns :data:`FLIP_TURN` on the steps next
+    to the keys with ``key_turn=0``; joined to the keys it turns no more than
+    :data:`KEY_TURN` there (the mocap's largest there: 29° Bandai-Namco, 36° LaFAN1), easing to
+    :data:`FLIP_TURN` over the key blend's frames, and the middle of the window is the same."""
+    frames, blend = 31, 6
+
+    def twisted_ik(params, targets):
+        twist = quat_from_axis_angle(jnp.asarray([1.0, 0.0, 0.0]), targets.position[0, 0])
+        return Pose(targets.position[0], quat_identity((3,)).at[1].set(twist))
+
+    position = np.full((frames, 6, 3), 2.4, np.float32)
+    position[[1, -2]], position[[0, -1]] = 1.4, 0.0
+    targets = IKTargets(jnp.asarray(position), jnp.zeros((frames, 6, 6)))
+    key = Pose(jnp.zeros(3), quat_identity((3,)))  # the IK's own pose on the keys' frames
+    solve = jax.jit(solve_frames, static_argnums=0, static_argnames=("key_blend_frames", "key_turn"))
+    joined = solve(twisted_ik, None, targets, keys=(key, key), key_blend_frames=blend)
+    plain = solve(twisted_ik, None, targets, keys=(key, key), key_blend_frames=blend, key_turn=0.0)
+
+    def turns(pose):
+        return np.asarray(quat_angle(pose.quat_local[1:, 1], pose.quat_local[:-1, 1]))
+
+    np.testing.assert_allclose(turns(plain)[[0, -1]], FLIP_TURN, atol=1e-5)
+    assert turns(joined)[[0, -1]].max() <= KEY_TURN + 1e-5
+    assert turns(joined).max() <= FLIP_TURN + 1e-5
+    for kept in (0, frames - 1):
+        np.testing.assert_array_equal(np.asarray(joined.quat_local[kept]), np.asarray(key.quat_local))
+    np.testing.assert_array_equal(np.asarray(joined.quat_local[15]), np.asarray(plain.quat_local[15]))

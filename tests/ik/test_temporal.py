@@ -9,7 +9,7 @@ import pytest
 
 from bezmotion.geometry.rotations import quat_angle, quat_from_axis_angle, quat_mul
 from bezmotion.ik.protocol import Pose
-from bezmotion.ik.temporal import limit_turns, planted_feet, remove_spikes, smooth
+from bezmotion.ik.temporal import limit_turns, planted_feet, remove_spikes, smooth, turns_near_keys
 from bezmotion.metrics import rotation_change_deg
 
 
@@ -110,6 +110,28 @@ def test_a_kept_frame_turned_alone_gets_ramps_into_it_from_both_sides():
     both = limit_turns(Pose(root, jnp.stack([stepped, still], axis=1)), limit, jnp.zeros(frames, bool).at[9:11].set(True)).quat_local
     np.testing.assert_array_equal(both[9:11, 0], stepped[9:11])
     np.testing.assert_array_equal(limit_turns(Pose(root, quat), 0.0, anchors).quat_local, quat)  # off
+
+
+def test_limit_turns_takes_a_limit_per_step():
+    """A joint turned 149° from frame 1 to the end, with limits of 0.2 rad on the first and the
+    last step easing to 0.75 (``turns_near_keys``, keys at both ends): no step turns beyond its
+    own limit, the first one exactly at it; one limit for every step gives the same poses as the
+    scalar, bit for bit."""
+    frames = 13
+    still = quat_from_axis_angle(jnp.broadcast_to(jnp.asarray([0.0, 0.0, 1.0]), (frames, 3)), jnp.full(frames, 0.2))
+    flip = quat_from_axis_angle(jnp.asarray([1.0, 0.0, 0.0]), jnp.asarray(2.6))
+    quat = jnp.stack([still.at[1:].set(quat_mul(still[1:], flip)), still], axis=1)
+    root = jnp.zeros((frames, 3))
+    distance = np.minimum(np.arange(frames), frames - 1 - np.arange(frames))
+    limits = turns_near_keys(distance, 0.2, 0.75, 4)
+    np.testing.assert_allclose(limits[[0, 1, 2, 3, 4, -1]], [0.2, 0.3375, 0.475, 0.6125, 0.75, 0.2])
+    out = limit_turns(Pose(root, quat), jnp.asarray(limits)).quat_local
+    turns = np.radians(np.asarray(rotation_change_deg(out)))
+    assert np.all(turns[:, 0] <= limits + 1e-4)
+    assert turns[0, 0] == pytest.approx(0.2, abs=1e-4)
+    np.testing.assert_array_equal(out[:, 1], still)
+    scalar = limit_turns(Pose(root, quat), 0.5).quat_local
+    np.testing.assert_array_equal(limit_turns(Pose(root, quat), jnp.full(frames - 1, 0.5)).quat_local, scalar)
 
 
 def test_smoothing_averages_each_frame_with_its_neighbours():
