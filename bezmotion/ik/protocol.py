@@ -194,7 +194,8 @@ def solve_frames(
     smooths over time and joins the keys before its solve); otherwise ``ik_fn`` is
     vmapped over the frames, its flips are taken out (a joint turning more than
     ``flip_turn`` rad in one frame: :func:`~bezmotion.ik.temporal.remove_flips`, the keys'
-    frames kept), and the keys are blended in.
+    frames kept), the keys are blended in, and the joints turn out of the keys no faster
+    than ``key_turn`` (:func:`~bezmotion.ik.temporal.limit_turns`).
 
     Args:
       keys: the ``(start, end)`` key poses (unbatched) to put at the first and last frame,
@@ -208,6 +209,13 @@ def solve_frames(
         0: the IK's poses as they are, the paper's). On 1,500 Bandai-Namco
         windows it took ``refined``'s largest turn in one frame from 174° to 44° for +0.006 cm
         of handle error (docs/precision.md, *Flips of the per-frame IKs*).
+      key_turn: rad, a per-frame IK's largest turn of a joint on the step next to a key,
+        easing to ``flip_turn`` over the ``key_blend_frames`` frames from it
+        (:data:`~bezmotion.ik.temporal.KEY_TURN`, 23°, under both corpora's mocap's largest
+        there; 0: no such limit). Without it the IK's own turn away from the key's pose
+        (where its pose on the key's frame is not the key's) pops at up to ``flip_turn``.
+        With ``flip_turn=0`` and ``key_turn=0`` the IK's poses are joined to the keys as the
+        paper's are.
     """
     window = getattr(ik_fn, "solve_window", None)
     if window is not None:

@@ -152,8 +152,11 @@ def remove_flips(pose: Pose, turn: Float[Array, ""] | float = FLIP_TURN, anchors
 def turns_near_keys(distance: np.ndarray, key_turn: float, turn: float, frames: int) -> np.ndarray:
     """``(frames − 1,)`` per-step turn limits for :func:`limit_turns`: ``key_turn`` rad on the
     steps that touch a key (``distance`` ``(frames,)``: each frame's distance to the nearest
-    key, 0 at the keys), easing linearly to ``turn`` over ``frames`` frames from it."""
+    key, 0 at the keys), easing linearly to ``turn`` over ``frames`` frames from it;
+    ``turn ≤ 0``: the other steps unlimited."""
     step_distance = np.minimum(distance[:-1], distance[1:])
+    if turn <= 0.0:
+        return np.where(step_distance == 0, key_turn, 0.0)
     share = np.minimum(step_distance / max(frames, 1), 1.0)
     return key_turn + (turn - key_turn) * share
 

@@ -125,6 +125,7 @@ def test_limit_turns_takes_a_limit_per_step():
     distance = np.minimum(np.arange(frames), frames - 1 - np.arange(frames))
     limits = turns_near_keys(distance, 0.2, 0.75, 4)
     np.testing.assert_allclose(limits[[0, 1, 2, 3, 4, -1]], [0.2, 0.3375, 0.475, 0.6125, 0.75, 0.2])
+    np.testing.assert_array_equal(turns_near_keys(distance, 0.2, 0.0, 4), [0.2] + [0.0] * (frames - 3) + [0.2])  # others off
     out = limit_turns(Pose(root, quat), jnp.asarray(limits)).quat_local
     turns = np.radians(np.asarray(rotation_change_deg(out)))
     assert np.all(turns[:, 0] <= limits + 1e-4)
