@@ -14,7 +14,7 @@ import pytest
 from helpers import lapack_calls, np_matrix_from_quat, np_quat_from_axis_angle, np_quat_mul, random_quat
 
 from bezmotion.bezier import BezierLayout, evaluate, fit_curves
-from bezmotion.linalg import cholesky_solve, min_norm_solve, top_eigenvector
+from bezmotion.linalg import cholesky_solve, inverse_3x3, min_norm_solve, top_eigenvector
 from bezmotion.pipeline.transfer import mean_rotation
 
 
@@ -52,6 +52,11 @@ def test_cholesky_solve_matches_lapack(rng):
     expected = np.linalg.solve(spd, rhs[..., None])[..., 0]
     np.testing.assert_allclose(got, expected, rtol=1e-3, atol=1e-4 * np.abs(expected).max())
     assert np.isnan(np.asarray(cholesky_solve(-jnp.eye(3), jnp.ones(3)))).all()  # not positive definite
+
+
+def test_inverse_3x3_matches_lapack(rng):
+    m = rng.normal(size=(4, 2, 3, 3)) + 3.0 * np.eye(3)
+    np.testing.assert_allclose(np.asarray(inverse_3x3(jnp.asarray(m))), np.linalg.inv(m), rtol=1e-5, atol=1e-6)
 
 
 def test_top_eigenvector_matches_eigh(rng):

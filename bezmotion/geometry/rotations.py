@@ -221,6 +221,52 @@ def quat_log(q: Float[Array, "*batch 4"]) -> Float[Array, "*batch 3"]:
     return scale * xyz
 
 
+# ------------------------------------------------------------------------------ SO(3) Jacobians
+
+
+def _angle_of(v: Float[Array, "*batch 3"]) -> tuple[Array, Array, Array, Array]:
+    """``(θ², small, safe θ², safe θ)`` of rotation vectors, each ``(*batch, 1, 1)``: ``small``
+    where θ < ``_SMALL_ANGLE`` (the series apply there), the safe values 1 there (no 0/0)."""
+    theta_sq = jnp.sum(v * v, axis=-1)[..., None, None]
+    small = theta_sq < _SMALL_ANGLE**2
+    safe_sq = jnp.where(small, 1.0, theta_sq)
+    return theta_sq, small, safe_sq, jnp.sqrt(safe_sq)
+
+
+def right_jacobian(v: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3 3"]:
+    """``J`` with ``exp(v + dv) ≈ exp(v) ⊗ exp(J dv)`` (SO(3)'s right Jacobian of the rotation
+    vector ``v``, :func:`quat_exp`); Taylor series below ``_SMALL_ANGLE``."""
+    theta_sq, small, safe_sq, theta = _angle_of(v)
+    a = jnp.where(small, 0.5 - theta_sq / 24.0, (1.0 - jnp.cos(theta)) / safe_sq)
+    b = jnp.where(small, 1.0 / 6.0 - theta_sq / 120.0, (theta - jnp.sin(theta)) / (safe_sq * theta))
+    cross = skew(v)
+    return jnp.eye(3, dtype=v.dtype) - a * cross + b * (cross @ cross)
+
+
+def right_jacobian_inverse(v: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3 3"]:
+    """``J_r(v)⁻¹``: ``log(exp(v) ⊗ exp(ε)) ≈ v + J_r⁻¹(v) ε`` (angle ≤ π); series near 0.
+
+    ``I + ½[v]× + c [v]×²`` with ``c = 1/θ² − cot(θ/2)/(2θ)``, finite up to θ = π.
+    """
+    theta_sq, small, safe_sq, theta = _angle_of(v)
+    c = jnp.where(small, 1.0 / 12.0 + theta_sq / 720.0, 1.0 / safe_sq - jnp.cos(0.5 * theta) / (2.0 * theta * jnp.sin(0.5 * theta)))
+    cross = skew(v)
+    return jnp.eye(3, dtype=v.dtype) + 0.5 * cross + c * (cross @ cross)
+
+
+def skew(v: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3 3"]:
+    """``[v]×``: the matrix of ``x ↦ v × x``."""
+    zero = jnp.zeros_like(v[..., 0])
+    return jnp.stack(
+        [
+            jnp.stack([zero, -v[..., 2], v[..., 1]], axis=-1),
+            jnp.stack([v[..., 2], zero, -v[..., 0]], axis=-1),
+            jnp.stack([-v[..., 1], v[..., 0], zero], axis=-1),
+        ],
+        axis=-2,
+    )
+
+
 # ------------------------------------------------------------------------------ matrices
 
 

@@ -80,15 +80,17 @@ from bezmotion.geometry.rotations import (
     quat_from_rot6d,
     quat_log,
     quat_mul,
+    right_jacobian,
+    right_jacobian_inverse,
     safe_norm,
+    skew,
 )
 from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.key_blend import blend_to_chain_keys, distances_to_keys
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, pose_fk
 from bezmotion.ik.temporal import FLIP_TURN, limit_turns, planted_feet, remove_flips, smooth
-from bezmotion.linalg import cholesky_solve
+from bezmotion.linalg import cholesky_solve, inverse_3x3
 
-_SMALL_ANGLE = 1e-4  # rad: below this the right Jacobians use their Taylor series
 # Levenberg–Marquardt damping, relative to each unknown's own curvature (the diagonal of
 # JᵀW²J: a hand's position rows weigh a shoulder turn by its ~50 cm lever, the hips' by a
 # few cm): none while steps lower the cost (the inner IK's pose is already close), from
@@ -236,48 +238,6 @@ def _apply(character: Character, start: Pose, delta: Float[Array, "free 3"], roo
     return Pose(start.root_pos + root_delta, quat)
 
 
-def _angle_of(v: Float[Array, "*batch 3"]) -> tuple[Array, Array, Array, Array]:
-    """``(θ², small, safe θ², safe θ)`` of rotation vectors, each ``(*batch, 1, 1)``: ``small``
-    where θ < ``_SMALL_ANGLE`` (the series apply there), the safe values 1 there (no 0/0)."""
-    theta_sq = jnp.sum(v * v, axis=-1)[..., None, None]
-    small = theta_sq < _SMALL_ANGLE**2
-    safe_sq = jnp.where(small, 1.0, theta_sq)
-    return theta_sq, small, safe_sq, jnp.sqrt(safe_sq)
-
-
-def _right_jacobian(v: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3 3"]:
-    """``J`` with ``exp(v + dv) ≈ exp(v) ⊗ exp(J dv)`` (SO(3)'s right Jacobian); series near 0."""
-    theta_sq, small, safe_sq, theta = _angle_of(v)
-    a = jnp.where(small, 0.5 - theta_sq / 24.0, (1.0 - jnp.cos(theta)) / safe_sq)
-    b = jnp.where(small, 1.0 / 6.0 - theta_sq / 120.0, (theta - jnp.sin(theta)) / (safe_sq * theta))
-    skew = _skew(v)
-    return jnp.eye(3, dtype=v.dtype) - a * skew + b * (skew @ skew)
-
-
-def _right_jacobian_inverse(v: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3 3"]:
-    """``J_r(v)⁻¹``: ``log(exp(v) ⊗ exp(ε)) ≈ v + J_r⁻¹(v) ε`` (angle ≤ π); series near 0.
-
-    ``I + ½[v]× + c [v]×²`` with ``c = 1/θ² − cot(θ/2)/(2θ)``, finite up to θ = π.
-    """
-    theta_sq, small, safe_sq, theta = _angle_of(v)
-    c = jnp.where(small, 1.0 / 12.0 + theta_sq / 720.0, 1.0 / safe_sq - jnp.cos(0.5 * theta) / (2.0 * theta * jnp.sin(0.5 * theta)))
-    skew = _skew(v)
-    return jnp.eye(3, dtype=v.dtype) + 0.5 * skew + c * (skew @ skew)
-
-
-def _skew(v: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3 3"]:
-    """``[v]×``: the matrix of ``x ↦ v × x``."""
-    zero = jnp.zeros_like(v[..., 0])
-    return jnp.stack(
-        [
-            jnp.stack([zero, -v[..., 2], v[..., 1]], axis=-1),
-            jnp.stack([v[..., 2], zero, -v[..., 0]], axis=-1),
-            jnp.stack([-v[..., 1], v[..., 0], zero], axis=-1),
-        ],
-        axis=-2,
-    )
-
-
 class _Problem(NamedTuple):
     """One frame's fixed data: the start pose, the targets and how much each position weighs."""
 
@@ -309,7 +269,7 @@ def _limit_jacobian(params: ExactIKParams, rel: Array, delta: Array) -> Array:
     """
     free = _free_joints(params.character)
     outside = ((rel > params.limits.upper[free]) | (rel < params.limits.lower[free])).astype(delta.dtype)[..., None]
-    return outside * (_right_jacobian_inverse(rel) @ _right_jacobian(delta))
+    return outside * (right_jacobian_inverse(rel) @ right_jacobian(delta))
 
 
 def _evaluate(params: ExactIKParams, problem: _Problem, delta: Array, root_delta: Array):
@@ -340,15 +300,6 @@ def _evaluate(params: ExactIKParams, problem: _Problem, delta: Array, root_delta
         + params.limit_weight**2 * jnp.sum(excess * excess)
     )
     return rot, pos_global, rel, e_pos, row_scale, e_rot, excess, limit_rel, cost
-
-
-def _inverse_3x3(m: Float[Array, "*batch 3 3"]) -> Float[Array, "*batch 3 3"]:
-    """Inverse of invertible 3×3 matrices by the adjugate (LAPACK per 3×3 matrix is far slower on CPU)."""
-    c0 = jnp.cross(m[..., 1, :], m[..., 2, :])
-    c1 = jnp.cross(m[..., 2, :], m[..., 0, :])
-    c2 = jnp.cross(m[..., 0, :], m[..., 1, :])
-    det = jnp.sum(m[..., 0, :] * c0, axis=-1)[..., None, None]
-    return jnp.stack([c0, c1, c2], axis=-1) / det
 
 
 def _position_scale(params: ExactIKParams, pinned: Array, planted: Array, dtype, near: Array | None = None) -> Array:
@@ -398,13 +349,13 @@ def _step(params: ExactIKParams, problem: _Problem, delta: Array, root_delta: Ar
     # moves by axis × (p − joint), a frame column c by axis × c. The Jacobian is built
     # transposed, ``(free joint, k, row)``, the layout every product below reads without a
     # copy (built rows first, its transposes took about a quarter of the step).
-    axes = jnp.swapaxes(rot[free] @ _right_jacobian(delta), -1, -2)  # (free, k, xyz)
+    axes = jnp.swapaxes(rot[free] @ right_jacobian(delta), -1, -2)  # (free, k, xyz)
     mask = jnp.asarray(_ancestry(character).T, dtype)[:, None, :, None]  # (free, 1, 6, 1)
     lever = pos[idx][None, :, :] - pos[free][:, None, :]  # (free, 6, xyz)
     j_pos = mask * jnp.cross(axes[:, :, None, :], lever[:, None, :, :]) * scale[None, None]  # (free, k, 6, xyz)
     # A world turn ω of the joint changes 2·vec(q_rel) by (w I − [v]×) ω, (w, v) = q_rel.
     w, v = rel[:, :1, None], rel[:, 1:]
-    turn = w * jnp.eye(3, dtype=dtype) - _skew(v)  # (6, xyz out, xyz in)
+    turn = w * jnp.eye(3, dtype=dtype) - skew(v)  # (6, xyz out, xyz in)
     j_rot = mask * jnp.einsum("eab,fkb->fkea", turn, axes)  # (free, k, 6, xyz)
     # Rows: 18 positions then 18 orientations (joint-major); columns: (free joint, k), then the root.
     jac_free = jnp.concatenate([j_pos.reshape(n_free, 3, 18), j_rot.reshape(n_free, 3, 18)], axis=-1)  # (free, k, 36)
@@ -433,7 +384,7 @@ def _step(params: ExactIKParams, problem: _Problem, delta: Array, root_delta: Ar
     root_block = (params.root_weight**2 + hold_root**2 + damping * root_curvature) * jnp.ones(3, dtype)
     root_grad = params.root_weight**2 * (root_delta - anchor[1]) + hold_root**2 * root_delta
 
-    inv_blocks = _inverse_3x3(blocks)
+    inv_blocks = inverse_3x3(blocks)
     jd_free = jnp.swapaxes(inv_blocks, -1, -2) @ jac_free  # (J D⁻¹)ᵀ, (free, k, 36)
     jd_root = jac_root / root_block[:, None]
     rows = jac_free.shape[-1]

@@ -428,3 +428,21 @@ def _singular_cases() -> dict:
 def test_gradients_finite_at_singular_inputs(x64):
     """No NaN where the math has removable singularities: identity, antipodes, zero vectors."""
     assert_finite_gradients(_singular_cases())
+
+
+@pytest.mark.parametrize("angle", [0.0, 1e-6, 0.3, 2.0, 3.1])
+def test_right_jacobians_are_the_exponential_maps_derivative(rng, x64, angle):
+    """``exp(v + dv) ≈ exp(v) ⊗ exp(J_r(v) dv)`` and ``log(exp(v) ⊗ exp(ε)) ≈ v + J_r⁻¹(v) ε`` to
+    second order, on both sides of the Taylor-series switch and near π; ``J_r⁻¹`` inverts
+    ``J_r``; ``skew(v) @ x`` is ``v × x``."""
+    axis = rng.normal(size=3)
+    v = jnp.asarray(angle * axis / np.linalg.norm(axis))
+    d = jnp.asarray(1e-6 * rng.normal(size=3))
+    jr, jr_inv = R.right_jacobian(v), R.right_jacobian_inverse(v)
+    np.testing.assert_allclose(
+        np.asarray(R.quat_mul(R.quat_exp(v), R.quat_exp(jr @ d))), np.asarray(R.quat_exp(v + d)), atol=1e-11
+    )
+    np.testing.assert_allclose(np.asarray(R.quat_log(R.quat_mul(R.quat_exp(v), R.quat_exp(d)))), np.asarray(v + jr_inv @ d), atol=1e-11)
+    np.testing.assert_allclose(np.asarray(jr_inv @ jr), np.eye(3), atol=1e-12)
+    x = jnp.asarray(rng.normal(size=3))
+    np.testing.assert_allclose(np.asarray(R.skew(v) @ x), np.cross(np.asarray(v), np.asarray(x)), atol=1e-15)
