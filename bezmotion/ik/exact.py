@@ -179,6 +179,10 @@ class ExactIKParams:
         away, nothing from three) a third of the Bandai-Namco OOD windows turning a joint
         more than 45° a frame go (LaFAN1: 9 → 5 of 1,000), with less skating, for 0.13 cm
         (LaFAN1 0.03) more OOD MPJPE (docs/precision.md, *Ramps into handle frames*).
+      finish_turn: rad: after the window solve's last pass, a joint turning more than this
+        in one frame is ramped into the turn (:func:`~bezmotion.ik.temporal.limit_turns`),
+        the keys' and the handles' frames kept, so those frames still meet their targets and
+        the frames next to them leave their curves instead; 0: off.
       iterations: Levenberg–Marquardt steps per frame and pass (static).
       window_passes: how many times the window solve smooths the poses over time and
         solves again from them (static; the first smooths the inner IK's poses). Each pass
@@ -205,6 +209,7 @@ class ExactIKParams:
     spike_turn: Float[Array, ""] | float = FLIP_TURN
     robust_cm: Float[Array, ""] | float = 5.0
     handle_spread: Float[Array, ""] | float = 0.25
+    finish_turn: Float[Array, ""] | float = 0.0
     iterations: int = dataclasses.field(default=6, metadata=dict(static=True))
     window_passes: int = dataclasses.field(default=2, metadata=dict(static=True))
 
@@ -584,6 +589,7 @@ class ExactIKFn:
             if keys is not None:
                 start = blend_to_chain_keys(start, keys, key_blend_frames)
             pose = jax.vmap(lambda s, t, h, p, n: _solve(params, s, t, params.iterations, h, p, n))(start, targets, hold, planted, near)
+        pose = limit_turns(pose, params.finish_turn, at_handle)
         if keys is not None:
             pose = blend_to_chain_keys(pose, keys, 0)
         return ExactIKResult(pose, *_errors(params.character, pose, targets))
