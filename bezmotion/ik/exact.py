@@ -209,7 +209,7 @@ class ExactIKParams:
     spike_turn: Float[Array, ""] | float = FLIP_TURN
     robust_cm: Float[Array, ""] | float = 5.0
     handle_spread: Float[Array, ""] | float = 0.25
-    finish_turn: Float[Array, ""] | float = 0.0
+    finish_turn: Float[Array, ""] | float = FLIP_TURN
     iterations: int = dataclasses.field(default=6, metadata=dict(static=True))
     window_passes: int = dataclasses.field(default=2, metadata=dict(static=True))
 

@@ -137,6 +137,14 @@ def limit_turns(
     take_forward = so_far > to_come
     limited = jnp.where(take_forward[..., None], forward, backward)
     limited = jnp.where(kept[:, None, None], q, limited)
+    # Where two kept frames lie too far apart along the poses' path for the frames between to
+    # ramp (a joint spinning fast between a key and a handle), the two passes never meet and the
+    # split would turn the rest in one step: such a joint keeps its poses.
+    def largest_turn(x: Array) -> Array:
+        return jnp.max(quat_angle(x[:-1], x[1:]), axis=0)  # (joints,)
+
+    worse = largest_turn(limited) > largest_turn(q) + 1e-6
+    limited = jnp.where(worse[None, :, None], q, limited)
     # Unchanged frames keep their own quaternion (not slerp's sign of it): a no-op stays exact.
     same = jnp.abs(jnp.sum(limited * q, axis=-1, keepdims=True)) >= 1.0 - 1e-7
     return pose._replace(quat_local=jnp.where(same, q, limited))

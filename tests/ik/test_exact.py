@@ -244,7 +244,8 @@ def test_window_solve_joins_the_keys_and_holds_their_neighbours(bandai):
     targets = targets_from_pose(bandai.character, truth)
     targets = targets._replace(position=targets.position.at[1, 3].add(jnp.asarray([0.0, 20.0, 0.0])))
     keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
-    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, iterations=10)  # the pipeline's
+    # (finish_turn off: it would ramp the free solve's snap to the jump, which is no handle.)
+    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, iterations=10, finish_turn=0.0)
     solve = jax.jit(lambda p, t: fn.solve_window_with_residual(p, t, keys, 6))
 
     def turn_next_to_start_deg(result) -> float:
@@ -340,7 +341,7 @@ def test_window_solve_ramps_a_lasting_flip_of_the_inner_ik(bandai):
     targets = targets_from_pose(bandai.character, truth)  # hips z: −539 … −519 cm; frames 9–13 flipped
     keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
     arm = bandai.character.skeleton.names.index("UpperArm_R")
-    fn, params = exact_ik(_FlippingIK(arm, -527.5, -522.0), load_ik_model(BUNDLED_IK), bandai.character)
+    fn, params = exact_ik(_FlippingIK(arm, -527.5, -522.0), load_ik_model(BUNDLED_IK), bandai.character, finish_turn=0.0)  # the first ramp alone
     solve = jax.jit(lambda p, t: fn.solve_window_with_residual(p, t, keys, 6))
     limited, unlimited = solve(params, targets), solve(dataclasses.replace(params, spike_turn=0.0), targets)
     arm_turn = lambda r: float(jnp.max(rotation_change_deg(r.pose.quat_local)[:, arm]))  # noqa: E731
@@ -367,7 +368,7 @@ def test_second_pass_starts_from_ramps_into_a_handle_frame(bandai, monkeypatch):
     pinned = jnp.zeros((31, 6), bool).at[6, :2].set(True)
     targets = targets._replace(position=position, pinned=pinned)
     keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
-    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, handle_spread=0.0)  # the ramp alone
+    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, handle_spread=0.0, finish_turn=0.0)  # the ramp alone
 
     def solve():
         result = jax.jit(lambda p, t: fn.solve_window_with_residual(p, t, keys, 6))(params, targets)
@@ -379,6 +380,30 @@ def test_second_pass_starts_from_ramps_into_a_handle_frame(bandai, monkeypatch):
     unramped, unramped_miss = solve()
     assert unramped > 65.0 and ramped < 55.0, (unramped, ramped)
     assert ramped_miss <= unramped_miss + 0.02, (ramped_miss, unramped_miss)
+
+
+def test_finish_ramps_every_turn_into_the_handle_frames(bandai):
+    """``finish_turn``: after the last pass no joint turns more than it in one frame; the handle
+    frames and the keys are kept, so the handles are met exactly as without it. Head pinned 30 cm
+    lower and hips 12 cm higher at frame 6 of the demo window: a joint turns ~57° a frame into
+    the handle frame without the finish, 43° with it."""
+    from bezmotion.metrics import rotation_change_deg
+
+    motion = read_bvh(DEMO_CLIP)
+    truth = pose_from_motion(bandai.character, jnp.asarray(motion.quat_local[:31]), jnp.asarray(motion.pos_local[:31]))
+    targets = targets_from_pose(bandai.character, truth)
+    bump = jnp.exp(-0.5 * ((jnp.arange(31) - 6) / 3.0) ** 2)
+    position = targets.position.at[:, 1, 1].add(-30.0 * bump).at[:, 0, 1].add(12.0 * bump)
+    targets = targets._replace(position=position, pinned=jnp.zeros((31, 6), bool).at[6, :2].set(True))
+    keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
+    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character)
+    solve = jax.jit(lambda p: fn.solve_window_with_residual(p, targets, keys, 6))
+    finished, raw = solve(params), solve(dataclasses.replace(params, finish_turn=0.0))
+    largest = lambda r: float(jnp.max(rotation_change_deg(r.pose.quat_local)))  # noqa: E731
+    assert largest(raw) > 50.0 and largest(finished) <= np.degrees(params.finish_turn) + 1e-3, (largest(raw), largest(finished))
+    for kept in (0, 6, 30):
+        np.testing.assert_array_equal(np.asarray(finished.pose.quat_local[kept]), np.asarray(raw.pose.quat_local[kept]))
+    np.testing.assert_array_equal(np.asarray(finished.position_error[6]), np.asarray(raw.position_error[6]))
 
 
 def test_handle_spread_weighs_a_handles_neighbours_more(bandai):
