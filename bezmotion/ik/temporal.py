@@ -139,11 +139,13 @@ def limit_turns(
     limited = jnp.where(kept[:, None, None], q, limited)
     # Where two kept frames lie too far apart along the poses' path for the frames between to
     # ramp (a joint spinning fast between a key and a handle), the two passes never meet and the
-    # split would turn the rest in one step: such a joint keeps its poses.
-    def largest_turn(x: Array) -> Array:
-        return jnp.max(quat_angle(x[:-1], x[1:]), axis=0)  # (joints,)
+    # split would turn the rest in one step: a joint whose largest turn beyond its step's limit
+    # would grow keeps its poses.
+    def largest_excess(x: Array) -> Array:  # (joints,)
+        excess = quat_angle(x[:-1], x[1:]) - turns[:, None]
+        return jnp.max(jnp.where(turns[:, None] > 0.0, excess, -jnp.inf), axis=0)
 
-    worse = largest_turn(limited) > largest_turn(q) + 1e-6
+    worse = largest_excess(limited) > largest_excess(q) + 1e-6
     limited = jnp.where(worse[None, :, None], q, limited)
     # Unchanged frames keep their own quaternion (not slerp's sign of it): a no-op stays exact.
     same = jnp.abs(jnp.sum(limited * q, axis=-1, keepdims=True)) >= 1.0 - 1e-7
