@@ -182,7 +182,10 @@ class ExactIKParams:
       finish_turn: rad: after the window solve's last pass, a joint turning more than this
         in one frame is ramped into the turn (:func:`~bezmotion.ik.temporal.limit_turns`),
         the keys' and the handles' frames kept, so those frames still meet their targets and
-        the frames next to them leave their curves instead; 0: off.
+        the frames next to them leave their curves instead; 0: off. An OOD handle can make
+        its frame bend alone (93° a frame on Bandai-Namco); at ``FLIP_TURN`` (43°, the
+        default) no window turns a joint faster, for +0.001 cm of curve error
+        (docs/precision.md, *The exact IK's last turns*).
       iterations: Levenberg–Marquardt steps per frame and pass (static).
       window_passes: how many times the window solve smooths the poses over time and
         solves again from them (static; the first smooths the inner IK's poses). Each pass
