@@ -212,7 +212,7 @@ def solve_frames(
       key_turn: rad, a per-frame IK's largest turn of a joint on the step next to a key,
         easing to ``flip_turn`` over the ``key_blend_frames`` frames from it
         (:data:`~bezmotion.ik.temporal.KEY_TURN`, 23°, under both corpora's mocap's largest
-        there; 0: no such limit). Without it the IK's own turn away from the key's pose
+        there; 0, or ``key_blend_frames=0``: no such limit). Without it the IK's own turn away from the key's pose
         (where its pose on the key's frame is not the key's) pops at up to ``flip_turn``.
         With ``flip_turn=0`` and ``key_turn=0`` the IK's poses are joined to the keys as the
         paper's are.
@@ -228,7 +228,7 @@ def solve_frames(
     distance = distances_to_keys(pose.root_pos.shape[0], keys)
     at_keys = jnp.asarray(distance == 0)
     pose = blend_to_chain_keys(remove_flips(pose, flip_turn, at_keys), keys, key_blend_frames)
-    if key_turn <= 0.0:
+    if key_turn <= 0.0 or key_blend_frames == 0:  # no join asked for: the keys replace their frames alone
         return pose
     return limit_turns(pose, jnp.asarray(turns_near_keys(distance, key_turn, flip_turn, key_blend_frames)), at_keys)
 
