@@ -566,6 +566,8 @@ class ExactIKFn:
         than the targets move (no pop), and the solve still hits every target there. A
         chain's keys (batched ``(K + 1, …)``, ``targets`` of ``K·(W − 1) + 1`` frames) join
         each window to its own two keys and hold the frames on both sides of every key.
+        After the last pass no joint turns more than ``finish_turn`` in a frame, the keys'
+        and handles' frames kept (:func:`~bezmotion.ik.temporal.limit_turns`).
         """
         pose = jax.vmap(self.inner, in_axes=(None, 0))(params.inner, targets)
         frames = pose.root_pos.shape[0]

@@ -3,8 +3,10 @@
 A learned IK solves every frame on its own, so its poses jitter, and now and then one joint
 flips for a frame (:func:`remove_spikes`) or for good (:func:`limit_turns`); :func:`remove_flips`
 does both. The window solve (:meth:`bezmotion.ik.exact.ExactIKFn.solve_window`) takes those out,
-then smooths the poses over time (:func:`smooth`) before each of its passes; a per-frame IK's
-window gets :func:`remove_flips` in :func:`~bezmotion.ik.protocol.solve_frames`.
+then smooths the poses over time (:func:`smooth`) before each of its passes, and limits the
+turns after its last; a per-frame IK's window gets :func:`remove_flips` in
+:func:`~bezmotion.ik.protocol.solve_frames`, and slower turns out of the keys
+(:func:`turns_near_keys`).
 :func:`planted_feet` marks the frames whose foot targets stand still. Every function takes one
 window ``(frames, …)``.
 """
@@ -94,9 +96,11 @@ def limit_turns(
     Between two kept frames the result takes the forward pass up to the frame where the two
     passes agree best (both back on the given poses), the backward pass after it: the ramp
     lies on the side of the step away from the nearer kept frame, and the frames next to each
-    stay continuous with it. The window solve keeps its keys, and between its passes also
-    the frames with a handle, so a bend that only the handle's frame made (the frames next to
-    it held at their start) becomes a ramp into it. Poses that never turn that fast are
+    stay continuous with it. The window solve keeps its keys, and between its passes and after
+    the last also the frames with a handle, so a bend that only the handle's frame made (the
+    frames next to it held at their start) becomes a ramp into it. A joint whose largest turn
+    beyond its step's limit would grow (kept frames too close along a fast spin for a ramp)
+    keeps its poses. Poses that never turn that fast are
     returned unchanged (bit for bit); ``turn ≤ 0`` turns it off (per step: that step); the
     hips' position is never changed.
     """
