@@ -23,7 +23,7 @@ from bezmotion.geometry.rotations import quat_angle, quat_from_axis_angle, quat_
 import bezmotion.ik.exact as exact_module
 from bezmotion.ik.exact import ExactIKFn, _errors, exact_ik
 from bezmotion.ik.joint_limits import JointLimits
-from bezmotion.ik.protocol import Character, Pose, pose_from_motion, solve_frames, targets_from_pose
+from bezmotion.ik.protocol import Character, IKTargets, Pose, pose_from_motion, solve_frames, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik
 
@@ -351,6 +351,22 @@ def test_window_solve_ramps_a_lasting_flip_of_the_inner_ik(bandai):
     assert mean <= float(jnp.mean(unlimited.position_error)) + 0.01 and worst <= float(jnp.max(unlimited.position_error)) + 0.05
 
 
+def _demo_window_pulled(character: Character, head_cm: float, hips_cm: float) -> tuple[IKTargets, tuple[Pose, Pose]]:
+    """The demo clip's first 31 frames as targets and keys, the head moved ``head_cm`` and the
+    hips ``hips_cm`` up along a bump peaking at frame 6 (a curve through the handles), both
+    pinned there (the hips only when moved)."""
+    motion = read_bvh(DEMO_CLIP)
+    truth = pose_from_motion(character, jnp.asarray(motion.quat_local[:31]), jnp.asarray(motion.pos_local[:31]))
+    targets = targets_from_pose(character, truth)
+    bump = jnp.exp(-0.5 * ((jnp.arange(31) - 6) / 3.0) ** 2)
+    position = targets.position.at[:, 1, 1].add(head_cm * bump)
+    pinned = jnp.zeros((31, 6), bool).at[6, 1].set(True)
+    if hips_cm:
+        position, pinned = position.at[:, 0, 1].add(hips_cm * bump), pinned.at[6, 0].set(True)
+    keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
+    return targets._replace(position=position, pinned=pinned), keys
+
+
 def test_second_pass_starts_from_ramps_into_a_handle_frame(bandai, monkeypatch):
     """Between its passes the window solve ramps the frames next to a handle frame towards it
     (``limit_turns`` keeping the handle frames): head pinned 20 cm lower and hips 8 cm higher at
@@ -360,14 +376,7 @@ def test_second_pass_starts_from_ramps_into_a_handle_frame(bandai, monkeypatch):
     are met as closely."""
     from bezmotion.metrics import rotation_change_deg
 
-    motion = read_bvh(DEMO_CLIP)
-    truth = pose_from_motion(bandai.character, jnp.asarray(motion.quat_local[:31]), jnp.asarray(motion.pos_local[:31]))
-    targets = targets_from_pose(bandai.character, truth)
-    bump = jnp.exp(-0.5 * ((jnp.arange(31) - 6) / 3.0) ** 2)[:, None]  # a curve through the handles
-    position = targets.position.at[:, 1, 1].add(-20.0 * bump[:, 0]).at[:, 0, 1].add(8.0 * bump[:, 0])
-    pinned = jnp.zeros((31, 6), bool).at[6, :2].set(True)
-    targets = targets._replace(position=position, pinned=pinned)
-    keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
+    targets, keys = _demo_window_pulled(bandai.character, head_cm=-20.0, hips_cm=8.0)
     fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, handle_spread=0.0, finish_turn=0.0)  # the ramp alone
 
     def solve():
@@ -389,13 +398,7 @@ def test_finish_ramps_every_turn_into_the_handle_frames(bandai):
     the handle frame without the finish, 43° with it."""
     from bezmotion.metrics import rotation_change_deg
 
-    motion = read_bvh(DEMO_CLIP)
-    truth = pose_from_motion(bandai.character, jnp.asarray(motion.quat_local[:31]), jnp.asarray(motion.pos_local[:31]))
-    targets = targets_from_pose(bandai.character, truth)
-    bump = jnp.exp(-0.5 * ((jnp.arange(31) - 6) / 3.0) ** 2)
-    position = targets.position.at[:, 1, 1].add(-30.0 * bump).at[:, 0, 1].add(12.0 * bump)
-    targets = targets._replace(position=position, pinned=jnp.zeros((31, 6), bool).at[6, :2].set(True))
-    keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
+    targets, keys = _demo_window_pulled(bandai.character, head_cm=-30.0, hips_cm=12.0)
     fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character)
     solve = jax.jit(lambda p: fn.solve_window_with_residual(p, targets, keys, 6))
     finished, raw = solve(params), solve(dataclasses.replace(params, finish_turn=0.0))
@@ -422,12 +425,7 @@ def test_handle_spread_weighs_a_handles_neighbours_more(bandai):
     scale = exact_module._position_scale(params, pinned[5], jnp.zeros(6, bool), jnp.float32, jnp.asarray(near[5]))
     np.testing.assert_allclose(np.asarray(scale[:, 0]), [1.0, 25.0**0.25, 1.0, 1.0, 1.0, 1.0], rtol=1e-6)
 
-    motion = read_bvh(DEMO_CLIP)
-    truth = pose_from_motion(bandai.character, jnp.asarray(motion.quat_local[:31]), jnp.asarray(motion.pos_local[:31]))
-    targets = targets_from_pose(bandai.character, truth)
-    bump = jnp.exp(-0.5 * ((jnp.arange(31) - 6) / 3.0) ** 2)
-    targets = targets._replace(position=targets.position.at[:, 1, 1].add(-20.0 * bump), pinned=jnp.zeros((31, 6), bool).at[6, 1].set(True))
-    keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
+    targets, keys = _demo_window_pulled(bandai.character, head_cm=-20.0, hips_cm=0.0)
     fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character)
     solve = jax.jit(lambda p: fn.solve_window_with_residual(p, targets, keys, 6))
     off, spread = solve(dataclasses.replace(params, handle_spread=0.0)), solve(params)  # the default: 0.25

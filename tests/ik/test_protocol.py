@@ -108,6 +108,17 @@ def test_character_rejects_bad_joints_and_mappings(clip):
         Character.from_skeleton(skeleton, {**custom, "hips": "Pelvis"})
 
 
+def _twisting_ik(params, targets):
+    """A toy per-frame IK: joint 1 of 3 twisted about X by the hips target's X (rad), the rest identity."""
+    twist = quat_from_axis_angle(jnp.asarray([1.0, 0.0, 0.0]), targets.position[0, 0])
+    return Pose(targets.position[0], quat_identity((3,)).at[1].set(twist))
+
+
+def _joint1_turns(pose: Pose) -> np.ndarray:
+    """Joint 1's turn (rad) from each frame to the next."""
+    return np.asarray(quat_angle(pose.quat_local[1:, 1], pose.quat_local[:-1, 1]))
+
+
 def test_solve_frames_takes_a_per_frame_iks_flips_out():
     """A per-frame IK that twists joint 1 by 149° for one frame (5) and for good from frame 12
     on: ``solve_frames`` replaces the one-frame flip by its neighbours and ramps into the
@@ -117,22 +128,15 @@ def test_solve_frames_takes_a_per_frame_iks_flips_out():
     angle[5] += 2.6
     angle[12:] += 2.6
 
-    def twisting_ik(params, targets):
-        twist = quat_from_axis_angle(jnp.asarray([1.0, 0.0, 0.0]), targets.position[0, 0])
-        return Pose(targets.position[0], quat_identity((3,)).at[1].set(twist))
-
     position = np.zeros((20, 6, 3), np.float32)
     position[:, 0, 0] = angle
     targets = IKTargets(jnp.asarray(position), jnp.zeros((20, 6, 6)))
     solve = jax.jit(solve_frames, static_argnums=0, static_argnames="flip_turn")
-    raw, clean = solve(twisting_ik, None, targets, flip_turn=0.0), solve(twisting_ik, None, targets)
+    raw, clean = solve(_twisting_ik, None, targets, flip_turn=0.0), solve(_twisting_ik, None, targets)
 
-    def turns(pose):
-        return np.asarray(quat_angle(pose.quat_local[1:, 1], pose.quat_local[:-1, 1]))
-
-    assert turns(raw).max() > 2.5
-    assert turns(clean).max() <= FLIP_TURN + 1e-5
-    assert turns(clean)[3:6].max() < 0.1  # frame 5 between its neighbours
+    assert _joint1_turns(raw).max() > 2.5
+    assert _joint1_turns(clean).max() <= FLIP_TURN + 1e-5
+    assert _joint1_turns(clean)[3:6].max() < 0.1  # frame 5 between its neighbours
     for kept in (0, 19):
         np.testing.assert_array_equal(np.asarray(clean.quat_local[kept]), np.asarray(raw.quat_local[kept]))
     np.testing.assert_array_equal(np.asarray(clean.root_pos), np.asarray(raw.root_pos))
@@ -147,24 +151,17 @@ def test_solve_frames_turns_slowly_out_of_the_keys():
     :data:`FLIP_TURN` over the key blend's frames, and the middle of the window is the same."""
     frames, blend = 31, 6
 
-    def twisted_ik(params, targets):
-        twist = quat_from_axis_angle(jnp.asarray([1.0, 0.0, 0.0]), targets.position[0, 0])
-        return Pose(targets.position[0], quat_identity((3,)).at[1].set(twist))
-
     position = np.full((frames, 6, 3), 2.4, np.float32)
     position[[1, -2]], position[[0, -1]] = 1.4, 0.0
     targets = IKTargets(jnp.asarray(position), jnp.zeros((frames, 6, 6)))
     key = Pose(jnp.zeros(3), quat_identity((3,)))  # the IK's own pose on the keys' frames
     solve = jax.jit(solve_frames, static_argnums=0, static_argnames=("key_blend_frames", "key_turn"))
-    joined = solve(twisted_ik, None, targets, keys=(key, key), key_blend_frames=blend)
-    plain = solve(twisted_ik, None, targets, keys=(key, key), key_blend_frames=blend, key_turn=0.0)
+    joined = solve(_twisting_ik, None, targets, keys=(key, key), key_blend_frames=blend)
+    plain = solve(_twisting_ik, None, targets, keys=(key, key), key_blend_frames=blend, key_turn=0.0)
 
-    def turns(pose):
-        return np.asarray(quat_angle(pose.quat_local[1:, 1], pose.quat_local[:-1, 1]))
-
-    np.testing.assert_allclose(turns(plain)[[0, -1]], FLIP_TURN, atol=1e-5)
-    assert turns(joined)[[0, -1]].max() <= KEY_TURN + 1e-5
-    assert turns(joined).max() <= FLIP_TURN + 1e-5
+    np.testing.assert_allclose(_joint1_turns(plain)[[0, -1]], FLIP_TURN, atol=1e-5)
+    assert _joint1_turns(joined)[[0, -1]].max() <= KEY_TURN + 1e-5
+    assert _joint1_turns(joined).max() <= FLIP_TURN + 1e-5
     for kept in (0, frames - 1):
         np.testing.assert_array_equal(np.asarray(joined.quat_local[kept]), np.asarray(key.quat_local))
     np.testing.assert_array_equal(np.asarray(joined.quat_local[15]), np.asarray(plain.quat_local[15]))
