@@ -33,6 +33,7 @@ FLIP_TURN = 0.75
 # rad: a per-frame IK's largest turn of a joint on the step next to a key (solve_frames), easing to
 # FLIP_TURN over the key blend's frames. Under both corpora's mocap key pops (29.0° Bandai-Namco, 36.1° LaFAN1).
 KEY_TURN = 0.4
+_SLACK = 1e-4  # rad: a ramped step may measure this much over its limit after rounding; not ramped again
 _HORIZONTAL = np.asarray([1.0, 0.0, 1.0], np.float32)  # X and Z; +Y is up
 
 
@@ -96,7 +97,8 @@ def limit_turns(
     Between two kept frames the result takes the forward pass up to the frame where the two
     passes agree best (both back on the given poses), the backward pass after it: the ramp
     lies on the side of the step away from the nearer kept frame, and the frames next to each
-    stay continuous with it. The window solve keeps its keys, and between its passes and after
+    stay continuous with it; where that side is too short for the ramp, once more forwards and
+    backwards spreads it over both sides. The window solve keeps its keys, and between its passes and after
     the last also the frames with a handle, so a bend that only the handle's frame made (the
     frames next to it held at their start) becomes a ramp into it. A joint whose largest turn
     beyond its step's limit would grow (kept frames too close along a fast spin for a ramp)
@@ -112,11 +114,11 @@ def limit_turns(
     ends = jnp.zeros(frames, bool).at[jnp.asarray([0, frames - 1])].set(True)
     kept = ends if anchors is None else ends | anchors
 
-    def follow(sequence: Array, keep: Array, limit: Array) -> Array:
+    def follow(sequence: Array, keep: Array, limit: Array, slack: float = 0.0) -> Array:
         def step(previous, inputs):  # quat_angle and slerp take either sign of current
             current, restart, turn = inputs
             angle = quat_angle(previous, current)[..., None]
-            limited = (turn > 0.0) & (angle > turn) & ~restart
+            limited = (turn > 0.0) & (angle > turn + slack) & ~restart
             fraction = jnp.where(limited, turn / jnp.where(limited, angle, 1.0), 1.0)
             moved = jnp.where(limited, slerp(previous, current, fraction[..., 0]), current)
             return moved, moved
@@ -141,6 +143,12 @@ def limit_turns(
     take_forward = so_far > to_come
     limited = jnp.where(take_forward[..., None], forward, backward)
     limited = jnp.where(kept[:, None, None], q, limited)
+    # The split ramps each step from one side only; a step too large for the frames on that side
+    # (149° three frames from each kept frame, at 43° a frame) leaves the rest at the split. Once
+    # more forwards and then backwards over the result, each from its kept frames, spreads it over
+    # both sides; steps already within their limit (to rounding) are left as they are.
+    limited = follow(limited, kept, turns, _SLACK)
+    limited = follow(limited[::-1], kept[::-1], turns[::-1], _SLACK)[::-1]
     # Where two kept frames lie too far apart along the poses' path for the frames between to
     # ramp (a joint spinning fast between a key and a handle), the two passes never meet and the
     # split would turn the rest in one step: a joint whose largest turn beyond its step's limit

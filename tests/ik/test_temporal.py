@@ -112,6 +112,23 @@ def test_a_kept_frame_turned_alone_gets_ramps_into_it_from_both_sides():
     np.testing.assert_array_equal(limit_turns(Pose(root, quat), 0.0, anchors).quat_local, quat)  # off
 
 
+@pytest.mark.parametrize(("before", "after"), [(2, 3), (3, 2), (2, 2)])
+def test_limit_turns_spreads_a_step_over_both_sides(before, after):
+    """A joint turned 149° in one step, ``before`` frames after one kept frame and ``after``
+    frames before the next: at 43° a frame one side alone is too short for the ramp (3 steps:
+    129°), both together are not. Every step comes out within the limit, the kept frames as
+    given, and the joint ends up on its poses (the ramp spends the whole 149° and no more)."""
+    frames, limit = before + after + 2, np.radians(43.0)
+    z = jnp.broadcast_to(jnp.asarray([0.0, 0.0, 1.0]), (frames, 3))
+    angle = np.where(np.arange(frames) > before, 149.0, 0.0).astype(np.float32)
+    quat = quat_from_axis_angle(z, jnp.radians(jnp.asarray(angle)))[:, None]
+    out = limit_turns(Pose(jnp.zeros((frames, 3)), quat), limit).quat_local
+    turns = np.radians(np.asarray(rotation_change_deg(out)))[:, 0]
+    assert turns.max() <= limit + 1e-4, np.degrees(turns)
+    assert turns.sum() == pytest.approx(np.radians(149.0), abs=1e-4)
+    np.testing.assert_array_equal(out[np.asarray([0, -1])], quat[np.asarray([0, -1])])
+
+
 def test_limit_turns_leaves_a_joint_it_cannot_ramp():
     """A joint spinning 50° a frame for six frames between two kept frames (0 and 6) cannot turn
     at most 43° a frame and still meet both: ramped, the rest would fall on one step larger than
