@@ -88,7 +88,7 @@ from bezmotion.geometry.rotations import (
 from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.key_blend import blend_to_chain_keys, distances_to_keys
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, pose_fk
-from bezmotion.ik.temporal import FLIP_TURN, limit_turns, planted_feet, remove_flips, smooth
+from bezmotion.ik.temporal import FLIP_TURN, KEY_TURN, limit_turns, planted_feet, remove_flips, smooth, turns_near_keys
 from bezmotion.linalg import cholesky_solve, inverse_3x3
 
 # Levenberg–Marquardt damping, relative to each unknown's own curvature (the diagonal of
@@ -186,6 +186,10 @@ class ExactIKParams:
         its frame bend alone (93° a frame on Bandai-Namco); at ``FLIP_TURN`` (43°, the
         default) no window turns a joint faster, for +0.001 cm of curve error
         (docs/precision.md, *The exact IK's last turns*).
+      key_turn: rad: with keys joined (``key_blend_frames > 0``), the finish's limit on the
+        steps that touch a key, easing to ``finish_turn`` over the key blend's frames
+        (:func:`~bezmotion.ik.temporal.turns_near_keys`, as the per-frame IKs' in
+        :func:`~bezmotion.ik.protocol.solve_frames`); 0: ``finish_turn`` there too.
       iterations: Levenberg–Marquardt steps per frame and pass (static).
       window_passes: how many times the window solve smooths the poses over time and
         solves again from them (static; the first smooths the inner IK's poses). Each pass
@@ -213,6 +217,7 @@ class ExactIKParams:
     robust_cm: Float[Array, ""] | float = 5.0
     handle_spread: Float[Array, ""] | float = 0.25
     finish_turn: Float[Array, ""] | float = FLIP_TURN
+    key_turn: Float[Array, ""] | float = KEY_TURN
     iterations: int = dataclasses.field(default=6, metadata=dict(static=True))
     window_passes: int = dataclasses.field(default=2, metadata=dict(static=True))
 
@@ -566,8 +571,9 @@ class ExactIKFn:
         than the targets move (no pop), and the solve still hits every target there. A
         chain's keys (batched ``(K + 1, …)``, ``targets`` of ``K·(W − 1) + 1`` frames) join
         each window to its own two keys and hold the frames on both sides of every key.
-        After the last pass no joint turns more than ``finish_turn`` in a frame, the keys'
-        and handles' frames kept (:func:`~bezmotion.ik.temporal.limit_turns`).
+        After the last pass no joint turns more than ``finish_turn`` in a frame (``key_turn``
+        on the steps out of a joined key), the keys' and handles' frames kept
+        (:func:`~bezmotion.ik.temporal.limit_turns`).
         """
         pose = jax.vmap(self.inner, in_axes=(None, 0))(params.inner, targets)
         frames = pose.root_pos.shape[0]
@@ -594,9 +600,13 @@ class ExactIKFn:
             if keys is not None:
                 start = blend_to_chain_keys(start, keys, key_blend_frames)
             pose = jax.vmap(lambda s, t, h, p, n: _solve(params, s, t, params.iterations, h, p, n))(start, targets, hold, planted, near)
-        pose = limit_turns(pose, params.finish_turn, at_handle)
+        finish = params.finish_turn
         if keys is not None:
             pose = blend_to_chain_keys(pose, keys, 0)
+            if key_blend_frames > 0:  # the keys joined: out of them no faster than key_turn
+                finish = turns_near_keys(distance, params.key_turn, params.finish_turn, key_blend_frames)
+        # Ramped into the keys as given (not the solve's frames there) and into the handles' frames.
+        pose = limit_turns(pose, finish, at_handle)
         return ExactIKResult(pose, *_errors(params.character, pose, targets))
 
 

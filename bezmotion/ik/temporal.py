@@ -171,16 +171,18 @@ def remove_flips(pose: Pose, turn: Float[Array, ""] | float = FLIP_TURN, anchors
     return limit_turns(remove_spikes(pose, turn), turn, anchors)
 
 
-def turns_near_keys(distance: np.ndarray, key_turn: float, turn: float, frames: int) -> np.ndarray:
+def turns_near_keys(
+    distance: np.ndarray, key_turn: Float[Array, ""] | float, turn: Float[Array, ""] | float, frames: int
+) -> Float[Array, " steps"]:
     """``(frames − 1,)`` per-step turn limits for :func:`limit_turns`: ``key_turn`` rad on the
     steps that touch a key (``distance`` ``(frames,)``: each frame's distance to the nearest
     key, 0 at the keys), easing linearly to ``turn`` over ``frames`` frames from it;
-    ``turn ≤ 0``: the other steps unlimited."""
+    ``turn ≤ 0``: the other steps unlimited; ``key_turn ≤ 0``: ``turn`` on every step."""
     step_distance = np.minimum(distance[:-1], distance[1:])
-    if turn <= 0.0:
-        return np.where(step_distance == 0, key_turn, 0.0)
-    share = np.minimum(step_distance / max(frames, 1), 1.0)
-    return key_turn + (turn - key_turn) * share
+    share = jnp.asarray(np.minimum(step_distance / max(frames, 1), 1.0), jnp.float32)
+    eased = key_turn + (turn - key_turn) * share
+    eased = jnp.where(turn <= 0.0, jnp.where(jnp.asarray(step_distance == 0), key_turn, 0.0), eased)
+    return jnp.where(key_turn <= 0.0, jnp.broadcast_to(jnp.asarray(turn, eased.dtype), eased.shape), eased)
 
 
 def _running_min(values: Array, restart: Array, reverse: bool) -> Array:

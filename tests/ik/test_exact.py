@@ -26,6 +26,7 @@ from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.protocol import Character, IKTargets, Pose, pose_from_motion, solve_frames, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik
+from bezmotion.ik.temporal import FLIP_TURN, KEY_TURN
 
 REACH_TOL_CM = 1e-3
 FRAMES = 8
@@ -237,15 +238,16 @@ def test_window_solve_joins_the_keys_and_holds_their_neighbours(bandai):
     """With keys, the window solve puts them at the ends exactly, and the key hold trades a
     frame next to a key reaching its target for staying near the key: the right hand's
     target 20 cm up at frame 1 of 8 consecutive mocap frames is reached without the hold
-    by turning the arm; the harder the hold, the less frame 1 turns away from the key."""
+    by turning the arm; the harder the hold, the less frame 1 turns away from the key, and the
+    finish's ``key_turn`` caps even the free solve's turn there."""
     motion = read_bvh(DEMO_CLIP)
     window = slice(10, 18)
     truth = pose_from_motion(bandai.character, jnp.asarray(motion.quat_local[window]), jnp.asarray(motion.pos_local[window]))
     targets = targets_from_pose(bandai.character, truth)
     targets = targets._replace(position=targets.position.at[1, 3].add(jnp.asarray([0.0, 20.0, 0.0])))
     keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
-    # (finish_turn off: it would ramp the free solve's snap to the jump, which is no handle.)
-    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, iterations=10, finish_turn=0.0)
+    # (finish_turn and key_turn off: they would ramp the free solve's snap to the jump, which is no handle.)
+    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, iterations=10, finish_turn=0.0, key_turn=0.0)
     solve = jax.jit(lambda p, t: fn.solve_window_with_residual(p, t, keys, 6))
 
     def turn_next_to_start_deg(result) -> float:
@@ -260,6 +262,10 @@ def test_window_solve_joins_the_keys_and_holds_their_neighbours(bandai):
     # (With key_smoothing's 0.5 next to the keys the default hold already keeps frame 1 as
     # close as the hard one does, to within 0.01°.)
     assert turns[0] > turns[1] > turns[2] - 0.01 and turns[2] < 0.5 * turns[0], turns
+    # The finish (its defaults) ramps even the free solve's turn out of the key down to key_turn.
+    capped = solve(dataclasses.replace(params, key_hold_weight=0.0, finish_turn=FLIP_TURN, key_turn=KEY_TURN), targets)
+    np.testing.assert_array_equal(np.asarray(capped.pose.quat_local[0]), np.asarray(keys[0].quat_local))
+    assert turn_next_to_start_deg(capped) <= np.degrees(KEY_TURN) + 0.01 < turns[0], (turn_next_to_start_deg(capped), turns)
     assert float(hard.position_error[1, 3]) > 5.0  # held hard, it stays near the key
 
     # key_hold_decay: the hold d frames from the key is key_hold_weight · decay^(d − 1). The

@@ -151,7 +151,7 @@ def test_limit_turns_takes_a_limit_per_step():
     """A joint turned 149° from frame 1 to the end, with limits of 0.2 rad on the first and the
     last step easing to 0.75 (``turns_near_keys``, keys at both ends): no step turns beyond its
     own limit, the first one exactly at it; one limit for every step gives the same poses as the
-    scalar, bit for bit."""
+    scalar, bit for bit. ``key_turn = 0`` leaves every step at ``turn``."""
     frames = 13
     still = quat_from_axis_angle(jnp.broadcast_to(jnp.asarray([0.0, 0.0, 1.0]), (frames, 3)), jnp.full(frames, 0.2))
     flip = quat_from_axis_angle(jnp.asarray([1.0, 0.0, 0.0]), jnp.asarray(2.6))
@@ -159,8 +159,9 @@ def test_limit_turns_takes_a_limit_per_step():
     root = jnp.zeros((frames, 3))
     distance = np.minimum(np.arange(frames), frames - 1 - np.arange(frames))
     limits = turns_near_keys(distance, 0.2, 0.75, 4)
-    np.testing.assert_allclose(limits[[0, 1, 2, 3, 4, -1]], [0.2, 0.3375, 0.475, 0.6125, 0.75, 0.2])
-    np.testing.assert_array_equal(turns_near_keys(distance, 0.2, 0.0, 4), [0.2] + [0.0] * (frames - 3) + [0.2])  # others off
+    np.testing.assert_allclose(np.asarray(limits)[[0, 1, 2, 3, 4, -1]], [0.2, 0.3375, 0.475, 0.6125, 0.75, 0.2])
+    np.testing.assert_allclose(turns_near_keys(distance, 0.2, 0.0, 4), [0.2] + [0.0] * (frames - 3) + [0.2])  # others off
+    np.testing.assert_array_equal(turns_near_keys(distance, 0.0, 0.75, 4), np.full(frames - 1, 0.75, np.float32))  # no key limit
     out = limit_turns(Pose(root, quat), jnp.asarray(limits)).quat_local
     turns = np.radians(np.asarray(rotation_change_deg(out)))
     assert np.all(turns[:, 0] <= limits + 1e-4)
