@@ -607,6 +607,10 @@ class ExactIKFn:
                 finish = turns_near_keys(distance, params.key_turn, params.finish_turn, key_blend_frames)
         # Ramped into the keys as given (not the solve's frames there) and into the handles' frames.
         pose = limit_turns(pose, finish, at_handle)
+        if keys is not None and key_blend_frames > 0:
+            # A joint that cannot leave a key that slowly (it spins fast up to a handle) keeps its
+            # step out of the key and ramps the rest at finish_turn where it can.
+            pose = limit_turns(pose, params.finish_turn, at_handle | jnp.asarray(distance == 1))
         return ExactIKResult(pose, *_errors(params.character, pose, targets))
 
 

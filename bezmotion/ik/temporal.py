@@ -100,9 +100,9 @@ def limit_turns(
     stay continuous with it; where that side is too short for the ramp, once more forwards and
     backwards spreads it over both sides. The window solve keeps its keys, and between its passes and after
     the last also the frames with a handle, so a bend that only the handle's frame made (the
-    frames next to it held at their start) becomes a ramp into it. A joint whose largest turn
-    beyond its step's limit would grow (kept frames too close along a fast spin for a ramp)
-    keeps its poses. Poses that never turn that fast are
+    frames next to it held at their start) becomes a ramp into it. Between two kept frames,
+    a joint that cannot turn within the limits (kept frames too close along a fast spin for a
+    ramp) keeps its poses there. Poses that never turn that fast are
     returned unchanged (bit for bit); ``turn ≤ 0`` turns it off (per step: that step); the
     hips' position is never changed.
     """
@@ -150,15 +150,13 @@ def limit_turns(
     limited = follow(limited, kept, turns, _SLACK)
     limited = follow(limited[::-1], kept[::-1], turns[::-1], _SLACK)[::-1]
     # Where two kept frames lie too far apart along the poses' path for the frames between to
-    # ramp (a joint spinning fast between a key and a handle), the two passes never meet and the
-    # split would turn the rest in one step: a joint whose largest turn beyond its step's limit
-    # would grow keeps its poses.
-    def largest_excess(x: Array) -> Array:  # (joints,)
-        excess = quat_angle(x[:-1], x[1:]) - turns[:, None]
-        return jnp.max(jnp.where(turns[:, None] > 0.0, excess, -jnp.inf), axis=0)
-
-    worse = largest_excess(limited) > largest_excess(q) + 1e-6
-    limited = jnp.where(worse[None, :, None], q, limited)
+    # ramp at the limits (a joint spinning fast between a key and a handle), the passes cannot
+    # meet and the rest falls on one step, often one with a tight limit (next to a key): a joint
+    # that still turns beyond a step's limit between two kept frames keeps its poses there (the
+    # kept frames are the same in both).
+    steps_over = (turns[:, None] > 0.0) & (quat_angle(limited[:-1], limited[1:]) > turns[:, None] + 2.0 * _SLACK)
+    failed = jax.ops.segment_max(steps_over.astype(jnp.int32), before[:-1], num_segments=frames) > 0  # (stretch, joints)
+    limited = jnp.where(failed[before][:, :, None], q, limited)
     # Unchanged frames keep their own quaternion (not slerp's sign of it): a no-op stays exact.
     same = jnp.abs(jnp.sum(limited * q, axis=-1, keepdims=True)) >= 1.0 - 1e-7
     return pose._replace(quat_local=jnp.where(same, q, limited))

@@ -133,18 +133,22 @@ def test_limit_turns_leaves_a_joint_it_cannot_ramp():
     """A joint spinning 50° a frame for six frames between two kept frames (0 and 6) cannot turn
     at most 43° a frame and still meet both: ramped, the rest would fall on one step larger than
     any it had, so it keeps its poses, bit for bit; another joint's lasting 60° step in the same
-    window is still ramped."""
+    window is still ramped, and so is a third's after the kept frame 6, whose spin before it is kept
+    (the guard holds between two kept frames, not over the window)."""
     frames = 9
     z = jnp.broadcast_to(jnp.asarray([0.0, 0.0, 1.0]), (frames, 3))
     spin = quat_from_axis_angle(z, jnp.radians(jnp.asarray([0, 50, 100, 150, 200, 250, 300, 310, 320], jnp.float32)))
     still = quat_from_axis_angle(z, jnp.full(frames, 0.2))
     flipped = still.at[3:].set(quat_mul(still[3:], quat_from_axis_angle(jnp.asarray([1.0, 0.0, 0.0]), jnp.radians(60.0))))
-    quat = jnp.stack([spin, flipped], axis=1)
+    then_step = quat_from_axis_angle(z, jnp.radians(jnp.asarray([0, 50, 100, 150, 200, 250, 300, 300, 360], jnp.float32)))
+    quat = jnp.stack([spin, flipped, then_step], axis=1)
     limit = np.radians(43.0)
     out = limit_turns(Pose(jnp.zeros((frames, 3)), quat), limit, jnp.zeros(frames, bool).at[6].set(True)).quat_local
     np.testing.assert_array_equal(out[:, 0], spin)
+    np.testing.assert_array_equal(out[:7, 2], then_step[:7])
     turns = np.radians(np.asarray(rotation_change_deg(out)))
     assert turns[:, 1].max() == pytest.approx(limit, abs=1e-4)  # 60° → 43° + 17°
+    assert turns[6:, 2].max() == pytest.approx(limit, abs=1e-4)  # 60° → 17° + 43° after the kept frame
 
 
 def test_limit_turns_takes_a_limit_per_step():
