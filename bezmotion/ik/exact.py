@@ -88,7 +88,7 @@ from bezmotion.geometry.rotations import (
 from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.key_blend import blend_to_chain_keys, distances_to_keys
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, pose_fk
-from bezmotion.ik.temporal import FLIP_TURN, KEY_TURN, limit_turns, planted_feet, remove_flips, smooth, turns_near_keys
+from bezmotion.ik.temporal import FLIP_TURN, KEY_TURN, limit_turns, planted_feet, remove_flips, smooth, turn_out_of_keys
 from bezmotion.linalg import cholesky_solve, inverse_3x3
 
 # Levenberg–Marquardt damping, relative to each unknown's own curvature (the diagonal of
@@ -188,7 +188,7 @@ class ExactIKParams:
         (docs/precision.md, *The exact IK's last turns*).
       key_turn: rad: with keys joined (``key_blend_frames > 0``), the finish's limit on the
         steps that touch a key, easing to ``finish_turn`` over the key blend's frames
-        (:func:`~bezmotion.ik.temporal.turns_near_keys`, as the per-frame IKs' in
+        (:func:`~bezmotion.ik.temporal.turn_out_of_keys`, as the per-frame IKs' in
         :func:`~bezmotion.ik.protocol.solve_frames`); 0: ``finish_turn`` there too.
       iterations: Levenberg–Marquardt steps per frame and pass (static).
       window_passes: how many times the window solve smooths the poses over time and
@@ -600,17 +600,13 @@ class ExactIKFn:
             if keys is not None:
                 start = blend_to_chain_keys(start, keys, key_blend_frames)
             pose = jax.vmap(lambda s, t, h, p, n: _solve(params, s, t, params.iterations, h, p, n))(start, targets, hold, planted, near)
-        finish = params.finish_turn
+        # Ramped into the keys as given (not the solve's frames there) and into the handles' frames.
         if keys is not None:
             pose = blend_to_chain_keys(pose, keys, 0)
-            if key_blend_frames > 0:  # the keys joined: out of them no faster than key_turn
-                finish = turns_near_keys(distance, params.key_turn, params.finish_turn, key_blend_frames)
-        # Ramped into the keys as given (not the solve's frames there) and into the handles' frames.
-        pose = limit_turns(pose, finish, at_handle)
-        if keys is not None and key_blend_frames > 0:
-            # A joint that cannot leave a key that slowly (it spins fast up to a handle) keeps its
-            # step out of the key and ramps the rest at finish_turn where it can.
-            pose = limit_turns(pose, params.finish_turn, at_handle | jnp.asarray(distance == 1))
+        if keys is not None and key_blend_frames > 0:  # the keys joined: out of them no faster than key_turn
+            pose = turn_out_of_keys(pose, distance, params.key_turn, params.finish_turn, key_blend_frames, at_handle)
+        else:
+            pose = limit_turns(pose, params.finish_turn, at_handle)
         return ExactIKResult(pose, *_errors(params.character, pose, targets))
 
 

@@ -32,7 +32,7 @@ from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS, character
 from bezmotion.geometry.rotations import quat_identity, rot6d_from_quat
 from bezmotion.geometry.skeleton import Skeleton, forward_kinematics, inverse_kinematics
 from bezmotion.ik.key_blend import blend_to_chain_keys, distances_to_keys
-from bezmotion.ik.temporal import FLIP_TURN, KEY_TURN, limit_turns, remove_flips, turns_near_keys
+from bezmotion.ik.temporal import FLIP_TURN, KEY_TURN, remove_flips, turn_out_of_keys
 
 
 class IKTargets(NamedTuple):
@@ -195,7 +195,7 @@ def solve_frames(
     vmapped over the frames, its flips are taken out (a joint turning more than
     ``flip_turn`` rad in one frame: :func:`~bezmotion.ik.temporal.remove_flips`, the keys'
     frames kept), the keys are blended in, and the joints turn out of the keys no faster
-    than ``key_turn`` (:func:`~bezmotion.ik.temporal.limit_turns`).
+    than ``key_turn`` (:func:`~bezmotion.ik.temporal.turn_out_of_keys`).
 
     Args:
       keys: the ``(start, end)`` key poses (unbatched) to put at the first and last frame,
@@ -230,7 +230,7 @@ def solve_frames(
     pose = blend_to_chain_keys(remove_flips(pose, flip_turn, at_keys), keys, key_blend_frames)
     if key_turn <= 0.0 or key_blend_frames == 0:  # no join asked for: the keys replace their frames alone
         return pose
-    return limit_turns(pose, jnp.asarray(turns_near_keys(distance, key_turn, flip_turn, key_blend_frames)), at_keys)
+    return turn_out_of_keys(pose, distance, key_turn, flip_turn, key_blend_frames, at_keys)
 
 
 def targets_from_pose(character: Character, pose: Pose) -> IKTargets:

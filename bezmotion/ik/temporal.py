@@ -6,7 +6,7 @@ does both. The window solve (:meth:`bezmotion.ik.exact.ExactIKFn.solve_window`) 
 then smooths the poses over time (:func:`smooth`) before each of its passes, and limits the
 turns after its last; a per-frame IK's window gets :func:`remove_flips` in
 :func:`~bezmotion.ik.protocol.solve_frames`, and slower turns out of the keys
-(:func:`turns_near_keys`).
+(:func:`turn_out_of_keys`).
 :func:`planted_feet` marks the frames whose foot targets stand still. Every function takes one
 window ``(frames, …)``.
 """
@@ -181,6 +181,29 @@ def turns_near_keys(
     eased = key_turn + (turn - key_turn) * share
     eased = jnp.where(turn <= 0.0, jnp.where(jnp.asarray(step_distance == 0), key_turn, 0.0), eased)
     return jnp.where(key_turn <= 0.0, jnp.broadcast_to(jnp.asarray(turn, eased.dtype), eased.shape), eased)
+
+
+def turn_out_of_keys(
+    pose: Pose,
+    distance: np.ndarray,
+    key_turn: Float[Array, ""] | float,
+    turn: Float[Array, ""] | float,
+    frames: int,
+    anchors: Bool[Array, " frames"],
+) -> Pose:
+    """``pose`` ``(frames, …)`` (the keys joined) turning each joint at most ``key_turn`` rad on
+    the steps out of a key, easing to ``turn`` over ``frames`` frames from it
+    (:func:`turns_near_keys`; ``distance`` ``(frames,)``: each frame's distance to the nearest
+    key), at most ``turn`` elsewhere (:func:`limit_turns`); the keys' frames and ``anchors`` kept.
+
+    A joint that cannot leave a key that slowly (it spins fast up to the next kept frame, so
+    :func:`limit_turns` leaves it alone there) keeps its step out of the key, and the rest is
+    ramped at ``turn`` where it can: ramped at ``turn`` alone, the excess could land on the
+    step out of the key and pop it.
+    """
+    kept = anchors | jnp.asarray(distance == 0)
+    pose = limit_turns(pose, turns_near_keys(distance, key_turn, turn, frames), kept)
+    return limit_turns(pose, turn, kept | jnp.asarray(distance == 1))
 
 
 def _running_min(values: Array, restart: Array, reverse: bool) -> Array:

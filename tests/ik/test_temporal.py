@@ -9,7 +9,7 @@ import pytest
 
 from bezmotion.geometry.rotations import quat_angle, quat_from_axis_angle, quat_mul
 from bezmotion.ik.protocol import Pose
-from bezmotion.ik.temporal import limit_turns, planted_feet, remove_spikes, smooth, turns_near_keys
+from bezmotion.ik.temporal import limit_turns, planted_feet, remove_spikes, smooth, turn_out_of_keys, turns_near_keys
 from bezmotion.metrics import rotation_change_deg
 
 
@@ -173,6 +173,28 @@ def test_limit_turns_takes_a_limit_per_step():
     np.testing.assert_array_equal(out[:, 1], still)
     scalar = limit_turns(Pose(root, quat), 0.5).quat_local
     np.testing.assert_array_equal(limit_turns(Pose(root, quat), jnp.full(frames - 1, 0.5)).quat_local, scalar)
+
+
+def test_turn_out_of_keys_keeps_the_step_of_a_joint_that_cannot_leave_slowly():
+    """Keys at frames 0 and 12, an anchor at 6, 11.5° on the step out of a key easing to 43°
+    over 4 frames. A joint stepping 60° right after the key leaves it at 11.5° and ramps; one
+    spinning 10°, 40°, 40°, 40°, 60°, 20° up to the anchor cannot leave that slowly (the eased
+    limits add up to 179° of its 210°): it keeps its 10° out of the key, and its 60° is ramped
+    at 43°; the key frames and the anchor as given."""
+    frames, key_turn, turn = 13, 0.2, np.radians(43.0)
+    z = jnp.broadcast_to(jnp.asarray([0.0, 0.0, 1.0]), (frames, 3))
+    stepped = np.where(np.arange(frames) >= 1, 60.0, 0.0)
+    spinning = np.concatenate([[0.0], np.cumsum([10.0, 40.0, 40.0, 40.0, 60.0, 20.0]), np.full(6, 210.0)])
+    quat = jnp.stack([quat_from_axis_angle(z, jnp.radians(jnp.asarray(a, jnp.float32))) for a in (stepped, spinning)], axis=1)
+    distance = np.minimum(np.arange(frames), frames - 1 - np.arange(frames))
+    anchors = jnp.zeros(frames, bool).at[6].set(True)
+    out = turn_out_of_keys(Pose(jnp.zeros((frames, 3)), quat), distance, key_turn, turn, 4, anchors).quat_local
+    turns = np.radians(np.asarray(rotation_change_deg(out)))
+    assert turns[0, 0] == pytest.approx(key_turn, abs=1e-4)
+    assert np.all(turns[:, 0] <= np.asarray(turns_near_keys(distance, key_turn, turn, 4)) + 1e-4)
+    assert turns[0, 1] == pytest.approx(np.radians(10.0), abs=1e-4)
+    assert turns[:, 1].max() <= turn + 1e-4
+    np.testing.assert_array_equal(out[np.asarray([0, 6, 12])], quat[np.asarray([0, 6, 12])])
 
 
 def test_smoothing_averages_each_frame_with_its_neighbours():
