@@ -572,8 +572,8 @@ class ExactIKFn:
         chain's keys (batched ``(K + 1, …)``, ``targets`` of ``K·(W − 1) + 1`` frames) join
         each window to its own two keys and hold the frames on both sides of every key.
         After the last pass no joint turns more than ``finish_turn`` in a frame (``key_turn``
-        on the steps out of a joined key), the keys' and handles' frames kept
-        (:func:`~bezmotion.ik.temporal.limit_turns`).
+        on the steps out of a joined key: :func:`~bezmotion.ik.temporal.turn_out_of_keys`), the
+        keys' and handles' frames kept (:func:`~bezmotion.ik.temporal.limit_turns`).
         """
         pose = jax.vmap(self.inner, in_axes=(None, 0))(params.inner, targets)
         frames = pose.root_pos.shape[0]
