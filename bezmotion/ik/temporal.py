@@ -200,7 +200,12 @@ def turn_out_of_keys(
     :func:`limit_turns` leaves it alone there) keeps its step out of the key, and the rest is
     ramped at ``turn`` where it can: ramped at ``turn`` alone, the excess could land on the
     step out of the key and pop it.
+
+    Raises:
+      ValueError: naming the shapes, when ``distance`` is not one value per frame.
     """
+    if np.shape(distance) != pose.root_pos.shape[:1]:
+        raise ValueError(f"distance must be one value per frame, {pose.root_pos.shape[:1]}, got {np.shape(distance)}")
     kept = anchors | jnp.asarray(distance == 0)
     pose = limit_turns(pose, turns_near_keys(distance, key_turn, turn, frames), kept)
     return limit_turns(pose, turn, kept | jnp.asarray(distance == 1))

@@ -195,6 +195,8 @@ def test_turn_out_of_keys_keeps_the_step_of_a_joint_that_cannot_leave_slowly():
     assert turns[0, 1] == pytest.approx(np.radians(10.0), abs=1e-4)
     assert turns[:, 1].max() <= turn + 1e-4
     np.testing.assert_array_equal(out[np.asarray([0, 6, 12])], quat[np.asarray([0, 6, 12])])
+    with pytest.raises(ValueError, match=r"one value per frame, \(13,\), got \(12,\)"):
+        turn_out_of_keys(Pose(jnp.zeros((frames, 3)), quat), distance[:-1], key_turn, turn, 4, anchors)
 
 
 def test_smoothing_averages_each_frame_with_its_neighbours():
