@@ -184,8 +184,9 @@ class ExactIKParams:
         the keys' and the handles' frames kept, so those frames still meet their targets and
         the frames next to them leave their curves instead; 0: off. An OOD handle can make
         its frame bend alone (93° a frame on Bandai-Namco); at ``FLIP_TURN`` (43°, the
-        default) no window turns a joint faster, for +0.001 cm of curve error
-        (docs/precision.md, *The exact IK's last turns*).
+        default) no Bandai-Namco window turns a joint faster, for +0.001 cm of curve error
+        (docs/precision.md, *The exact IK's last turns*); a joint that cannot ramp within the
+        limits between two kept frames keeps its turns there (one LaFAN1 window, 53.6°).
       key_turn: rad: with keys joined (``key_blend_frames > 0``), the finish's limit on the
         steps that touch a key, easing to ``finish_turn`` over the key blend's frames
         (:func:`~bezmotion.ik.temporal.turn_out_of_keys`, as the per-frame IKs' in

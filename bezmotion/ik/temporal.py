@@ -97,14 +97,14 @@ def limit_turns(
     Between two kept frames the result takes the forward pass up to the frame where the two
     passes agree best (both back on the given poses), the backward pass after it: the ramp
     lies on the side of the step away from the nearer kept frame, and the frames next to each
-    stay continuous with it; where that side is too short for the ramp, once more forwards and
-    backwards spreads it over both sides. The window solve keeps its keys, and between its passes and after
-    the last also the frames with a handle, so a bend that only the handle's frame made (the
-    frames next to it held at their start) becomes a ramp into it. Between two kept frames,
-    a joint that cannot turn within the limits (kept frames too close along a fast spin for a
-    ramp) keeps its poses there. Poses that never turn that fast are
-    returned unchanged (bit for bit); ``turn ≤ 0`` turns it off (per step: that step); the
-    hips' position is never changed.
+    stay continuous with it; where that side is too short for the ramp, once more forwards
+    and backwards spreads it over both sides. The window solve keeps its keys, and between
+    its passes and after the last also the frames with a handle, so a bend that only the
+    handle's frame made (the frames next to it held at their start) becomes a ramp into it.
+    Between two kept frames, a joint that cannot turn within the limits (kept frames too
+    close along a fast spin for a ramp) keeps its poses there. Poses that never turn that
+    fast are returned unchanged (bit for bit); ``turn ≤ 0`` turns it off (per step: that
+    step); the hips' position is never changed.
     """
     q = pose.quat_local
     frames = q.shape[0]

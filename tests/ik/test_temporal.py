@@ -131,8 +131,8 @@ def test_limit_turns_spreads_a_step_over_both_sides(before, after):
 
 def test_limit_turns_leaves_a_joint_it_cannot_ramp():
     """A joint spinning 50° a frame for six frames between two kept frames (0 and 6) cannot turn
-    at most 43° a frame and still meet both: ramped, the rest would fall on one step larger than
-    any it had, so it keeps its poses, bit for bit; another joint's lasting 60° step in the same
+    at most 43° a frame and still meet both: ramped, the rest would still fall on one step over
+    the limit, so it keeps its poses, bit for bit; another joint's lasting 60° step in the same
     window is still ramped, and so is a third's after the kept frame 6, whose spin before it is kept
     (the guard holds between two kept frames, not over the window)."""
     frames = 9
