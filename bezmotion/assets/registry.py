@@ -170,10 +170,11 @@ REGISTRY: Mapping[str, ModelEntry] = {
         data=_LAFAN1_DATA,
         licence=_LAFAN1_LICENCE,
         commands=(
-            # The CPU-size models (2.3 M and the CPU IK), about an hour on a 2-core CPU (2026-11-27): the BMM
-            # stopped by --train-seconds at step 7,526 (40 min), the IK's 9,000 steps in 16 min beside it.
+            # The CPU-size models (2.3 M and the CPU IK), about an hour on a 2-core CPU: the BMM's 10,000 steps in
+            # 40–55 min, the IK's 9,000 steps in 16 min beside it. No wall-clock cap: a run stopped by one (the first,
+            # 2026-11-27, at step 7,526) is another model; an interrupted run goes on from its checkpoint.
             "python experiments/bmm_lafan1.py --corpus lafan1 --prediction residual --learning-rate 5e-4 --min-snr-gamma 0 "
-            "--off-grid-handles 0.5 --steps 10000 --train-seconds 2400 --eval-every 2500 --eval-windows 300 --table6-steps 10 "
+            "--off-grid-handles 0.5 --steps 10000 --eval-every 2500 --eval-windows 300 --table6-steps 10 "
             "--handle-frames any --out results/bmm_lafan1_cpu.json",
             "python experiments/train_ik.py --corpus lafan1",
             "python experiments/joint_limits.py --corpus lafan1 --out ~/.cache/bezmotion/runs/ik_lafan1/model/joint_limits.json",
