@@ -48,7 +48,10 @@ as :func:`~bezmotion.pipeline.inbetweening.inbetween_chain` does); ``--chunk`` w
 call become ``--chunk // K`` chains (at least one). The same curves are also sampled
 independently (BMM Appendix D.1, same noise) for the velocity jump at the shared keys
 (:func:`~bezmotion.metrics.chain_velocity_jumps`, six joints, cm/frame), beside the mocap's
-own frame-to-frame change over the same chains (as ``experiments/chained_segments.py``).
+own frame-to-frame change over the same chains (as ``experiments/chained_segments.py``)
+and the jump of the mocap's own per-window curve fits there, joined as they are and coupled
+as the sampler couples (``mocap_fits``: what a model that drew each window's training
+curve exactly would give).
 Every metric below is then taken over the chains' frames (see ``segments.metrics`` in the
 JSON); ``--segments 1`` (the default) is the single-window evaluation. ``--key-velocities``
 gives the curves the mocap's velocities at the keys (windows: frames 0→1 and 29→30; chains:
@@ -123,6 +126,7 @@ With ``--segments K`` (K > 1) ``windows`` is chains × K, ``curves`` also holds
     "segments": {"k": K, "chains": n, "frames_per_chain": 30·K + 1, "key_frames": […],
       "boundary_velocity_jump_cm_per_frame": {"coupled": {mean, p95, max, count, minus_mocap: {mean, se, chains}}, "independent": {…},
         "coupled_other_frames": {…}, "coupled_inner_control_frames": {…}, "mocap": {…}, "mocap_at_shared_keys": {…},
+        "mocap_fits": {"independent": {…}, "coupled": {…}},
         "ood": {"coupled", "coupled_other_frames", "coupled_inner_control_frames", "independent"},
         "after_ik": {"<ik>": {"id", "ood"}}, "where": …},
       (``minus_mocap``: the jump at the shared keys minus the mocap's at the same keys and
@@ -141,13 +145,14 @@ from pathlib import Path
 from typing import NamedTuple
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from bezmotion.assets.registry import REGISTRY, resolve_folder
-from bezmotion.bezier import BezierLayout
+from bezmotion.bezier import BezierLayout, fit_curves
 from bezmotion.bmm.evaluation import EvalSet, dense_positions, floor_height_from, make_eval_set, reference_curves
 from bezmotion.bmm.features import HANDLE_FRAMES
-from bezmotion.bmm.sampling import Handles, load_model
+from bezmotion.bmm.sampling import Handles, load_model, share_boundaries
 from bezmotion.data.corpus import Corpus, motion_clips
 from bezmotion.data.curves import CurveDataset, curve_dataset
 from bezmotion.data.sources import load_corpus
@@ -417,6 +422,25 @@ def coupled_jumps(positions: jax.Array, k: int, layout: BezierLayout, mocap_at_k
     }
 
 
+def mocap_fit_jumps(positions: jax.Array, k: int, layout: BezierLayout, mocap_at_keys: np.ndarray) -> dict:
+    """Velocity jump summaries (cm/frame) at the shared keys of the mocap's own curves: each
+    window of the chains' ``(chains, frames, 6, 3)`` positions fitted alone, as the training
+    curves are (:func:`~bezmotion.bezier.fit_curves`), then joined as they are
+    (``independent``: each window's own tangent at a key, fitted from its side only) and with
+    each shared key's tangent the mean of its two windows' (``coupled``: the sampler's
+    coupling, :func:`~bezmotion.bmm.sampling.share_boundaries`). ``coupled`` is what a BMM
+    that drew every window's training curve exactly would give: the coupling's own floor."""
+    step = layout.num_frames - 1
+    windows = jnp.stack([positions[:, w * step : w * step + layout.num_frames] for w in range(k)], axis=1)
+    fit = fit_curves(layout, jnp.moveaxis(windows, -2, -3))  # per joint: (chains, k, 6, frames, 3)
+    ctrl_pos, ctrl_tangent = jnp.moveaxis(fit.ctrl_pos, -3, -2), jnp.moveaxis(fit.ctrl_tangent, -3, -2)
+
+    def at_keys(tangent: jax.Array) -> dict:
+        return jumps_at_keys(jax.vmap(join_windows)(dense_positions(layout, ctrl_pos, tangent)), k, mocap_at_keys)
+
+    return {"independent": at_keys(ctrl_tangent), "coupled": at_keys(jax.vmap(share_boundaries)(ctrl_tangent))}
+
+
 CHAIN_METRICS = {
     "handles_error_cm": "every window's handles, at their chain frames, against the IK'd chain",
     "mpjpe_cm": "every joint and frame of the chain (each shared key once) against the mocap",
@@ -531,6 +555,7 @@ def main(argv: list[str] | None = None) -> dict:
                 "coupled_inner_control_frames": jumps["id"]["coupled_inner_control_frames"],
                 "mocap": distribution_summary(mocap_jumps.all_frames),
                 "mocap_at_shared_keys": distribution_summary(mocap_jumps.at_shared_keys),
+                "mocap_fits": mocap_fit_jumps(true_targets.position, k, dataset.layout, mocap_jumps.at_shared_keys),
                 "ood": jumps["ood"], "after_ik": after_ik,
             },
             "metrics": CHAIN_METRICS, "not_computed": CHAIN_NOT_COMPUTED,
@@ -627,6 +652,9 @@ def format_report(r: dict) -> str:
             *(row(f"after IK ({name}), at shared keys", x["id"]) for name, x in jump["after_ik"].items()),
             row("mocap, all frames", jump["mocap"]),
             row("mocap, at the shared keys", jump["mocap_at_shared_keys"]),
+            *([row("mocap's per-window fits (the training curves), at shared keys", jump["mocap_fits"]["independent"]),
+               row("the same fits, shared tangents averaged (the coupling's floor)", jump["mocap_fits"]["coupled"])]
+              if "mocap_fits" in jump else []),
         ]
     lines += [
         "",

@@ -225,9 +225,12 @@ def test_segments_evaluate_chains_of_windows(experiment, long_clips, monkeypatch
     assert jump["mocap"]["count"] == 2 * 59 * 6  # every inner frame of the same chains
     assert jump["coupled_other_frames"]["count"] == 2 * 58 * 6  # the same curves' inner frames but the key
     assert jump["coupled_inner_control_frames"]["count"] == 2 * 8 * 6  # frames 6, 12, 18, 24, 36, 42, 48, 54
+    # The mocap's own per-window fits at the same keys: joined as they are, and coupled.
+    fits = jump["mocap_fits"]
+    assert fits["independent"]["count"] == fits["coupled"]["count"] == 2 * 1 * 6
     # Paired with the mocap at the same keys: the difference of the two means, its standard
     # error over the two chains.
-    for variant in (jump["coupled"], jump["independent"], jump["after_ik"]["rig"]["id"]):
+    for variant in (jump["coupled"], jump["independent"], jump["after_ik"]["rig"]["id"], fits["independent"], fits["coupled"]):
         excess = variant["minus_mocap"]
         assert excess["chains"] == 2 and excess["se"] >= 0.0
         np.testing.assert_allclose(excess["mean"], variant["mean"] - jump["mocap_at_shared_keys"]["mean"], atol=1e-6)
@@ -242,6 +245,25 @@ def test_segments_evaluate_chains_of_windows(experiment, long_clips, monkeypatch
     assert "ik_ms_per_window" in seg["not_computed"] and "key_pop_deg" in seg["metrics"]
     assert {"foot_skating_ratio", "key_pop_deg", "max_rotation_change_deg"} <= set(r["mocap"])
     assert r["labels"]["walk"]["chains"] == 2 and r["labels"]["walk"]["windows"] == 4
+
+
+def test_mocap_fits_joined_as_they_are_and_coupled(experiment):
+    """A motion that turns back at the shared key (every joint at |t − 30| cm/frame along x):
+    each window is linear, so its fit is exact and the fits joined as they are jump as the
+    mocap does (2 cm/frame); coupled, the key's tangent is the mean of +1 and −1, zero, and
+    the curves ease into and out of the key instead, jumping less."""
+    from bezmotion.bezier import BezierLayout
+    from bezmotion.metrics import chain_velocity_jumps
+
+    t = np.abs(np.arange(61, dtype=np.float32) - 30.0)
+    positions = np.zeros((1, 61, 6, 3), np.float32)
+    positions[..., 0] = t[None, :, None]
+    positions = jax.numpy.asarray(positions)
+    mocap = chain_velocity_jumps(positions, 2).at_shared_keys
+    fits = experiment.mocap_fit_jumps(positions, 2, BezierLayout(31, 6), mocap)
+    np.testing.assert_allclose(fits["independent"]["mean"], 2.0, atol=1e-4)
+    np.testing.assert_allclose(fits["independent"]["minus_mocap"]["mean"], 0.0, atol=1e-4)
+    assert fits["coupled"]["max"] < 1.0 and fits["coupled"]["minus_mocap"]["mean"] < -1.0
 
 
 def test_segments_must_be_positive(experiment, capsys):
