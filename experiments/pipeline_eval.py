@@ -429,7 +429,7 @@ def mocap_fit_jumps(positions: jax.Array, k: int, layout: BezierLayout, mocap_at
     (``independent``: each window's own tangent at a key, fitted from its side only) and with
     each shared key's tangent the mean of its two windows' (``coupled``: the sampler's
     coupling, :func:`~bezmotion.bmm.sampling.share_boundaries`). ``coupled`` is what a BMM
-    that drew every window's training curve exactly would give: the coupling's own floor."""
+    that drew every window's training curve exactly would give (smoother curves give less)."""
     step = layout.num_frames - 1
     windows = jnp.stack([positions[:, w * step : w * step + layout.num_frames] for w in range(k)], axis=1)
     fit = fit_curves(layout, jnp.moveaxis(windows, -2, -3))  # per joint: (chains, k, 6, frames, 3)
@@ -653,7 +653,7 @@ def format_report(r: dict) -> str:
             row("mocap, all frames", jump["mocap"]),
             row("mocap, at the shared keys", jump["mocap_at_shared_keys"]),
             *([row("mocap's per-window fits (the training curves), at shared keys", jump["mocap_fits"]["independent"]),
-               row("the same fits, shared tangents averaged (the coupling's floor)", jump["mocap_fits"]["coupled"])]
+               row("the same fits, shared tangents averaged (the sampler's coupling)", jump["mocap_fits"]["coupled"])]
               if "mocap_fits" in jump else []),
         ]
     lines += [
