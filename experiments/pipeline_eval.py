@@ -185,7 +185,7 @@ from bezmotion.pipeline.window_figures import (
     window_mocap_metrics,
     window_pose_metrics,
 )
-from bezmotion.data.windows import join_windows
+from bezmotion.data.windows import join_windows, split_windows
 from bezmotion.pipeline.inbetweening import KEY_BLEND_FRAMES, WindowCurves
 from _common import window_labels
 
@@ -430,9 +430,8 @@ def mocap_fit_jumps(positions: jax.Array, k: int, layout: BezierLayout, mocap_at
     each shared key's tangent the mean of its two windows' (``coupled``: the sampler's
     coupling, :func:`~bezmotion.bmm.sampling.share_boundaries`). ``coupled`` is what a BMM
     that drew every window's training curve exactly would give (smoother curves give less)."""
-    step = layout.num_frames - 1
-    windows = jnp.stack([positions[:, w * step : w * step + layout.num_frames] for w in range(k)], axis=1)
-    fit = fit_curves(layout, jnp.moveaxis(windows, -2, -3))  # per joint: (chains, k, 6, frames, 3)
+    windows = jax.vmap(lambda p: split_windows(p, k))(positions)  # (chains, k, window frames, 6, 3)
+    fit = fit_curves(layout, jnp.moveaxis(windows, -2, -3))  # per joint: (chains, k, 6, window frames, 3)
     ctrl_pos, ctrl_tangent = jnp.moveaxis(fit.ctrl_pos, -3, -2), jnp.moveaxis(fit.ctrl_tangent, -3, -2)
 
     def at_keys(tangent: jax.Array) -> dict:
