@@ -149,7 +149,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bezmotion.assets.registry import REGISTRY, resolve_folder
-from bezmotion.bezier import BezierLayout, fit_curves
+from bezmotion.bezier import BezierLayout
 from bezmotion.bmm.evaluation import EvalSet, dense_positions, floor_height_from, make_eval_set, reference_curves
 from bezmotion.bmm.features import HANDLE_FRAMES
 from bezmotion.bmm.sampling import Handles, load_model, share_boundaries
@@ -185,7 +185,7 @@ from bezmotion.pipeline.window_figures import (
     window_mocap_metrics,
     window_pose_metrics,
 )
-from bezmotion.data.windows import join_windows, split_windows
+from bezmotion.data.windows import join_windows
 from bezmotion.pipeline.inbetweening import KEY_BLEND_FRAMES, WindowCurves
 from _common import window_labels
 
@@ -422,20 +422,18 @@ def coupled_jumps(positions: jax.Array, k: int, layout: BezierLayout, mocap_at_k
     }
 
 
-def mocap_fit_jumps(positions: jax.Array, k: int, layout: BezierLayout, mocap_at_keys: np.ndarray) -> dict:
+def mocap_fit_jumps(ctrl_pos: jax.Array, ctrl_tangent: jax.Array, layout: BezierLayout, mocap_at_keys: np.ndarray) -> dict:
     """Velocity jump summaries (cm/frame) at the shared keys of the mocap's own curves: each
-    window of the chains' ``(chains, frames, 6, 3)`` positions fitted alone, as the training
-    curves are (:func:`~bezmotion.bezier.fit_curves`), then joined as they are
-    (``independent``: each window's own tangent at a key, fitted from its side only) and with
-    each shared key's tangent the mean of its two windows' (``coupled``: the sampler's
-    coupling, :func:`~bezmotion.bmm.sampling.share_boundaries`). ``coupled`` is what a BMM
-    that drew every window's training curve exactly would give (smoother curves give less)."""
-    windows = jax.vmap(lambda p: split_windows(p, k))(positions)  # (chains, k, window frames, 6, 3)
-    fit = fit_curves(layout, jnp.moveaxis(windows, -2, -3))  # per joint: (chains, k, 6, window frames, 3)
-    ctrl_pos, ctrl_tangent = jnp.moveaxis(fit.ctrl_pos, -3, -2), jnp.moveaxis(fit.ctrl_tangent, -3, -2)
+    chain window's training curve (the dataset's fit, ``(chains, k, controls, 6, 3)``, in the
+    chain's frame), joined as they are (``independent``: each window's own tangent at a key,
+    fitted from its side only) and with each shared key's tangent the mean of its two windows'
+    (``coupled``: the sampler's coupling, :func:`~bezmotion.bmm.sampling.share_boundaries`).
+    ``coupled`` is what a BMM that drew every window's training curve exactly would give
+    (smoother curves give less)."""
 
     def at_keys(tangent: jax.Array) -> dict:
-        return jumps_at_keys(jax.vmap(join_windows)(dense_positions(layout, ctrl_pos, tangent)), k, mocap_at_keys)
+        positions = jax.vmap(join_windows)(dense_positions(layout, ctrl_pos, tangent))
+        return jumps_at_keys(positions, ctrl_pos.shape[1], mocap_at_keys)
 
     return {"independent": at_keys(ctrl_tangent), "coupled": at_keys(jax.vmap(share_boundaries)(ctrl_tangent))}
 
@@ -554,7 +552,10 @@ def main(argv: list[str] | None = None) -> dict:
                 "coupled_inner_control_frames": jumps["id"]["coupled_inner_control_frames"],
                 "mocap": distribution_summary(mocap_jumps.all_frames),
                 "mocap_at_shared_keys": distribution_summary(mocap_jumps.at_shared_keys),
-                "mocap_fits": mocap_fit_jumps(true_targets.position, k, dataset.layout, mocap_jumps.at_shared_keys),
+                "mocap_fits": mocap_fit_jumps(
+                    jnp.asarray(dataset.ctrl_pos[items.rows]) + items.shifts[:, :, None, None, :],
+                    jnp.asarray(dataset.ctrl_tangent[items.rows]), dataset.layout, mocap_jumps.at_shared_keys,
+                ),
                 "ood": jumps["ood"], "after_ik": after_ik,
             },
             "metrics": CHAIN_METRICS, "not_computed": CHAIN_NOT_COMPUTED,

@@ -12,12 +12,16 @@ import json
 import shutil
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
 from bezmotion.assets import DEMO_CLIP
+from bezmotion.bezier import BezierLayout, fit_curves
 from bezmotion.bmm.evaluation import make_eval_set
 from bezmotion.data.bvh import read_bvh, write_bvh
+from bezmotion.data.windows import split_windows
+from bezmotion.metrics import chain_velocity_jumps
 from helpers import assert_trees_identical, load_experiment
 
 METRICS = {
@@ -252,15 +256,16 @@ def test_mocap_fits_joined_as_they_are_and_coupled(experiment):
     each window is linear, so its fit is exact and the fits joined as they are jump as the
     mocap does (2 cm/frame); coupled, the key's tangent is the mean of +1 and −1, zero, and
     the curves ease into and out of the key instead, jumping less."""
-    from bezmotion.bezier import BezierLayout
-    from bezmotion.metrics import chain_velocity_jumps
-
     t = np.abs(np.arange(61, dtype=np.float32) - 30.0)
     positions = np.zeros((1, 61, 6, 3), np.float32)
     positions[..., 0] = t[None, :, None]
-    positions = jax.numpy.asarray(positions)
+    positions = jnp.asarray(positions)
+    layout = BezierLayout(31, 6)
+    windows = jax.vmap(lambda p: split_windows(p, 2))(positions)  # (1, 2, 31, 6, 3)
+    fit = fit_curves(layout, jnp.moveaxis(windows, -2, -3))
+    ctrl_pos, ctrl_tangent = jnp.moveaxis(fit.ctrl_pos, -3, -2), jnp.moveaxis(fit.ctrl_tangent, -3, -2)
     mocap = chain_velocity_jumps(positions, 2).at_shared_keys
-    fits = experiment.mocap_fit_jumps(positions, 2, BezierLayout(31, 6), mocap)
+    fits = experiment.mocap_fit_jumps(ctrl_pos, ctrl_tangent, layout, mocap)
     np.testing.assert_allclose(fits["independent"]["mean"], 2.0, atol=1e-4)
     np.testing.assert_allclose(fits["independent"]["minus_mocap"]["mean"], 0.0, atol=1e-4)
     assert fits["coupled"]["max"] < 1.0 and fits["coupled"]["minus_mocap"]["mean"] < -1.0
