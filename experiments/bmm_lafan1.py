@@ -63,6 +63,7 @@ from bezmotion.bezier import BezierLayout
 from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.data.curves import CurveDataset, curve_dataset
 from bezmotion.data.sources import default_source, load_corpus
+from bezmotion.baselines import OFF_GRID_REFERENCES
 from bezmotion.bmm.denoiser import PREDICTIONS, BMMConfig
 from bezmotion.bmm.features import FeatureStats
 from bezmotion.bmm.sampling import BezierMotionModel, load_model, sample_curves, save_model
@@ -98,6 +99,10 @@ class Options(DistributedOptions):
     prediction: str = option(
         "x0", choices=PREDICTIONS, help="decoder output: x0 (the paper) or residual over the reference curves through the conditions (ours)"
     )
+    off_grid_prior: str = option(
+        "linear", choices=OFF_GRID_REFERENCES,
+        help="with --prediction residual: how the reference curves it predicts over reach handles between control frames: linear (interpolated through them in frame; default) or projection (a bump at the handle; every model trained before 2026-12-01)",
+    )  # fmt: skip
     steps: int = option(6000, help="training steps (default 6000)")
     batch_size: int = BMMTrainConfig.batch_size
     learning_rate: float = BMMTrainConfig.learning_rate
@@ -160,6 +165,8 @@ class Options(DistributedOptions):
     def lever_suffix(self) -> str:
         """The run-folder suffix naming the levers that differ from the paper's training."""
         parts = []
+        if self.off_grid_prior != "linear":
+            parts.append(f"{self.off_grid_prior}prior")
         if self.lr_schedule != "constant":
             parts.append(f"{self.lr_schedule}{self.warmup_steps}")
         if self.augment_yaw:
@@ -432,7 +439,7 @@ def main(argv: list[str] | None = None) -> dict:
         state, history, train_s = None, [], 0.0
     else:
         init = load_model(BUNDLED_BMM if args.init == "bundled" else args.init) if args.init else None
-        model_config = init.config if init else CONFIGS[args.config](prediction=args.prediction)
+        model_config = init.config if init else CONFIGS[args.config](prediction=args.prediction, off_grid_prior=args.off_grid_prior)
         stats = init.stats if init else stats
         layout = BezierLayout.from_controls(model_config.num_controls, model_config.stride)
         metrics_config = CurveMetricsConfig(layout, val_set.fps, floor_height)

@@ -152,7 +152,8 @@ from bezmotion.assets.registry import REGISTRY, resolve_folder
 from bezmotion.bezier import BezierLayout
 from bezmotion.bmm.evaluation import EvalSet, dense_positions, floor_height_from, make_eval_set, reference_curves
 from bezmotion.bmm.features import HANDLE_FRAMES
-from bezmotion.bmm.sampling import Handles, load_model, share_boundaries
+from bezmotion.baselines import OFF_GRID_REFERENCES
+from bezmotion.bmm.sampling import Handles, load_model, share_boundaries, with_off_grid_prior
 from bezmotion.data.corpus import Corpus, motion_clips
 from bezmotion.data.curves import CurveDataset, curve_dataset
 from bezmotion.data.sources import load_corpus
@@ -212,6 +213,10 @@ class Options:
     ik: tuple[str, ...] = option(("learned", "refined", "rig", "exact"), choices=IKS, help="IKs to run on the same curves")
     windows: int = option(100, help="windows, or with --segments K > 1 chains (0 = all)")
     handle_frames: str = option("grid", choices=HANDLE_FRAMES, help="handles on control frames, between them, or any frame")
+    off_grid_prior: str | None = option(
+        None, choices=OFF_GRID_REFERENCES,
+        help="sample a residual BMM over this reference between control frames (default: the model's own; models trained before 2026-12-01 learned over projection)",
+    )  # fmt: skip
     segments: int = option(1, help="windows per evaluated chain, keys 30 frames apart (1: single windows)")
     steps: int = option(10, help="DDIM steps")
     key_velocities: bool = option(
@@ -458,6 +463,8 @@ def main(argv: list[str] | None = None) -> dict:
     args = parse_options(Options, argv, description=__doc__)
     started = time.perf_counter()
     bmm = load_model(model_path(args, "bmm"))
+    if args.off_grid_prior is not None:
+        bmm = with_off_grid_prior(bmm, args.off_grid_prior)
     ik_model = load_ik_model(model_path(args, "ik_model"))
     character = ik_model.character
     corpus, dataset = open_windows(args)
@@ -530,7 +537,7 @@ def main(argv: list[str] | None = None) -> dict:
         "source": args.bvh_dir or f"{args.corpus} validation",
         "settings": {
             "bmm": str(model_path(args, "bmm")), "ik_model": str(model_path(args, "ik_model")), "joint_limits": limited,
-            "handle_frames": args.handle_frames, "steps": args.steps, "key_blend_frames": args.key_blend,
+            "handle_frames": args.handle_frames, "off_grid_prior": bmm.config.off_grid_prior, "steps": args.steps, "key_blend_frames": args.key_blend,
             "key_velocities": args.key_velocities, "foot_lock": args.foot_lock,
             "chunk": args.chunk, "seed": args.seed, "sample_seed": args.sample_seed, "segments": k,
             "exact": exact_settings(args.exact),

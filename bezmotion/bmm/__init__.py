@@ -10,7 +10,7 @@ six characteristic joints, with handles hit exactly.
 """
 
 from bezmotion.bmm.denoiser import BMMConfig, BMMDenoiser, init_denoiser
-from bezmotion.bmm.sampling import BezierMotionModel, Handles, SampledCurves, load_model, sample_curves, save_model
+from bezmotion.bmm.sampling import BezierMotionModel, Handles, SampledCurves, load_model, sample_curves, save_model, with_off_grid_prior
 from bezmotion.bmm.train import BMMTrainConfig, CurveArrays, init_bmm_train_states, make_bmm_train_step
 
 __all__ = [
@@ -27,4 +27,5 @@ __all__ = [
     "make_bmm_train_step",
     "sample_curves",
     "save_model",
+    "with_off_grid_prior",
 ]

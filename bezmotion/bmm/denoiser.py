@@ -41,6 +41,7 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
+from bezmotion.baselines import OFF_GRID_REFERENCES
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.training.step import count_parameters  # noqa: F401 (its old home, re-exported)
 
@@ -65,6 +66,15 @@ class BMMConfig:
         the non-learned reference curves through the conditions
         (:func:`~bezmotion.bmm.features.interpolation_prior`), with the decoder
         zero-initialised so training starts from the reference.
+      off_grid_prior: with ``"residual"``, how the reference curves reach conditions between
+        control frames (:func:`~bezmotion.baselines.interpolation_through_points`):
+        ``"linear"`` (default) interpolates through them in frame, ``"projection"`` bends
+        the curve at the condition alone. The models trained before 2026-12-01 learned
+        their residual over ``"projection"`` (their saved configs have no such field, so
+        they load as ``"linear"``): sampled over ``"linear"`` they meet any-frame handles
+        with less error and grid handles identically (docs/precision.md, *A reference
+        through any-frame handles*); :func:`~bezmotion.bmm.sampling.with_off_grid_prior`
+        switches a loaded model.
     """
 
     num_controls: int = 6
@@ -77,6 +87,7 @@ class BMMConfig:
     dropout: float = 0.1
     num_timesteps: int = 1000
     prediction: str = "x0"
+    off_grid_prior: str = "linear"
 
     def __post_init__(self):
         for name in ("num_controls", "stride", "num_joints", "width", "ff_width", "num_heads", "num_layers", "num_timesteps"):
@@ -91,6 +102,8 @@ class BMMConfig:
             raise ValueError(f"BMMConfig.dropout must be in [0, 1), got {self.dropout}")
         if self.prediction not in PREDICTIONS:
             raise ValueError(f"BMMConfig.prediction must be one of {PREDICTIONS}, got {self.prediction!r}")
+        if self.off_grid_prior not in OFF_GRID_REFERENCES:
+            raise ValueError(f"BMMConfig.off_grid_prior must be one of {OFF_GRID_REFERENCES}, got {self.off_grid_prior!r}")
 
     @property
     def frame_features(self) -> int:

@@ -28,14 +28,13 @@ from bezmotion.bezier import BezierLayout, evaluate
 from bezmotion.data.characteristic import FEET
 from bezmotion.data.curves import CurveDataset
 from bezmotion.metrics import contact_accuracy, foot_skating_ratio, handles_error, mean_position_error
-from bezmotion.baselines import handle_interpolation
+from bezmotion.baselines import interpolation_through_points
 from bezmotion.bmm.features import (
     HANDLE_FRAMES,
     MAX_INTERMEDIATE_HANDLES,
     draw_intermediate_frames,
     handle_positions,
 )
-from bezmotion.diffusion.projection import on_control_frame, project_off_grid
 from bezmotion.bmm.sampling import Handles, SampledCurves
 
 OOD_NOISE_CM = 16.0  # BMM §5.1: uniform noise of ±16 cm per axis on the handles
@@ -206,30 +205,30 @@ def trajectory_metrics(
     }
 
 
-def reference_curves(eval_set: EvalSet, handles: Handles, layout: BezierLayout) -> SampledCurves:
-    """The non-learned reference (:func:`~bezmotion.baselines.handle_interpolation`
-    through the start, end and handles on control frames, then the minimum-norm correction
-    onto handles between them) for every window; no orientations, contacts all 0.5 (unknown)."""
-    pos, tangent = _reference_controls(eval_set.start, eval_set.end, handles, layout=layout)
+def reference_curves(eval_set: EvalSet, handles: Handles, layout: BezierLayout, *, off_grid: str = "linear") -> SampledCurves:
+    """The non-learned reference for every window: interpolation through the start, end and
+    handles, each met exactly (:func:`~bezmotion.baselines.interpolation_through_points`;
+    ``off_grid="projection"``: the reference of the figures before 2026-12-01, which reaches a
+    handle between control frames with a bump); no orientations, contacts all 0.5 (unknown)."""
+    pos, tangent = _reference_controls(eval_set.start, eval_set.end, handles, layout=layout, off_grid=off_grid)
     n, k = pos.shape[:2]
     return SampledCurves(pos, tangent, jnp.zeros((*pos.shape[:-1], 6)), jnp.full((n, k, 2), 0.5))
 
 
-@functools.partial(jax.jit, static_argnames="layout")
-def _reference_controls(start, end, handles: Handles, *, layout: BezierLayout):
-    """Known control points of every window (both ends, valid handles) → interpolated curves."""
+@functools.partial(jax.jit, static_argnames=("layout", "off_grid"))
+def _reference_controls(start, end, handles: Handles, *, layout: BezierLayout, off_grid: str):
+    """Both ends and the valid handles as condition slots → interpolated curves, per window."""
     j = start.shape[-2]
-    num_controls = layout.num_controls
+    keys_joint = jnp.tile(jnp.arange(j, dtype=jnp.int32), 2)
+    keys_frame = jnp.repeat(jnp.asarray([0, layout.num_frames - 1], jnp.int32), j)
 
     def one(start, end, h):
-        mask = jnp.zeros((num_controls, j), bool).at[0].set(True).at[-1].set(True)
-        target = jnp.zeros((num_controls, j, 3), start.dtype).at[0].set(start).at[-1].set(end)
-        on_grid, control = on_control_frame(layout, h.frame)
-        control = jnp.where(h.valid & on_grid, control, num_controls)  # other slots drop out of range
-        mask = mask.at[control, h.joint].set(True, mode="drop")
-        target = target.at[control, h.joint].set(h.position, mode="drop")
-        pos, tangent = handle_interpolation(mask, target)
-        return project_off_grid(layout, pos, tangent, mask, h.joint, h.frame, h.position, h.valid)
+        frame = jnp.concatenate([keys_frame, h.frame.astype(jnp.int32)])
+        joint = jnp.concatenate([keys_joint, h.joint.astype(jnp.int32)])
+        position = jnp.concatenate([start, end, h.position])
+        valid = jnp.concatenate([jnp.ones(2 * j, bool), h.valid])
+        pos, tangent, _ = interpolation_through_points(layout, frame, joint, position, valid, j, off_grid=off_grid)
+        return pos, tangent
 
     return jax.vmap(one)(start, end, handles)
 

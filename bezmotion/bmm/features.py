@@ -19,8 +19,8 @@ from jaxtyping import Array, Bool, Float, Int
 from bezmotion.bezier import BezierLayout, basis
 from bezmotion.linalg import exact_einsum
 from bezmotion.data.curves import CurveDataset
-from bezmotion.diffusion.projection import on_control_frame, project_off_grid
-from bezmotion.baselines import handle_interpolation
+from bezmotion.diffusion.projection import on_control_frame
+from bezmotion.baselines import interpolation_through_points
 from bezmotion.bmm.denoiser import FEATURES_PER_JOINT, BMMDenoiser, Conditions
 from bezmotion.bmm.unet import CondUNet1D
 
@@ -210,31 +210,31 @@ def normalize_conditions(stats: FeatureStats, conditions: Conditions, translatio
     return conditions._replace(position=jnp.where(conditions.valid[..., None], position, 0.0))
 
 
-def interpolation_prior(stats: FeatureStats, conditions: Conditions, layout: BezierLayout) -> Float[Array, "controls features"]:
+def interpolation_prior(
+    stats: FeatureStats, conditions: Conditions, layout: BezierLayout, *, off_grid: str = "linear"
+) -> Float[Array, "controls features"]:
     """The reference curves through the conditions, as normalised frame tokens (one motion).
 
-    Positions and tangents are :func:`~bezmotion.baselines.handle_interpolation`
-    of the conditioned control positions, then moved onto the conditions between control
-    frames by the minimum-norm correction
-    (:func:`~bezmotion.diffusion.projection.project_off_grid`; nothing moves when there
-    are none); orientations are the training mean (0 once normalised). A joint whose
-    first or last control point is not conditioned (e.g. all conditions dropped for
-    classifier-free guidance) gets the mean everywhere.
+    Positions and tangents are :func:`~bezmotion.baselines.interpolation_through_points` of
+    the conditions (``off_grid``: how it reaches conditions between control frames;
+    ``"linear"`` interpolates through them, ``"projection"``, the prior every model trained
+    before 2026-12-01 learned its residual over, bends the curve at such a condition alone);
+    orientations are the training mean (0 once normalised). A joint whose first or last
+    control point is not conditioned (e.g. all conditions dropped for classifier-free
+    guidance) gets the mean everywhere.
 
     Args:
       conditions: normalised condition slots (:func:`normalize_conditions`).
       layout: the curves' layout (control points and stride).
+      off_grid: ``"projection"`` or ``"linear"`` (:data:`~bezmotion.baselines.OFF_GRID_REFERENCES`).
     Returns:
       ``(controls, joints·12)`` normalised features.
     """
     num_joints = stats.mean.shape[0]
     num_controls = layout.num_controls
-    mask, position = conditions.to_grid(num_controls, num_joints, layout.stride)
-    position_cm = position * stats.std[:, :3] + stats.mean[:, :3]
-    ctrl_pos, ctrl_tangent = handle_interpolation(mask, position_cm)
     target_cm = conditions.position * stats.std[conditions.joint, :3] + stats.mean[conditions.joint, :3]
-    ctrl_pos, ctrl_tangent = project_off_grid(
-        layout, ctrl_pos, ctrl_tangent, mask, conditions.joint, conditions.frame, target_cm, conditions.valid
+    ctrl_pos, ctrl_tangent, mask = interpolation_through_points(
+        layout, conditions.frame, conditions.joint, target_cm, conditions.valid, num_joints, off_grid=off_grid
     )
     feats = stats.normalize(jnp.concatenate([ctrl_pos, ctrl_tangent, jnp.broadcast_to(stats.mean[:, 6:], (num_controls, num_joints, 6))], axis=-1))
     known = mask[0] & mask[-1]
@@ -256,5 +256,5 @@ def predict_x0(
     x0, logits = denoiser(x_t, t, conditions, key=key)
     if denoiser.config.prediction == "residual":
         cfg = denoiser.config
-        x0 = x0 + interpolation_prior(stats, conditions, BezierLayout.from_controls(cfg.num_controls, cfg.stride))
+        x0 = x0 + interpolation_prior(stats, conditions, BezierLayout.from_controls(cfg.num_controls, cfg.stride), off_grid=cfg.off_grid_prior)
     return x0, logits

@@ -546,3 +546,18 @@ def load_model(directory: str | os.PathLike) -> BezierMotionModel:
     restored = store.restore(like)
     store.close()
     return BezierMotionModel(cast_floating(restored["params"], jnp.float32), restored["stats"], graphdef, config)
+
+
+def with_off_grid_prior(model: BezierMotionModel, off_grid_prior: str) -> BezierMotionModel:
+    """The same trained model, its residual added to another reference between control
+    frames (:attr:`BMMConfig.off_grid_prior`, ``"linear"`` or ``"projection"``): the
+    parameters are shared, only the structure is rebuilt. Handles on control frames sample
+    exactly as before; a model trained before 2026-12-01 over ``"projection"`` can be
+    sampled the way it was trained.
+
+    Raises:
+      ValueError: ``off_grid_prior`` is not one of them.
+    """
+    config = dataclasses.replace(model.config, off_grid_prior=off_grid_prior)  # checks the value
+    graphdef, _ = init_denoiser(config, key=jax.random.key(0))
+    return dataclasses.replace(model, graphdef=graphdef, config=config)

@@ -27,6 +27,7 @@ from bezmotion.bmm.denoiser import (
     sinusoidal_encoding,
 )
 from bezmotion.bmm.features import interpolation_prior, normalize_conditions, predict_x0
+from bezmotion.bmm.sampling import BezierMotionModel, with_off_grid_prior
 from bezmotion.bezier import BezierLayout
 
 
@@ -85,7 +86,8 @@ def test_parameter_count_of_the_paper_size():
 
 def test_bmm_config_validation():
     assert BMMConfig().num_frames == 31 and BMMConfig().max_conditions == 36 and BMMConfig().frame_features == 72
-    for bad in ({"width": 30, "num_heads": 4}, {"num_controls": 1}, {"dropout": 1.0}, {"num_layers": 0}, {"stride": True}):
+    assert BMMConfig().off_grid_prior == "linear"  # also what a saved config from before the field loads as
+    for bad in ({"width": 30, "num_heads": 4}, {"num_controls": 1}, {"dropout": 1.0}, {"num_layers": 0}, {"stride": True}, {"off_grid_prior": "bump"}):
         with pytest.raises(ValueError, match="BMMConfig"):
             BMMConfig(**bad)
 
@@ -213,6 +215,21 @@ def test_residual_prediction_adds_the_prior_to_the_network_output(stats, rng):
     x0, logits = predict_x0(module, stats, x, jnp.int32(300), cond)
     np.testing.assert_allclose(x0 - raw, interpolation_prior(stats, cond, BezierLayout.from_controls(K, 6)), atol=1e-5)
     assert_trees_identical(logits, raw_logits)
+    # Handles between control frames: the prior is the config's (linear by default), the
+    # network's term the same either way; with_off_grid_prior switches a model's.
+    off = cond._replace(frame=cond.frame.at[2 * J :].add(1))
+    raw_off, _ = module(x, jnp.int32(300), off)
+    model = BezierMotionModel(params, stats, graphdef, RESIDUAL)
+    x0s = {}
+    for way in ("linear", "projection"):
+        switched = with_off_grid_prior(model, way)
+        assert switched.config.off_grid_prior == way and switched.params is params
+        x0s[way], _ = predict_x0(nnx.merge(switched.graphdef, params), stats, x, jnp.int32(300), off)
+        prior = interpolation_prior(stats, off, BezierLayout.from_controls(K, 6), off_grid=way)
+        np.testing.assert_allclose(x0s[way] - raw_off, prior, atol=1e-5)
+    assert float(jnp.max(jnp.abs(x0s["linear"] - x0s["projection"]))) > 1e-2
+    with pytest.raises(ValueError, match="'bump'"):
+        with_off_grid_prior(model, "bump")
     # The paper's x₀ prediction returns the network output as it is.
     plain = nnx.merge(*init_denoiser(TINY, key=jax.random.key(4)))
     assert_trees_identical(predict_x0(plain, stats, x, jnp.int32(300), cond), plain(x, jnp.int32(300), cond))

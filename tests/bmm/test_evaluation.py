@@ -15,11 +15,12 @@ import pytest
 from helpers import SHARED_DATA, assert_trees_identical, load_experiment, requires_shared
 from bmm.common import J, K
 
-from bezmotion.baselines import handle_interpolation
+from bezmotion.baselines import handle_interpolation, interpolation_through_points
 from bezmotion.bezier import BezierLayout
 from bezmotion.bmm.evaluation import (
     CurveMetricsConfig,
     curve_metrics,
+    dense_positions,
     make_eval_set,
     reference_curves,
     sample_in_chunks,
@@ -52,6 +53,46 @@ def test_handle_interpolation_by_hand():
     # Batched.
     bpos, _ = handle_interpolation(jnp.stack([mask, mask]), jnp.stack([target, target + 1.0]))
     np.testing.assert_allclose(bpos[1], pos + 1.0, rtol=1e-5, atol=1e-5)
+
+
+def _slots(frames, joints, positions):
+    """Condition slots of two joints: both keys (frames 0 and 30), then the given ones."""
+    frame = jnp.asarray([0, 0, 30, 30, *frames], jnp.int32)
+    joint = jnp.asarray([0, 1, 0, 1, *joints], jnp.int32)
+    return frame, joint, jnp.asarray(positions, jnp.float32), jnp.ones(len(frame), bool)
+
+
+def test_interpolation_through_points_on_the_grid_and_between():
+    """On control frames both ways are handle_interpolation; between them both meet the
+    condition, and "linear" interpolates through it in frame: on a motion that turns at
+    frame 13 (a tent), its curve stays near the motion, where the projection's bump does not."""
+    rng = np.random.default_rng(4)
+    keys = rng.normal(size=(4, 3)) * 20.0
+    grid = _slots([12], [0], [*keys, [5.0, 60.0, -3.0]])
+    mask = jnp.zeros((K, 2), bool).at[0].set(True).at[-1].set(True).at[2, 0].set(True)
+    target = jnp.zeros((K, 2, 3)).at[0].set(keys[[0, 1]]).at[-1].set(keys[[2, 3]]).at[2, 0].set(jnp.asarray([5.0, 60.0, -3.0]))
+    expected = handle_interpolation(mask, target)
+    for way in ("projection", "linear"):
+        pos, tangent, on_grid = interpolation_through_points(LAYOUT, *grid, 2, off_grid=way)
+        np.testing.assert_array_equal(on_grid, mask)
+        np.testing.assert_allclose(pos, expected[0], atol=1e-5)
+        np.testing.assert_allclose(tangent, expected[1], atol=1e-5)
+    # The tent: joint 0 rises 60 cm linearly to frame 13 and falls back by frame 30; joint 1 rests.
+    frames = np.arange(31)
+    tent = 60.0 * np.minimum(frames / 13, (30 - frames) / 17)
+    motion = np.zeros((31, 2, 3))
+    motion[:, 0, 1] = tent
+    between = _slots([13], [0], [motion[0, 0], motion[0, 1], motion[30, 0], motion[30, 1], motion[13, 0]])
+    error = {}
+    for way in ("projection", "linear"):
+        pos, tangent, _ = interpolation_through_points(LAYOUT, *between, 2, off_grid=way)
+        dense = np.asarray(dense_positions(LAYOUT, pos, tangent))
+        np.testing.assert_allclose(dense[13, 0], motion[13, 0], atol=1e-4)  # the condition, met
+        np.testing.assert_allclose(dense[:, 1], 0.0, atol=1e-6)  # the other joint untouched
+        error[way] = float(np.mean(np.abs(dense[:, 0, 1] - tent)))
+    assert error["linear"] < 0.25 * error["projection"], error  # 0.96 against 17.3 cm (mean over the frames)
+    with pytest.raises(ValueError, match="'bump'"):
+        interpolation_through_points(LAYOUT, *between, 2, off_grid="bump")
 
 
 def test_handles_error_by_hand():
