@@ -34,7 +34,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from bezmotion.bezier import BezierLayout
-from bezmotion.diffusion.projection import on_control_frame, project_off_grid
+from bezmotion.diffusion.projection import grid_conditions, project_off_grid
 from bezmotion.geometry.rotations import slerp
 
 # ------------------------------------------------------------------ transition baselines
@@ -274,12 +274,7 @@ def interpolation_through_points(
     """
     if off_grid not in OFF_GRID_REFERENCES:
         raise ValueError(f"off_grid must be one of {OFF_GRID_REFERENCES}, got {off_grid!r}")
-    k = layout.num_controls
-    on_grid, control = on_control_frame(layout, frame)
-    # Other slots scatter out of range and are dropped, so they never overwrite a grid one.
-    control = jnp.where(valid & on_grid, control, k)
-    mask = jnp.zeros((k, num_joints), bool).at[control, joint].set(True, mode="drop")
-    target = jnp.zeros((k, num_joints, 3), position.dtype).at[control, joint].set(position, mode="drop")
+    mask, target = grid_conditions(layout, frame, joint, position, valid, num_joints)
     if off_grid == "projection":
         ctrl_pos, ctrl_tangent = handle_interpolation(mask, target)
     else:

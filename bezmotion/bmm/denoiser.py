@@ -42,6 +42,8 @@ from flax import nnx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from bezmotion.baselines import OFF_GRID_REFERENCES
+from bezmotion.bezier import BezierLayout
+from bezmotion.diffusion.projection import grid_conditions
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.training.step import count_parameters  # noqa: F401 (its old home, re-exported)
 
@@ -169,13 +171,7 @@ class Conditions(NamedTuple):
     ) -> tuple[Bool[Array, "controls joints"], Float[Array, "controls joints 3"]]:
         """``(mask, position)`` of the conditions on control frames, on the control × joint
         grid (one motion; later slots win). Conditions between control frames are left out."""
-        on_grid = self.valid & (self.frame % stride == 0) & (self.frame >= 0) & (self.frame < num_controls * stride)
-        # Other slots scatter out of bounds and are dropped, so they never overwrite a grid one.
-        control = jnp.where(on_grid, self.frame // stride, num_controls)
-        mask = jnp.zeros((num_controls, num_joints), bool).at[control, self.joint].set(True, mode="drop")
-        position = jnp.zeros((num_controls, num_joints, 3), self.position.dtype)
-        position = position.at[control, self.joint].set(self.position, mode="drop")
-        return mask, position
+        return grid_conditions(BezierLayout.from_controls(num_controls, stride), self.frame, self.joint, self.position, self.valid, num_joints)
 
 
 def sinusoidal_encoding(

@@ -38,6 +38,24 @@ def on_control_frame(layout: BezierLayout, frame: Int[ArrayLike, "*shape"]) -> t
     return controls[control] == frame, control
 
 
+def grid_conditions(
+    layout: BezierLayout,
+    frame: Int[Array, "slots"],
+    joint: Int[Array, "slots"],
+    position: Float[Array, "slots 3"],
+    valid: Bool[Array, "slots"],
+    num_joints: int,
+) -> tuple[Bool[Array, "controls joints"], Float[Array, "controls joints 3"]]:
+    """``(mask, target)``: the valid point conditions that sit on control frames, on the
+    control × joint grid (one motion; later slots win); the others are left out."""
+    on_grid, control = on_control_frame(layout, frame)
+    # Other slots scatter out of range and are dropped, so they never overwrite a grid one.
+    control = jnp.where(valid & on_grid, control, layout.num_controls)
+    mask = jnp.zeros((layout.num_controls, num_joints), bool).at[control, joint].set(True, mode="drop")
+    target = jnp.zeros((layout.num_controls, num_joints, 3), position.dtype).at[control, joint].set(position, mode="drop")
+    return mask, target
+
+
 def project_off_grid(
     layout: BezierLayout,
     ctrl_pos: Float[Array, "controls joints 3"],
@@ -140,15 +158,11 @@ def project_onto_handles(
     Returns:
       ``(ctrl_pos, ctrl_tangent)``.
     """
-    on_grid, control = on_control_frame(layout, frame)
-    grid = valid & on_grid
-    # Non-grid slots scatter out of range and are dropped, so they never overwrite a grid one.
-    control = jnp.where(grid, control, layout.num_controls)
-    ctrl_pos = ctrl_pos.at[control, joint].set(position.astype(ctrl_pos.dtype), mode="drop")
-    mask = jnp.zeros(ctrl_pos.shape[:2], bool).at[control, joint].set(True, mode="drop")
+    mask, target = grid_conditions(layout, frame, joint, position.astype(ctrl_pos.dtype), valid, ctrl_pos.shape[1])
+    ctrl_pos = jnp.where(mask[..., None], target, ctrl_pos)
     if fixed is not None:
         mask = mask | fixed
     return project_off_grid(layout, ctrl_pos, ctrl_tangent, mask, joint, frame, position, valid, fixed_tangent=fixed_tangent)
 
 
-__all__ = ["on_control_frame", "project_off_grid", "project_onto_handles"]
+__all__ = ["grid_conditions", "on_control_frame", "project_off_grid", "project_onto_handles"]
