@@ -34,7 +34,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from bezmotion.bezier import BezierLayout
-from bezmotion.diffusion.projection import grid_conditions, project_off_grid
+from bezmotion.diffusion.projection import grid_conditions, on_control_frame, project_off_grid
 from bezmotion.geometry.rotations import slerp
 
 # ------------------------------------------------------------------ transition baselines
@@ -274,20 +274,20 @@ def interpolation_through_points(
     """
     if off_grid not in OFF_GRID_REFERENCES:
         raise ValueError(f"off_grid must be one of {OFF_GRID_REFERENCES}, got {off_grid!r}")
-    mask, target = grid_conditions(layout, frame, joint, position, valid, num_joints)
-    if off_grid == "projection":
-        ctrl_pos, ctrl_tangent = handle_interpolation(mask, target)
-    else:
-        ctrl_pos = _linear_in_frame(layout, frame, joint, position, valid, num_joints)
-        ctrl_pos = jnp.where(mask[..., None], target, ctrl_pos)
-        ctrl_tangent = _catmull_rom_tangents(ctrl_pos)
-    ctrl_pos, ctrl_tangent = project_off_grid(layout, ctrl_pos, ctrl_tangent, mask, joint, frame, position, valid)
+    on_grid, _ = on_control_frame(layout, frame)
+    # The two ways differ only in which conditions the interpolation reads ("projection": those
+    # on control frames, i.e. handle_interpolation); the correction meets the rest either way.
+    read = valid if off_grid == "linear" else valid & on_grid
+    ctrl_pos = _linear_in_frame(layout, frame, joint, position, read, num_joints)
+    mask, _ = grid_conditions(layout, frame, joint, position, valid, num_joints)
+    ctrl_pos, ctrl_tangent = project_off_grid(layout, ctrl_pos, _catmull_rom_tangents(ctrl_pos), mask, joint, frame, position, valid)
     return ctrl_pos, ctrl_tangent, mask
 
 
 def _linear_in_frame(layout: BezierLayout, frame, joint, position, valid, num_joints: int) -> Float[Array, "controls joints 3"]:
     """``(controls, joints, 3)``: each joint's position at every control frame, linear in
-    frame between its nearest valid conditions at or before and at or after that frame."""
+    frame between its nearest valid conditions at or before and at or after that frame (a
+    condition on the control frame itself: its position exactly, the weight being 0)."""
     controls = jnp.asarray(layout.control_frames, jnp.int32)[:, None, None]  # (K, 1, 1)
     own = (valid[None, :] & (joint[None, :] == jnp.arange(num_joints)[:, None]))[None]  # (1, J, S)
     slot_frame = frame.astype(jnp.int32)[None, None, :]

@@ -34,6 +34,7 @@ from bezmotion.bmm.features import (
     MAX_INTERMEDIATE_HANDLES,
     draw_intermediate_frames,
     handle_positions,
+    inbetween_conditions,
 )
 from bezmotion.bmm.sampling import Handles, SampledCurves
 
@@ -219,15 +220,10 @@ def reference_curves(eval_set: EvalSet, handles: Handles, layout: BezierLayout, 
 def _reference_controls(start, end, handles: Handles, *, layout: BezierLayout, off_grid: str):
     """Both ends and the valid handles as condition slots → interpolated curves, per window."""
     j = start.shape[-2]
-    keys_joint = jnp.tile(jnp.arange(j, dtype=jnp.int32), 2)
-    keys_frame = jnp.repeat(jnp.asarray([0, layout.num_frames - 1], jnp.int32), j)
 
     def one(start, end, h):
-        frame = jnp.concatenate([keys_frame, h.frame.astype(jnp.int32)])
-        joint = jnp.concatenate([keys_joint, h.joint.astype(jnp.int32)])
-        position = jnp.concatenate([start, end, h.position])
-        valid = jnp.concatenate([jnp.ones(2 * j, bool), h.valid])
-        pos, tangent, _ = interpolation_through_points(layout, frame, joint, position, valid, j, off_grid=off_grid)
+        c = inbetween_conditions(layout.num_frames, start, end, h.frame, h.joint, h.position, h.valid)
+        pos, tangent, _ = interpolation_through_points(layout, c.frame, c.joint, c.position, c.valid, j, off_grid=off_grid)
         return pos, tangent
 
     return jax.vmap(one)(start, end, handles)

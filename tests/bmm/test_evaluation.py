@@ -17,6 +17,7 @@ from bmm.common import J, K
 
 from bezmotion.baselines import handle_interpolation, interpolation_through_points
 from bezmotion.bezier import BezierLayout
+from bezmotion.bmm.features import inbetween_conditions
 from bezmotion.bmm.evaluation import (
     CurveMetricsConfig,
     curve_metrics,
@@ -56,10 +57,11 @@ def test_handle_interpolation_by_hand():
 
 
 def _slots(frames, joints, positions):
-    """Condition slots of two joints: both keys (frames 0 and 30), then the given ones."""
-    frame = jnp.asarray([0, 0, 30, 30, *frames], jnp.int32)
-    joint = jnp.asarray([0, 1, 0, 1, *joints], jnp.int32)
-    return frame, joint, jnp.asarray(positions, jnp.float32), jnp.ones(len(frame), bool)
+    """Condition slots of two joints (:func:`inbetween_conditions`): both keys, then the
+    handles at ``frames``; ``positions``: the start's two, the end's two, the handles'."""
+    p = jnp.asarray(positions, jnp.float32)
+    c = inbetween_conditions(31, p[:2], p[2:4], jnp.asarray(frames, jnp.int32), jnp.asarray(joints, jnp.int32), p[4:], jnp.ones(len(frames), bool))
+    return c.frame, c.joint, c.position, c.valid
 
 
 def test_interpolation_through_points_on_the_grid_and_between():
