@@ -26,6 +26,20 @@ if TYPE_CHECKING:
 # X and Z; +Y is up. NumPy, not jnp: importing bezmotion must not start a JAX backend
 # (jax.distributed.initialize has to come first when several processes train).
 HORIZONTAL = np.asarray([True, False, True])
+ANCHORS = ("nearest", "mean")
+"""Where a planted run's control points are held (:func:`lock_feet`'s ``anchor``); the first is the default."""
+
+
+def lock_anchor(foot_lock: bool | str) -> str | None:
+    """The anchor a sampler's ``foot_lock`` asks for: ``None`` for no lock (``False``), the
+    default (:data:`ANCHORS`' first) for ``True``, else the name itself, checked."""
+    if foot_lock is False or foot_lock is None:
+        return None
+    if foot_lock is True:
+        return ANCHORS[0]
+    if foot_lock not in ANCHORS:
+        raise ValueError(f"foot_lock must be True, False or one of {ANCHORS}, got {foot_lock!r}")
+    return foot_lock
 
 
 def lock_feet(
@@ -37,22 +51,33 @@ def lock_feet(
     threshold: float = 0.5,
     handles: Conditions | None = None,
     layout: BezierLayout | None = None,
+    anchor: str = "nearest",
 ) -> tuple[Float[Array, "*batch controls joints 3"], Float[Array, "*batch controls joints 3"]]:
     """Hold each foot still horizontally over every run of consecutive contact control points.
 
     For each foot (:data:`~bezmotion.data.characteristic.FEET`) and each maximal run of
     control points whose contact probability exceeds ``threshold``: the horizontal
-    tangents become zero, and the horizontal positions move to the run's anchor — the
-    mean of the run's constrained points when it has any, else the mean of the whole run.
-    Constrained points (start, end, handles) never move, so handles stay exact; heights
-    and all other joints are untouched.
+    tangents become zero, and each unconstrained point's horizontal position moves to its
+    anchor. Constrained points (start, end, handles) never move, so handles stay exact;
+    heights and all other joints are untouched.
+
+    ``anchor="nearest"`` (the default): where the run's constrained point nearest in time
+    puts the foot (equally near ones: their mean), or, in a run without one, the mean of
+    the whole run. A run whose conditions put the foot in two places (a key here, a key or
+    a handle there) then steps once, between control points, from one to the other.
+    ``anchor="mean"`` (the rule before 2026-12-01): the mean of the run's constrained points.
+    That holds such a run at a place between them, so the foot leaves each condition and
+    reaches the next with zero horizontal velocity at every control point on the way: a
+    stop-and-go inside the window and, at a key two windows of a chain share, a velocity jump
+    (docs/precision.md, *A planted foot between two conditions*).
 
     A foot's handle between two control frames (``handles``, off the ``layout``'s grid)
     whose two control points lie in one contact run counts as one of the run's constrained
-    points: the run is planted where the handle puts the foot. Otherwise the run would be
-    planted at its own mean, and the handle projection that follows
+    points, at its own frame: the run is planted where the handle puts the foot. Otherwise the
+    run would be planted elsewhere, and the handle projection that follows
     (:func:`~bezmotion.diffusion.projection.project_off_grid`) would move the planted
-    control points and their tangents back through the handle, sliding the foot.
+    control points and their tangents back through the handle, sliding the foot. (With
+    ``"mean"`` it counts only in a run with no constrained control point.)
 
     Args:
       ctrl_pos, ctrl_tangent: Bézier control points (cm).
@@ -62,11 +87,14 @@ def lock_feet(
       handles: ``(*batch, slots)`` conditions at any frame (positions in the curves' frame,
         cm); those on control frames are already in ``constrained`` and are skipped here.
       layout: the curves' layout (needed with ``handles``).
+      anchor: ``"nearest"`` or ``"mean"`` (:data:`ANCHORS`), above.
     Returns:
       ``(ctrl_pos, ctrl_tangent)``.
     """
     if not 0.0 < threshold < 1.0:
         raise ValueError(f"threshold must be in (0, 1), got {threshold}")
+    if anchor not in ANCHORS:
+        raise ValueError(f"anchor must be one of {ANCHORS}, got {anchor!r}")
     feet = jnp.asarray(FEET)
     planted = contacts > threshold  # (..., K, 2)
     fixed = constrained[..., feet]  # (..., K, 2)
@@ -75,23 +103,56 @@ def lock_feet(
     run = jnp.cumsum(starts, axis=-2)
     # same[..., k, l, f]: control points k and l belong to the same contact run of foot f.
     same = planted[..., :, None, :] & planted[..., None, :, :] & (run[..., :, None, :] == run[..., None, :, :])
-    run_has_fixed = jnp.any(same & fixed[..., None, :, :], axis=-2)  # (..., K, 2)
-    if handles is not None:
-        # member[..., k, h, f]: foot f's off-grid handle h lies inside control k's contact
-        # run, and that run has no constrained control point (those already set it).
-        member = _off_grid_members(handles, layout, planted, run, feet) & ~run_has_fixed[..., None, :]
-        run_has_fixed = run_has_fixed | jnp.any(member, axis=-2)
-    weight = (same & (fixed[..., None, :, :] | ~run_has_fixed[..., :, None, :])).astype(pos.dtype)
+    fixed_in_run = same & fixed[..., None, :, :]  # [..., k, l, f]: l is constrained and in k's run
+    # member[..., k, h, f]: foot f's off-grid handle h lies inside control k's contact run.
+    member = None if handles is None else _off_grid_members(handles, layout, planted, run, feet)
+    if anchor == "nearest":
+        when = None if handles is None else handles.frame / layout.stride  # (..., H), in control points
+        weight, member = _nearest_weights(fixed_in_run, same, member, when)
+    else:
+        weight, member = _mean_weights(fixed_in_run, same, member)
+    weight = weight.astype(pos.dtype)
     total, count = jnp.einsum("...klf,...lfd->...kfd", weight, pos), weight.sum(axis=-2)
-    if handles is not None:
+    if member is not None:
         member = member.astype(pos.dtype)
         total = total + jnp.einsum("...khf,...hd->...kfd", member, handles.position)
         count = count + member.sum(axis=-2)
-    anchor = total / jnp.maximum(count, 1.0)[..., None]
+    target = total / jnp.maximum(count, 1.0)[..., None]
     move = (planted & ~fixed)[..., None] & HORIZONTAL
-    new_pos = jnp.where(move, anchor, pos)
+    new_pos = jnp.where(move, target, pos)
     new_tangent = jnp.where(planted[..., None] & HORIZONTAL, 0.0, ctrl_tangent[..., feet, :])
     return ctrl_pos.at[..., feet, :].set(new_pos), ctrl_tangent.at[..., feet, :].set(new_tangent)
+
+
+def _nearest_weights(
+    fixed_in_run: Array, same: Array, member: Array | None, when: Array | None
+) -> tuple[Bool[Array, "*batch controls controls 2"], Bool[Array, "*batch controls handles 2"] | None]:
+    """``anchor="nearest"``: which constrained control points (``[..., k, l, f]``) and
+    off-grid handles (``[..., k, h, f]``, at control-point times ``when``) control point ``k``
+    is held at: those of its run nearest to it in time, equally near ones together; a run
+    without any, at all of its points (its mean)."""
+    k = jnp.arange(fixed_in_run.shape[-2])
+    far = jnp.inf
+    gap = jnp.where(fixed_in_run, jnp.abs(k[:, None] - k[None, :])[:, :, None], far)
+    nearest = gap.min(axis=-2)  # (..., K, 2)
+    if member is not None:
+        gap_handles = jnp.where(member, jnp.abs(k[:, None] - when[..., None, :])[..., None], far)
+        nearest = jnp.minimum(nearest, gap_handles.min(axis=-2))
+        member = member & (gap_handles == nearest[..., None, :])
+    free = jnp.isinf(nearest)  # no condition in the run
+    return (fixed_in_run & (gap == nearest[..., None, :])) | (same & free[..., :, None, :]), member
+
+
+def _mean_weights(
+    fixed_in_run: Array, same: Array, member: Array | None
+) -> tuple[Bool[Array, "*batch controls controls 2"], Bool[Array, "*batch controls handles 2"] | None]:
+    """``anchor="mean"``: the run's constrained control points; its off-grid handles only
+    where it has none of those; a run with neither, all of its points."""
+    has_fixed = jnp.any(fixed_in_run, axis=-2)  # (..., K, 2)
+    if member is not None:
+        member = member & ~has_fixed[..., None, :]
+        has_fixed = has_fixed | jnp.any(member, axis=-2)
+    return fixed_in_run | (same & ~has_fixed[..., :, None, :]), member
 
 
 def _off_grid_members(

@@ -33,7 +33,7 @@ from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.bezier import BezierLayout
 from bezmotion.diffusion.ddim import ddim_sample
 from bezmotion.diffusion.projection import project_off_grid
-from bezmotion.bmm.foot_lock import lock_feet
+from bezmotion.bmm.foot_lock import lock_anchor, lock_feet
 from bezmotion.diffusion.schedule import cosine_schedule
 from bezmotion.bmm.denoiser import BMMConfig, Conditions, init_denoiser
 from bezmotion.bmm.features import (
@@ -321,8 +321,8 @@ def _sample_one(
     rot6d = couple(rot6d)  # after denormalising: equal bits at shared keys (a no-op with key_rot6d)
     # A shared key is one frame: both windows agree on whether a foot is planted there.
     contacts = couple(jax.nn.sigmoid(logits))
-    if foot_lock:
-        pos, tangent = lock_feet(pos, tangent, contacts, mask, handles=world, layout=layout)
+    if (anchor := lock_anchor(foot_lock)) is not None:
+        pos, tangent = lock_feet(pos, tangent, contacts, mask, handles=world, layout=layout, anchor=anchor)
         if overwrite:  # locking moves control points that off-grid handles depend on
             pos, tangent = exact(pos, tangent)
     return SampledCurves(pos, tangent, rot6d, contacts)
@@ -338,7 +338,7 @@ def sample_curves(
     steps: int = 10,
     guidance: float = 1.0,
     overwrite: bool = True,
-    foot_lock: bool = False,
+    foot_lock: bool | str = False,
     key_rot6d: Float[Array, "*batch 2 6 6"] | None = None,
     key_tangent: Float[Array, "*batch 2 6 3"] | None = None,
 ) -> SampledCurves:
@@ -362,7 +362,10 @@ def sample_curves(
         the paper's "w/o overwrite" ablation.
       foot_lock: afterwards, hold each foot still in the ground plane while its
         predicted contact lasts (:func:`~bezmotion.bmm.foot_lock.lock_feet`; ours, not the
-        paper's). Constrained points do not move.
+        paper's). Constrained points do not move. ``True`` holds each planted control
+        point where the nearest condition of its contact run puts the foot; ``"mean"``
+        (the rule before 2026-12-01) at the mean of the run's conditions; ``"nearest"``
+        is ``True``'s.
       key_rot6d: optionally ``(*batch, 2, 6, 6)`` global orientations (6-D, world frame) of
         the six joints at the first and at the last frame. With ``overwrite`` they are
         conditions like the key positions: written into x̂₀'s first and last control points
@@ -428,7 +431,7 @@ def sample_chained_curves(
     guidance: float = 1.0,
     coupled: bool = True,
     overwrite: bool = True,
-    foot_lock: bool = False,
+    foot_lock: bool | str = False,
     key_rot6d: Float[Array, "*batch keys 6 6"] | None = None,
     key_tangent: Float[Array, "*batch keys 6 3"] | None = None,
 ) -> SampledCurves:

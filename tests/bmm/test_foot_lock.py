@@ -81,14 +81,49 @@ def test_a_foot_handle_between_control_frames_plants_its_contact_run(rng):
     # The left run stands where its handle puts the foot, horizontally; heights kept.
     np.testing.assert_allclose(new_pos[1:4, left][:, [0, 2]], np.broadcast_to(target[0, [0, 2]], (3, 2)), rtol=1e-6)
     np.testing.assert_array_equal(new_pos[1:4, left, 1], np.asarray(pos)[1:4, left, 1])
-    # Everything else as without handles: the right run keeps the start's anchor, the other
-    # handles (leaving the run, another joint, padding) change nothing, tangents alike.
+    # The right run holds the start (control 0) and a handle at frame 7: control 1 (frame 6)
+    # and control 2 (frame 12) are nearer the handle, so they stand where it puts the foot.
+    np.testing.assert_allclose(new_pos[1:3, right][:, [0, 2]], np.broadcast_to(target[1, [0, 2]], (2, 2)), rtol=1e-6)
+    # Everything else as without handles: the start, the other handles (leaving the run,
+    # another joint, padding) change nothing, tangents alike.
     others = np.ones((K, J), bool)
-    others[1:4, left] = False
+    others[1:4, left] = others[1:3, right] = False
     np.testing.assert_array_equal(new_pos[others], plain_pos[others])
     np.testing.assert_array_equal(new_tangent, plain_tangent)
+    # Held at the run's mean of conditions (the earlier rule), the start alone anchors the right run.
+    mean_pos = np.asarray(lock_feet(*args, handles=handles, layout=layout, anchor="mean")[0])
+    np.testing.assert_array_equal(mean_pos[:, right], plain_pos[:, right])
     with pytest.raises(ValueError, match="layout"):
         lock_feet(*args, handles=handles)
+
+
+def test_a_run_between_two_conditions_steps_once_between_them(rng):
+    """A foot planted over the whole window whose start and end put it in two places: each
+    control point stands where the nearer condition puts the foot (one step, between controls
+    2 and 3), where holding the run at their mean (``anchor="mean"``) stops the foot at every
+    control point on the way — and at the keys, where a chain's windows meet."""
+    from bezmotion.bmm.foot_lock import lock_feet
+
+    pos = jnp.asarray(rng.normal(scale=20.0, size=(K, J, 3)), jnp.float32)
+    tangent = jnp.asarray(rng.normal(scale=5.0, size=(K, J, 3)), jnp.float32)
+    left, _ = FEET
+    contacts = np.full((K, 2), 0.1, np.float32)
+    contacts[:, 0] = 0.9
+    constrained = np.zeros((K, J), bool)
+    constrained[[0, -1]] = True
+    args = (pos, tangent, jnp.asarray(contacts), jnp.asarray(constrained))
+    p0 = np.asarray(pos)[:, left][:, [0, 2]]
+    nearest, mean = (np.asarray(lock_feet(*args, anchor=a)[0])[:, left][:, [0, 2]] for a in ("nearest", "mean"))
+    np.testing.assert_allclose(nearest, p0[[0, 0, 0, -1, -1, -1]], rtol=1e-6)
+    np.testing.assert_allclose(mean[1:-1], np.broadcast_to((p0[0] + p0[-1]) / 2, (K - 2, 2)), rtol=1e-6)
+    # Seven control points: the middle one is as near to both and stands between them.
+    seven = lambda a: jnp.concatenate([a, a[-1:]])  # noqa: E731  (the last row twice: planted, constrained)
+    pos7 = jnp.asarray(rng.normal(scale=20.0, size=(K + 1, J, 3)), jnp.float32)
+    locked = np.asarray(lock_feet(pos7, seven(tangent), seven(jnp.asarray(contacts)), jnp.asarray(constrained[[0, 1, 2, 3, 4, 4, 5]]))[0])
+    ends = np.asarray(pos7)[[0, -1], left][:, [0, 2]]
+    np.testing.assert_allclose(locked[3, left][[0, 2]], ends.mean(0), rtol=1e-6)
+    with pytest.raises(ValueError, match="anchor must be one of"):
+        lock_feet(*args, anchor="median")
 
 
 def test_foot_locked_sampling_keeps_the_constraints_exact(model, motions, sampled):
@@ -101,3 +136,10 @@ def test_foot_locked_sampling_keeps_the_constraints_exact(model, motions, sample
     np.testing.assert_array_equal(feet_tangent[planted][:, [0, 2]], 0.0)
     others = [j for j in range(J) if j not in FEET]
     assert_trees_identical(locked.ctrl_pos[:, :, others], sampled.ctrl_pos[:, :, others])
+    # By name: True is "nearest"; "mean", the earlier rule, differs only in the feet's positions.
+    named, mean = (sample_curves(model, motions.start, motions.end, motions.handles, key=jax.random.key(21), steps=5, foot_lock=a) for a in ("nearest", "mean"))
+    assert_trees_identical(named, locked)
+    assert_trees_identical(mean.ctrl_tangent, locked.ctrl_tangent)
+    assert_trees_identical(mean.ctrl_pos[:, :, others], locked.ctrl_pos[:, :, others])
+    with pytest.raises(ValueError, match="foot_lock must be"):
+        sample_curves(model, motions.start, motions.end, motions.handles, key=jax.random.key(21), steps=5, foot_lock="median")

@@ -152,8 +152,9 @@ def test_foot_lock_locks_the_curves_every_ik_is_given(experiment, clips, monkeyp
     out = tmp_path / "locked.json"
     locked = experiment.main(["--out", str(out), "--foot-lock", *common])
     plain = experiment.main(["--out", str(tmp_path / "plain.json"), *common])
-    assert seen == [True, True, False, False]  # both conditions' curves, then the plain run's
+    assert seen == ["nearest", "nearest", False, False]  # both conditions' curves (the default anchor), then the plain run's
     assert locked["settings"]["foot_lock"] and not plain["settings"]["foot_lock"]
+    assert locked["settings"]["foot_lock_anchor"] == "nearest"
     assert "feet locked on their predicted contacts" in out.with_suffix(".md").read_text()
     # Locking moves the feet (the walk has contacts), so the curves differ; handles still hold.
     assert locked["curves"]["bmm"]["id"]["dense_error_cm"] != plain["curves"]["bmm"]["id"]["dense_error_cm"]

@@ -9,6 +9,7 @@ synthetic one of ``conftest.synthetic_clip`` (made-up offsets and motion).
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -32,8 +33,17 @@ REACH_TOL_CM = 1e-3
 FRAMES = 8
 
 
+# One compiled window solve per inner IK, frame count and key blend, shared by the tests below:
+# their keys and targets are arguments here, where a closure over them compiled it again per test.
+_solve_window = jax.jit(ExactIKFn.solve_window_with_residual, static_argnums=(0, 4))
+
+
+_solve_frames = jax.jit(lambda fn, params, targets: jax.vmap(fn.with_residual, in_axes=(None, 0))(params, targets), static_argnums=0)
+
+
 def _with_residual(fn: ExactIKFn):
-    return jax.jit(jax.vmap(fn.with_residual, in_axes=(None, 0)))
+    """Every frame solved alone, with its residual (compiled once per inner IK and shape)."""
+    return functools.partial(_solve_frames, fn)
 
 
 @dataclasses.dataclass
@@ -160,7 +170,7 @@ def test_composes_with_learned_ik_and_window_solve(bandai):
     # gives: 20 steps meet them to 10 µm (14 steps: 45 µm; the pipeline's 6 stop at ~2 mm).
     fn, params = exact_ik(protores_ik_fn, model, bandai.character, limits=limits, iterations=20)
     targets = targets_from_pose(bandai.character, bandai.truth)
-    result = jax.jit(fn.solve_window_with_residual)(params, targets)
+    result = _solve_window(fn, params, targets, None, 0)
     assert float(jnp.max(result.position_error)) < REACH_TOL_CM
     pose = jax.jit(lambda p, t: solve_frames(fn, p, t))(params, targets)  # the pipeline's entry point
     np.testing.assert_allclose(np.asarray(pose.quat_local), np.asarray(result.pose.quat_local), atol=1e-6)
@@ -248,7 +258,7 @@ def test_window_solve_joins_the_keys_and_holds_their_neighbours(bandai):
     keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
     # (finish_turn and key_turn off: they would ramp the free solve's snap to the jump, which is no handle.)
     fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, iterations=10, finish_turn=0.0, key_turn=0.0)
-    solve = jax.jit(lambda p, t: fn.solve_window_with_residual(p, t, keys, 6))
+    solve = lambda p, t: _solve_window(fn, p, t, keys, 6)  # noqa: E731
 
     def turn_next_to_start_deg(result) -> float:
         return float(jnp.max(quat_angle(result.pose.quat_local[0], result.pose.quat_local[1])) * 180 / np.pi)
@@ -288,7 +298,7 @@ def test_key_smoothing_filters_only_the_frames_next_to_the_keys(bandai):
     targets = targets._replace(position=targets.position.at[:, 3].add(jnp.asarray([0.0, 15.0, 0.0])))
     keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
     fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character)
-    solve = jax.jit(lambda p, t: fn.solve_window(p, t, keys, 3))
+    solve = lambda p, t: _solve_window(fn, p, t, keys, 3).pose  # noqa: E731
     assert params.key_smoothing == 0.5 != params.smoothing
     as_elsewhere, stronger = (solve(dataclasses.replace(params, key_smoothing=w), targets).quat_local for w in (params.smoothing, 0.5))
     # Frames 0–2 and 13–15 lie within 3 of a key; a frame's second-pass start reads its
@@ -311,7 +321,7 @@ def test_planted_feet_hold_their_targets_against_a_handle(bandai):
         position=targets.position.at[:, head, 1].add(12.0), pinned=jnp.zeros((FRAMES, 6), bool).at[:, head].set(True)
     )
     fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, plant_step=100.0, handle_weight=10.0)  # every foot planted
-    solve = jax.jit(fn.solve_window_with_residual)
+    solve = lambda p, t: _solve_window(fn, p, t, None, 0)  # noqa: E731
     loose, planted = (solve(dataclasses.replace(params, plant_weight=w), raised) for w in (1.0, 10.0))
     feet_loose, feet_planted = (float(jnp.mean(r.position_error[:, feet])) for r in (loose, planted))
     assert feet_loose > 2.0 and feet_planted < 0.5 * feet_loose, (feet_loose, feet_planted)
@@ -348,7 +358,7 @@ def test_window_solve_ramps_a_lasting_flip_of_the_inner_ik(bandai):
     keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
     arm = bandai.character.skeleton.names.index("UpperArm_R")
     fn, params = exact_ik(_FlippingIK(arm, -527.5, -522.0), load_ik_model(BUNDLED_IK), bandai.character, finish_turn=0.0)  # the first ramp alone
-    solve = jax.jit(lambda p, t: fn.solve_window_with_residual(p, t, keys, 6))
+    solve = lambda p, t: _solve_window(fn, p, t, keys, 6)  # noqa: E731
     limited, unlimited = solve(params, targets), solve(dataclasses.replace(params, spike_turn=0.0), targets)
     arm_turn = lambda r: float(jnp.max(rotation_change_deg(r.pose.quat_local)[:, arm]))  # noqa: E731
     assert arm_turn(unlimited) > 55.0 and arm_turn(limited) < 45.0, (arm_turn(unlimited), arm_turn(limited))
@@ -385,14 +395,15 @@ def test_second_pass_starts_from_ramps_into_a_handle_frame(bandai, monkeypatch):
     targets, keys = _demo_window_pulled(bandai.character, head_cm=-20.0, hips_cm=8.0)
     fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, handle_spread=0.0, finish_turn=0.0)  # the ramp alone
 
-    def solve():
-        result = jax.jit(lambda p, t: fn.solve_window_with_residual(p, t, keys, 6))(params, targets)
+    def solve(window_solve):
+        result = window_solve(fn, params, targets, keys, 6)
         return float(jnp.max(rotation_change_deg(result.pose.quat_local))), float(jnp.max(result.position_error[6, :2]))
 
-    ramped, ramped_miss = solve()
+    ramped, ramped_miss = solve(_solve_window)
     keys_only = exact_module.limit_turns
     monkeypatch.setattr(exact_module, "limit_turns", lambda pose, turn, anchors=None: keys_only(pose, turn))
-    unramped, unramped_miss = solve()
+    # A new function, traced again (jit caches by function), so the patched limit_turns is the one used.
+    unramped, unramped_miss = solve(jax.jit(lambda *args: ExactIKFn.solve_window_with_residual(*args), static_argnums=(0, 4)))
     assert unramped > 65.0 and ramped < 55.0, (unramped, ramped)
     assert ramped_miss <= unramped_miss + 0.02, (ramped_miss, unramped_miss)
 
@@ -406,7 +417,7 @@ def test_finish_ramps_every_turn_into_the_handle_frames(bandai):
 
     targets, keys = _demo_window_pulled(bandai.character, head_cm=-30.0, hips_cm=12.0)
     fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character)
-    solve = jax.jit(lambda p: fn.solve_window_with_residual(p, targets, keys, 6))
+    solve = lambda p: _solve_window(fn, p, targets, keys, 6)  # noqa: E731
     finished, raw = solve(params), solve(dataclasses.replace(params, finish_turn=0.0))
     largest = lambda r: float(jnp.max(rotation_change_deg(r.pose.quat_local)))  # noqa: E731
     assert largest(raw) > 50.0 and largest(finished) <= np.degrees(params.finish_turn) + 1e-3, (largest(raw), largest(finished))
@@ -433,7 +444,7 @@ def test_handle_spread_weighs_a_handles_neighbours_more(bandai):
 
     targets, keys = _demo_window_pulled(bandai.character, head_cm=-20.0, hips_cm=0.0)
     fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character)
-    solve = jax.jit(lambda p: fn.solve_window_with_residual(p, targets, keys, 6))
+    solve = lambda p: _solve_window(fn, p, targets, keys, 6)  # noqa: E731
     off, spread = solve(dataclasses.replace(params, handle_spread=0.0)), solve(params)  # the default: 0.25
     neighbours = lambda r: float(jnp.mean(r.position_error[jnp.asarray([4, 5, 7, 8]), 1]))  # noqa: E731
     assert neighbours(spread) < neighbours(off) - 0.05, (neighbours(off), neighbours(spread))
