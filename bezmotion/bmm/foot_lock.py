@@ -51,7 +51,7 @@ def lock_feet(
     threshold: float = 0.5,
     handles: Conditions | None = None,
     layout: BezierLayout | None = None,
-    anchor: str = "nearest",
+    anchor: str = ANCHORS[0],
 ) -> tuple[Float[Array, "*batch controls joints 3"], Float[Array, "*batch controls joints 3"]]:
     """Hold each foot still horizontally over every run of consecutive contact control points.
 

@@ -321,8 +321,8 @@ def _sample_one(
     rot6d = couple(rot6d)  # after denormalising: equal bits at shared keys (a no-op with key_rot6d)
     # A shared key is one frame: both windows agree on whether a foot is planted there.
     contacts = couple(jax.nn.sigmoid(logits))
-    if (anchor := lock_anchor(foot_lock)) is not None:
-        pos, tangent = lock_feet(pos, tangent, contacts, mask, handles=world, layout=layout, anchor=anchor)
+    if foot_lock is not None:  # the anchor's name (lock_anchor), or None: no lock
+        pos, tangent = lock_feet(pos, tangent, contacts, mask, handles=world, layout=layout, anchor=foot_lock)
         if overwrite:  # locking moves control points that off-grid handles depend on
             pos, tangent = exact(pos, tangent)
     return SampledCurves(pos, tangent, rot6d, contacts)
@@ -387,7 +387,7 @@ def sample_curves(
     """
     return call_with_inference_options(
         _compiled_sampler, model, start, end, handles, key_rot6d, key_tangent,
-        key=key, steps=steps, guidance=guidance, overwrite=overwrite, foot_lock=foot_lock,
+        key=key, steps=steps, guidance=guidance, overwrite=overwrite, foot_lock=lock_anchor(foot_lock),
     )  # fmt: skip
 
 
@@ -473,7 +473,7 @@ def sample_chained_curves(
     """
     return call_with_inference_options(
         _compiled_chain_sampler, model, key_pos, handles, key_rot6d, key_tangent,
-        key=key, steps=steps, guidance=guidance, coupled=coupled, overwrite=overwrite, foot_lock=foot_lock,
+        key=key, steps=steps, guidance=guidance, coupled=coupled, overwrite=overwrite, foot_lock=lock_anchor(foot_lock),
     )  # fmt: skip
 
 
