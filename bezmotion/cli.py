@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 from bezmotion.assets.registry import check_manifest, models_table, write_manifest
+from bezmotion.compilation_cache import use_compilation_cache
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.demo import demo
 from bezmotion.inbetween_command import InbetweenOptions, run_inbetween
@@ -97,6 +98,8 @@ def main(argv: list[str] | None = None) -> int:
     manifest.add_argument("--check", action="store_true", help="check every bundled model's files against the checksum manifest")
     manifest.add_argument("--write-manifest", action="store_true", help="rewrite the checksum manifest from the bundled files (after retraining one)")
     parsed = parser.parse_args(argv)
+    if parsed.command in ("demo", "inbetween"):
+        use_compilation_cache()  # the next run loads what this one compiles
 
     try:
         if parsed.command == "demo":
