@@ -46,7 +46,7 @@ def apply_gradients(
     ema = state.ema
     if ema_decay is not None:
         ema = jax.tree.map(lambda e, p: ema_decay * e + (1.0 - ema_decay) * p, state.ema, params)
-    metrics = {"loss": loss, "grad_norm": optax.global_norm(grads), **terms}
+    metrics = {"loss": loss, "grad_norm": optax.tree_utils.tree_norm(grads), **terms}
     return TrainState(params, opt_state, ema, state.step + 1, next_key), metrics
 
 
