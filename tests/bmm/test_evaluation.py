@@ -261,11 +261,11 @@ def test_bmm_lafan1_experiment_smoke(tmp_path, experiment):
     """The experiment end to end on the real LaFAN1 subset: tiny model, a few steps, a few windows."""
     out = tmp_path / "bmm.json"
     args = ["--out", str(out), "--data", str(SHARED_DATA / "lafan1" / "lafan1-subset.zip"), "--config", "tiny",
-            "--steps", "4", "--checkpoint-every", "2", "--eval-windows", "8", "--table6-steps", "5",
+            "--steps", "4", "--checkpoint-every", "2", "--eval-windows", "6", "--table6-steps", "5",
             "--run-dir", str(tmp_path / "run"), "--no-progress"]  # fmt: skip
     results = experiment.main(args)
     saved = json.loads(out.read_text())
-    assert saved["eval"]["n_windows"] == 8 and saved["training"]["steps"] == 4
+    assert saved["eval"]["n_windows"] == 6 and saved["training"]["steps"] == 4
     bmm = saved["bmm"]["0"]
     assert bmm["overwrite"]["id"]["handles_error_cm"] == 0.0 and bmm["overwrite"]["ood"]["handles_error_cm"] == 0.0
     assert bmm["no_overwrite"]["id"]["handles_error_cm"] > 0.0

@@ -169,7 +169,8 @@ def test_composes_with_learned_ik_and_window_solve(bandai):
     # Bent poses (every joint up to 17° off the corpus pose) are far from what a learned IK
     # gives: 20 steps meet them to 10 µm (14 steps: 45 µm; the pipeline's 6 stop at ~2 mm).
     fn, params = exact_ik(protores_ik_fn, model, bandai.character, limits=limits, iterations=20)
-    targets = targets_from_pose(bandai.character, bandai.truth)
+    # No handles, given as such (not None): the window solve compiled here serves the next tests too.
+    targets = targets_from_pose(bandai.character, bandai.truth)._replace(pinned=jnp.zeros((FRAMES, 6), bool))
     result = _solve_window(fn, params, targets, None, 0)
     assert float(jnp.max(result.position_error)) < REACH_TOL_CM
     pose = jax.jit(lambda p, t: solve_frames(fn, p, t))(params, targets)  # the pipeline's entry point
@@ -236,28 +237,31 @@ def test_pinned_target_moves_the_hips_when_the_limbs_cannot_reach(bandai):
 def test_zero_rotation_weight_solves_positions_only(bandai):
     """``rotation_weight=0`` drops the orientation rows (a 1/0 on the dual system's diagonal
     used to make every step NaN, so the solve silently returned the inner IK's pose)."""
-    targets = targets_from_pose(bandai.character, bandai.truth)
-    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, rotation_weight=0.0, iterations=14)
+    # No handles, given as such, at the default steps: the compiled solve of the test above.
+    targets = targets_from_pose(bandai.character, bandai.truth)._replace(pinned=jnp.zeros((FRAMES, 6), bool))
+    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, rotation_weight=0.0)
     result = _with_residual(fn)(params, targets)
     start = jax.vmap(protores_ik_fn, in_axes=(None, 0))(params.inner, targets)
     assert np.all(np.isfinite(result.pose.quat_local))
-    assert float(jnp.max(result.position_error)) < 0.01 < float(jnp.max(exact_module._errors(bandai.character, start, targets)[0]))
+    # Met to within issue 15's 0.05 cm in the default 6 steps (0.021 cm; the inner IK's pose, which the
+    # NaN steps returned, misses by ~11 cm).
+    assert float(jnp.max(result.position_error)) < 0.05 < 1.0 < float(jnp.max(exact_module._errors(bandai.character, start, targets)[0]))
 
 
 def test_window_solve_joins_the_keys_and_holds_their_neighbours(bandai):
     """With keys, the window solve puts them at the ends exactly, and the key hold trades a
     frame next to a key reaching its target for staying near the key: the right hand's
-    target 20 cm up at frame 1 of 8 consecutive mocap frames is reached without the hold
+    target 20 cm up at frame 1 of 31 consecutive mocap frames is reached without the hold
     by turning the arm; the harder the hold, the less frame 1 turns away from the key, and the
     finish's ``key_turn`` caps even the free solve's turn there."""
     motion = read_bvh(DEMO_CLIP)
-    window = slice(10, 18)
+    window = slice(9, 40)  # 31 frames, as the pipeline's (the compiled solve of the tests below)
     truth = pose_from_motion(bandai.character, jnp.asarray(motion.quat_local[window]), jnp.asarray(motion.pos_local[window]))
     targets = targets_from_pose(bandai.character, truth)
-    targets = targets._replace(position=targets.position.at[1, 3].add(jnp.asarray([0.0, 20.0, 0.0])))
+    targets = targets._replace(position=targets.position.at[1, 3].add(jnp.asarray([0.0, 20.0, 0.0])), pinned=jnp.zeros((31, 6), bool))
     keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
     # (finish_turn and key_turn off: they would ramp the free solve's snap to the jump, which is no handle.)
-    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, iterations=10, finish_turn=0.0, key_turn=0.0)
+    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, finish_turn=0.0, key_turn=0.0)
     solve = lambda p, t: _solve_window(fn, p, t, keys, 6)  # noqa: E731
 
     def turn_next_to_start_deg(result) -> float:
@@ -267,7 +271,7 @@ def test_window_solve_joins_the_keys_and_holds_their_neighbours(bandai):
     for result in (free, default, hard):
         np.testing.assert_array_equal(np.asarray(result.pose.quat_local[0]), np.asarray(keys[0].quat_local))
         np.testing.assert_array_equal(np.asarray(result.pose.root_pos[-1]), np.asarray(keys[1].root_pos))
-    assert float(free.position_error[1, 3]) < 0.01  # without the hold, frame 1 reaches the jump
+    assert float(free.position_error[1, 3]) < 0.05  # without the hold, frame 1 reaches the jump (0.016 cm in 6 steps)
     turns = [turn_next_to_start_deg(r) for r in (free, default, hard)]
     # (With key_smoothing's 0.5 next to the keys the default hold already keeps frame 1 as
     # close as the hard one does, to within 0.01°.)
@@ -288,23 +292,22 @@ def test_window_solve_joins_the_keys_and_holds_their_neighbours(bandai):
 
 def test_key_smoothing_filters_only_the_frames_next_to_the_keys(bandai):
     """``key_smoothing`` weighs the between-pass filter on the frames within the key blend's
-    frames of a key (here 3 of 12); frames further in are solved from the same starts, so they
-    come out bit for bit the same, while the frames next to the keys change (a traced weight:
-    no recompile)."""
+    frames of a key (here 6 of 31, the pipeline's); frames further in are solved from the same
+    starts, so they come out bit for bit the same, while the frames next to the keys change (a
+    traced weight: no recompile; the demo window's compiled solve of the tests below)."""
     motion = read_bvh(DEMO_CLIP)
-    window = slice(4, 20)
-    truth = pose_from_motion(bandai.character, jnp.asarray(motion.quat_local[window]), jnp.asarray(motion.pos_local[window]))
+    truth = pose_from_motion(bandai.character, jnp.asarray(motion.quat_local[:31]), jnp.asarray(motion.pos_local[:31]))
     targets = targets_from_pose(bandai.character, truth)
-    targets = targets._replace(position=targets.position.at[:, 3].add(jnp.asarray([0.0, 15.0, 0.0])))
+    targets = targets._replace(position=targets.position.at[:, 3].add(jnp.asarray([0.0, 15.0, 0.0])), pinned=jnp.zeros((31, 6), bool))
     keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
     fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character)
-    solve = lambda p, t: _solve_window(fn, p, t, keys, 3).pose  # noqa: E731
+    solve = lambda p, t: _solve_window(fn, p, t, keys, 6).pose  # noqa: E731
     assert params.key_smoothing == 0.5 != params.smoothing
     as_elsewhere, stronger = (solve(dataclasses.replace(params, key_smoothing=w), targets).quat_local for w in (params.smoothing, 0.5))
-    # Frames 0–2 and 13–15 lie within 3 of a key; a frame's second-pass start reads its
-    # neighbours' first-pass poses, so frames 4–11 start alike.
-    np.testing.assert_array_equal(np.asarray(as_elsewhere[4:12]), np.asarray(stronger[4:12]))
-    assert float(jnp.max(quat_angle(as_elsewhere[1:3], stronger[1:3]))) > 1e-3
+    # Frames 0–5 and 25–30 lie within 6 of a key; a frame's second-pass start reads its
+    # neighbours' first-pass poses, so frames 7–23 start alike.
+    np.testing.assert_array_equal(np.asarray(as_elsewhere[7:24]), np.asarray(stronger[7:24]))
+    assert float(jnp.max(quat_angle(as_elsewhere[1:6], stronger[1:6]))) > 1e-3
     with pytest.raises(ValueError, match="key_smoothing=0.6"):
         exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, key_smoothing=0.6)
 
@@ -320,7 +323,8 @@ def test_planted_feet_hold_their_targets_against_a_handle(bandai):
     raised = targets._replace(
         position=targets.position.at[:, head, 1].add(12.0), pinned=jnp.zeros((FRAMES, 6), bool).at[:, head].set(True)
     )
-    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, plant_step=100.0, handle_weight=10.0)  # every foot planted
+    # Every foot planted; 20 steps as in test_composes_with_learned_ik_and_window_solve (the same compiled solve).
+    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, plant_step=100.0, handle_weight=10.0, iterations=20)
     solve = lambda p, t: _solve_window(fn, p, t, None, 0)  # noqa: E731
     loose, planted = (solve(dataclasses.replace(params, plant_weight=w), raised) for w in (1.0, 10.0))
     feet_loose, feet_planted = (float(jnp.mean(r.position_error[:, feet])) for r in (loose, planted))
