@@ -41,6 +41,12 @@ _solve_window = jax.jit(ExactIKFn.solve_window_with_residual, static_argnums=(0,
 _solve_frames = jax.jit(lambda fn, params, targets: jax.vmap(fn.with_residual, in_axes=(None, 0))(params, targets), static_argnums=0)
 
 
+def _no_handles(targets: IKTargets) -> IKTargets:
+    """``targets`` without handles, as an all-false ``pinned`` rather than ``None`` (another
+    pytree): the solves compiled for targets with handles serve these too."""
+    return targets._replace(pinned=jnp.zeros(targets.position.shape[:-1], bool))
+
+
 def _with_residual(fn: ExactIKFn):
     """Every frame solved alone, with its residual (compiled once per inner IK and shape)."""
     return functools.partial(_solve_frames, fn)
@@ -169,8 +175,7 @@ def test_composes_with_learned_ik_and_window_solve(bandai):
     # Bent poses (every joint up to 17° off the corpus pose) are far from what a learned IK
     # gives: 20 steps meet them to 10 µm (14 steps: 45 µm; the pipeline's 6 stop at ~2 mm).
     fn, params = exact_ik(protores_ik_fn, model, bandai.character, limits=limits, iterations=20)
-    # No handles, given as such (not None): the window solve compiled here serves the next tests too.
-    targets = targets_from_pose(bandai.character, bandai.truth)._replace(pinned=jnp.zeros((FRAMES, 6), bool))
+    targets = _no_handles(targets_from_pose(bandai.character, bandai.truth))  # the window solve compiled here serves the next tests too
     result = _solve_window(fn, params, targets, None, 0)
     assert float(jnp.max(result.position_error)) < REACH_TOL_CM
     pose = jax.jit(lambda p, t: solve_frames(fn, p, t))(params, targets)  # the pipeline's entry point
@@ -237,8 +242,7 @@ def test_pinned_target_moves_the_hips_when_the_limbs_cannot_reach(bandai):
 def test_zero_rotation_weight_solves_positions_only(bandai):
     """``rotation_weight=0`` drops the orientation rows (a 1/0 on the dual system's diagonal
     used to make every step NaN, so the solve silently returned the inner IK's pose)."""
-    # No handles, given as such, at the default steps: the compiled solve of the test above.
-    targets = targets_from_pose(bandai.character, bandai.truth)._replace(pinned=jnp.zeros((FRAMES, 6), bool))
+    targets = _no_handles(targets_from_pose(bandai.character, bandai.truth))  # at the default steps: the test above's compiled solve
     fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, rotation_weight=0.0)
     result = _with_residual(fn)(params, targets)
     start = jax.vmap(protores_ik_fn, in_axes=(None, 0))(params.inner, targets)
@@ -258,7 +262,7 @@ def test_window_solve_joins_the_keys_and_holds_their_neighbours(bandai):
     window = slice(9, 40)  # 31 frames, as the pipeline's (the compiled solve of the tests below)
     truth = pose_from_motion(bandai.character, jnp.asarray(motion.quat_local[window]), jnp.asarray(motion.pos_local[window]))
     targets = targets_from_pose(bandai.character, truth)
-    targets = targets._replace(position=targets.position.at[1, 3].add(jnp.asarray([0.0, 20.0, 0.0])), pinned=jnp.zeros((31, 6), bool))
+    targets = _no_handles(targets._replace(position=targets.position.at[1, 3].add(jnp.asarray([0.0, 20.0, 0.0]))))
     keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
     # (finish_turn and key_turn off: they would ramp the free solve's snap to the jump, which is no handle.)
     fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, finish_turn=0.0, key_turn=0.0)
@@ -298,7 +302,7 @@ def test_key_smoothing_filters_only_the_frames_next_to_the_keys(bandai):
     motion = read_bvh(DEMO_CLIP)
     truth = pose_from_motion(bandai.character, jnp.asarray(motion.quat_local[:31]), jnp.asarray(motion.pos_local[:31]))
     targets = targets_from_pose(bandai.character, truth)
-    targets = targets._replace(position=targets.position.at[:, 3].add(jnp.asarray([0.0, 15.0, 0.0])), pinned=jnp.zeros((31, 6), bool))
+    targets = _no_handles(targets._replace(position=targets.position.at[:, 3].add(jnp.asarray([0.0, 15.0, 0.0]))))
     keys = tuple(jax.tree.map(lambda x, i=i: x[i], truth) for i in (0, -1))
     fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character)
     solve = lambda p, t: _solve_window(fn, p, t, keys, 6).pose  # noqa: E731
@@ -462,7 +466,7 @@ def test_robust_loss_lets_a_far_unpinned_target_go_and_keeps_near_ones(bandai):
     squares too: ``test_planted_feet_hold_their_targets_against_a_handle`` runs at the default.)"""
     targets = targets_from_pose(bandai.character, bandai.truth)
     left_hand, others = 2, [0, 1, 3, 4, 5]
-    far = targets._replace(position=targets.position.at[:, left_hand, 0].add(80.0), pinned=jnp.zeros((FRAMES, 6), bool))
+    far = _no_handles(targets._replace(position=targets.position.at[:, left_hand, 0].add(80.0)))
     fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, robust_cm=0.0)  # least squares
     robust = dataclasses.replace(params, robust_cm=5.0)
     solve = _with_residual(fn)
@@ -472,7 +476,7 @@ def test_robust_loss_lets_a_far_unpinned_target_go_and_keeps_near_ones(bandai):
     assert float(jnp.mean(robust_far.position_error[:, left_hand])) > float(jnp.mean(plain_far.position_error[:, left_hand]))
     # Reachable targets: the same poses (the learned IK starts a few cm off, so the first steps
     # differ slightly) and the targets met as closely.
-    near = targets._replace(pinned=jnp.zeros((FRAMES, 6), bool))
+    near = _no_handles(targets)
     plain_near, robust_near = solve(params, near), solve(robust, near)
     np.testing.assert_allclose(robust_near.pose.quat_local, plain_near.pose.quat_local, atol=2e-3)
     assert float(jnp.max(robust_near.position_error)) < 2 * float(jnp.max(plain_near.position_error)) + 1e-3
