@@ -10,13 +10,15 @@ programs, not running them):
 - XLA's slower optimisation passes are off (``jax_disable_most_optimizations``): the same
   programs with the same semantics, compiled ~20 % faster. ``BEZMOTION_TEST_XLA_OPTIMIZE=1``
   runs the suite with XLA's full optimisation instead.
-- With them, XLA's CPU compiler emits elementwise code the older way and runs it on its
-  older runtime (``_FAST_COMPILE_FLAGS``, through ``XLA_FLAGS``): an exact IK window solve
-  compiles in 3.8 s instead of 6.0, and the whole suite took 577 s instead of 869 on this
-  2-core machine (jaxlib 0.10.2). The programs are the same; they run a little slower, which
-  the tests never time. A jaxlib that does not know a flag would abort at start-up, so the
-  process that starts the session first tries them in a child process and keeps those it
-  accepts (``BEZMOTION_TEST_XLA_FLAGS`` hands the choice to xdist's workers).
+- With them, XLA's CPU compiler emits elementwise code the older way
+  (``_FAST_COMPILE_FLAGS``, through ``XLA_FLAGS``): an exact IK window solve compiles in
+  3.8 s instead of 6.0, and the whole suite took 577 s instead of 869 on this 2-core machine
+  (jaxlib 0.10.2). The programs are the same; they run a little slower, which the tests
+  never time. (The older runtime's flag, ``--xla_cpu_use_thunk_runtime=false``, was passed
+  too until 2026-12-02: jaxlib 0.10.2 accepts it but ignores it, warning in every process
+  that it is no longer supported.) A jaxlib that does not know a flag would abort at
+  start-up, so the process that starts the session first tries them in a child process and
+  keeps those it accepts (``BEZMOTION_TEST_XLA_FLAGS`` hands the choice to xdist's workers).
 - A persistent compilation cache in a temporary folder lives as long as the session and is
   shared by xdist's workers, so a program that several modules compile (the bundled
   models' sampler, say) is compiled once, in whichever worker needs it first, although
@@ -35,7 +37,7 @@ import sys
 import tempfile
 
 _OPTIMIZE = os.environ.get("BEZMOTION_TEST_XLA_OPTIMIZE", "") not in ("", "0")
-_FAST_COMPILE_FLAGS = ("--xla_cpu_use_fusion_emitters=false", "--xla_cpu_use_thunk_runtime=false")
+_FAST_COMPILE_FLAGS = ("--xla_cpu_use_fusion_emitters=false",)
 _FLAGS_VARIABLE = "BEZMOTION_TEST_XLA_FLAGS"
 
 
