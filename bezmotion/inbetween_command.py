@@ -204,7 +204,7 @@ class HandleRequest:
 
 
 _HANDLE_SLOTS = 4
-_HANDLE = re.compile(r"^\s*(?P<joint>[^@=\s]+)\s*@\s*(?P<frame>[+-]?\d+)\s*=\s*(?P<plus>\+)?(?P<xyz>.*)$")
+_HANDLE = re.compile(r"^\s*(?P<joint>[^@=\s]+)\s*@\s*(?P<frame>[^=]*?)\s*=\s*(?P<plus>\+)?(?P<xyz>.*)$")
 _HANDLE_FORM = "JOINT@FRAME=X,Y,Z (a position, cm) or JOINT@FRAME=+X,Y,Z (an offset from the straight line between the keys)"
 
 
@@ -212,17 +212,25 @@ def parse_handle(text: str) -> HandleRequest:
     """A ``--handle`` value, e.g. ``right_hand@12=40,150,80`` or ``right_hand@12=+0,25,0``.
 
     Raises:
-      ValueError: not of that form (the message quotes it).
+      ValueError: not of that form (the message quotes it), a frame that is not a whole
+        number or a coordinate that is not finite (the message names the value).
     """
     source = f"--handle {text}"
     match = _HANDLE.match(text)
-    parts = match["xyz"].split(",") if match else []
     try:
-        value = tuple(float(p) for p in parts)
+        value = tuple(float(p) for p in match["xyz"].split(",")) if match else ()
     except ValueError:
         value = ()
-    if not match or len(value) != 3 or not np.isfinite(value).all():
+    if len(value) != 3:
         raise ValueError(f"{source}: expected {_HANDLE_FORM}")
+    if not re.fullmatch(r"[+-]?\d+", match["frame"]):
+        try:
+            float(match["frame"])
+        except ValueError:
+            raise ValueError(f"{source}: expected {_HANDLE_FORM}") from None
+        raise ValueError(f"{source}: the frame must be a whole number, got {match['frame']}")
+    if not np.isfinite(value).all():
+        raise ValueError(f"{source}: the position must be finite, got {match['plus'] or ''}{match['xyz'].strip()}")
     return HandleRequest(match["joint"], int(match["frame"]), value, match["plus"] is not None, source)  # type: ignore[arg-type]
 
 

@@ -268,8 +268,14 @@ def test_handle_syntax():
     assert parse_handle("right_hand@12=+0,25,-1.5").value == (0.0, 25.0, -1.5)
     assert parse_handle("right_hand@12=+0,25,-1.5").relative
     assert not parse_handle("Hand_R@6=-3,4,5").relative
-    for bad in ("right_hand@12=1,2", "right_hand=1,2,3", "right_hand@x=1,2,3", "right_hand@12=a,b,c", "right_hand@12=1,2,nan"):
+    for bad in ("right_hand@12=1,2", "right_hand=1,2,3", "right_hand@x=1,2,3", "right_hand@=1,2,3", "right_hand@12=a,b,c"):
         with pytest.raises(ValueError, match=rf"--handle {bad}: expected JOINT@FRAME=X,Y,Z"):
+            parse_handle(bad)
+    for bad, frame in (("right_hand@12.5=1,2,3", "12.5"), ("right_hand@1e1=1,2,3", "1e1")):
+        with pytest.raises(ValueError, match=rf"--handle {bad}: the frame must be a whole number, got {frame}$"):
+            parse_handle(bad)
+    for bad in ("right_hand@12=1,2,nan", "right_hand@12=+inf,0,0"):
+        with pytest.raises(ValueError, match=rf"--handle {re.escape(bad)}: the position must be finite, got {re.escape(bad.split('=')[1])}$"):
             parse_handle(bad)
 
 
