@@ -63,6 +63,11 @@ def _view(p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return p[..., 0], -p[..., 2], p[..., 1]
 
 
+def _view_points(p: np.ndarray) -> np.ndarray:
+    """:func:`_view` stacked: ``(..., 3)`` points in Matplotlib's Z-up frame (line segments, collections)."""
+    return np.stack(_view(p), axis=-1)
+
+
 def write_preview(
     path: str | os.PathLike,
     character: Character,
@@ -107,6 +112,7 @@ def write_preview(
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from mpl_toolkits.mplot3d.art3d import Line3DCollection
     from PIL import Image
 
     names = motion.skeleton.names
@@ -128,13 +134,11 @@ def write_preview(
     ref = _fk(reference) if reference is not None else None
     hips, idx = character.hips, list(character.characteristic)
     hidden = set(character.ancestors_of_hips())
-    bones = [(p, j) for j, p in enumerate(character.skeleton.parents) if p >= 0 and p not in hidden]
-    ref_bones = []
+    bones = np.asarray([(p, j) for j, p in enumerate(character.skeleton.parents) if p >= 0 and p not in hidden], dtype=int).reshape(-1, 2)
+    ref_bones = np.zeros((0, 2), int)
     if reference is not None:
-        ref_hidden = set()
-        if reference.skeleton.names == names:
-            ref_hidden = hidden
-        ref_bones = [(p, j) for j, p in enumerate(reference.skeleton.parents) if p >= 0 and p not in ref_hidden]
+        ref_hidden = hidden if reference.skeleton.names == names else set()
+        ref_bones = np.asarray([(p, j) for j, p in enumerate(reference.skeleton.parents) if p >= 0 and p not in ref_hidden], dtype=int).reshape(-1, 2)
     colours = plt.cm.tab10(np.arange(len(CHARACTERISTIC_JOINTS)))
     dense = _dense_curves(layout, ctrl_pos, ctrl_tangent) if ctrl_pos is not None else None
 
@@ -150,6 +154,14 @@ def write_preview(
     fig.subplots_adjust(left=0.0, right=1.0, bottom=0.0, top=0.9, wspace=0.0)
     label = fig.suptitle("", fontsize=9)
 
+    # Every group of segments (tangent handles, bones) is one collection: Matplotlib's 3-D axes
+    # draw each artist with its own projection, and one line per segment made the preview take
+    # seconds (about 240 artists a frame).
+    def segments(ax, segs: np.ndarray, **style) -> Line3DCollection:
+        lines = Line3DCollection(_view_points(segs), **style)
+        ax.add_collection3d(lines, autolim=False)
+        return lines
+
     def static(ax, with_curves: bool) -> None:
         ax.set_box_aspect((1.0, 1.0, (height - floor) / (2 * half)), zoom=1.2)
         ax.view_init(elev=12, azim=-60)
@@ -161,22 +173,20 @@ def write_preview(
             for c in range(len(CHARACTERISTIC_JOINTS)):
                 ax.plot(*_view(dense[:, c]), color=colours[c], lw=1.0, label=CHARACTERISTIC_JOINTS[c])
                 ax.plot(*_view(ctrl_pos[:, c]), "o", color=colours[c], ms=2.5)
-                # Tangent handles as animation tools draw them: P − a_{k−1}·T to P + a_k·T.
-                lengths = layout.segment_lengths / layout.stride
-                before = np.concatenate([lengths[:1], lengths])[:, None]
-                after = np.concatenate([lengths, lengths[-1:]])[:, None]
-                for k in range(layout.num_controls):
-                    seg = np.stack([ctrl_pos[k, c] - before[k] * ctrl_tangent[k, c], ctrl_pos[k, c] + after[k] * ctrl_tangent[k, c]])
-                    ax.plot(*_view(seg), "-", color=colours[c], lw=0.6, alpha=0.7, marker="|", ms=3)
+            # Tangent handles as animation tools draw them: P − a_{k−1}·T to P + a_k·T.
+            lengths = layout.segment_lengths / layout.stride
+            before = np.concatenate([lengths[:1], lengths])[:, None, None]
+            after = np.concatenate([lengths, lengths[-1:]])[:, None, None]
+            ends = np.stack([ctrl_pos - before * ctrl_tangent, ctrl_pos + after * ctrl_tangent], axis=-2)  # (controls, 6, 2, 3)
+            segments(ax, ends.reshape(-1, 2, 3), colors=np.tile(colours, (layout.num_controls, 1)), linewidths=0.6, alpha=0.7)
+            ax.scatter(*_view(ends.reshape(-1, 3)), marker="|", s=9, c=np.repeat(np.tile(colours, (layout.num_controls, 1)), 2, axis=0), alpha=0.7, depthshade=False)
         for joint, _, p in marks:
             ax.plot(*_view(p[None]), "*", color="purple", ms=9)
 
     static(axes[0], True)
     axes[0].set_title("in-between" + (" (grey: input keys)" if ref is None else ""), fontsize=8)
     if ref is None:
-        for key in (0, frames - 1):
-            for p, j in bones:
-                axes[0].plot(*_view(pos[key, [p, j]]), color="0.6", lw=1.0, alpha=0.6)
+        segments(axes[0], np.concatenate([pos[key][bones] for key in (0, frames - 1)]), colors="0.6", linewidths=1.0, alpha=0.6)
     else:
         static(axes[1], True)
         axes[1].set_title("mocap", fontsize=8)
@@ -186,18 +196,17 @@ def write_preview(
     if dense is not None:
         axes[0].legend(fontsize=5, loc="upper left", ncol=2)
 
-    skeleton_lines = [axes[0].plot([], [], [], color="k", lw=1.6)[0] for _ in bones]
+    skeleton = segments(axes[0], pos[0][bones], colors="k", linewidths=1.6)
     moving = [axes[0].plot([], [], [], "o", color=colours[c], ms=4)[0] for c in range(len(CHARACTERISTIC_JOINTS))]
-    ref_lines = [axes[1].plot([], [], [], color="0.25", lw=1.6)[0] for _ in ref_bones] if ref is not None else []
+    ref_skeleton = segments(axes[1], ref[0][ref_bones], colors="0.25", linewidths=1.6) if ref is not None else None
 
     images = []
     for f in range(frames):
-        for line, (p, j) in zip(skeleton_lines, bones):
-            line.set_data_3d(*_view(pos[f, [p, j]]))
+        skeleton.set_segments(_view_points(pos[f][bones]))
         for c, line in enumerate(moving):
             line.set_data_3d(*_view(pos[f, idx[c]][None]))
-        for line, (p, j) in zip(ref_lines, ref_bones):
-            line.set_data_3d(*_view(ref[f, [p, j]]))
+        if ref_skeleton is not None:
+            ref_skeleton.set_segments(_view_points(ref[f][ref_bones]))
         centre = pos[f, hips]
         for ax in axes:
             ax.set_xlim(centre[0] - half, centre[0] + half)
