@@ -178,8 +178,9 @@ def write_preview(
             before = np.concatenate([lengths[:1], lengths])[:, None, None]
             after = np.concatenate([lengths, lengths[-1:]])[:, None, None]
             ends = np.stack([ctrl_pos - before * ctrl_tangent, ctrl_pos + after * ctrl_tangent], axis=-2)  # (controls, 6, 2, 3)
-            segments(ax, ends.reshape(-1, 2, 3), colors=np.tile(colours, (layout.num_controls, 1)), linewidths=0.6, alpha=0.7)
-            ax.scatter(*_view(ends.reshape(-1, 3)), marker="|", s=9, c=np.repeat(np.tile(colours, (layout.num_controls, 1)), 2, axis=0), alpha=0.7, depthshade=False)
+            handle_colours = np.tile(colours, (layout.num_controls, 1))  # one per (control, joint), joint fastest
+            segments(ax, ends.reshape(-1, 2, 3), colors=handle_colours, linewidths=0.6, alpha=0.7)
+            ax.scatter(*_view(ends.reshape(-1, 3)), marker="|", s=9, c=np.repeat(handle_colours, 2, axis=0), alpha=0.7, depthshade=False)
         for joint, _, p in marks:
             ax.plot(*_view(p[None]), "*", color="purple", ms=9)
 
