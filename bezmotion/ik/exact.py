@@ -594,13 +594,16 @@ class ExactIKFn:
         # their start poses, they weigh less than the handle): the next pass starts from a ramp into it.
         at_handle = at_key | jnp.any(pinned, axis=-1)
         near = _near_handles(pinned, params.handle_spread, pose.root_pos.dtype)
-        for p in range(params.window_passes):
-            if p > 0:
-                pose = limit_turns(pose, params.spike_turn, at_handle)
+
+        def one_pass(pose: Pose, first: Array) -> tuple[Pose, None]:
+            pose = jax.lax.cond(first, lambda q: q, lambda q: limit_turns(q, params.spike_turn, at_handle), pose)
             start = smooth(pose, filter_weight)
             if keys is not None:
                 start = blend_to_chain_keys(start, keys, key_blend_frames)
-            pose = jax.vmap(lambda s, t, h, p, n: _solve(params, s, t, params.iterations, h, p, n))(start, targets, hold, planted, near)
+            return jax.vmap(lambda s, t, h, p, n: _solve(params, s, t, params.iterations, h, p, n))(start, targets, hold, planted, near), None
+
+        # The passes as a loop, not unrolled: the solve is traced and compiled once, not once a pass.
+        pose, _ = jax.lax.scan(one_pass, pose, jnp.arange(params.window_passes) == 0)
         # Ramped into the keys as given (not the solve's frames there) and into the handles' frames.
         if keys is not None:
             pose = blend_to_chain_keys(pose, keys, 0)
