@@ -76,6 +76,11 @@ shared key, which both its windows take).
 - ``curve_error_cm`` / ``curve_error_max_cm``: how far the IK'd six joints lie from the
   curves they were given, on every frame (mean over frames, joints and windows; largest):
   an IK may hit the handles and still leave the curves elsewhere (e.g. next to the keys);
+- ``planted_foot_rise_cm`` / ``planted_foot_sink_cm`` (each with ``…_max_cm``): per window,
+  how far the IK'd feet rise above / sink below their curves at most where a curve's foot
+  stands still (slower than 7.5 cm/s horizontally), mean over windows and largest: a foot
+  the body pulls out of reach either rises (a heel lifting) or slides, and one that sinks
+  goes through the floor;
 - ``mpjpe_cm`` (every joint and frame against the mocap window), ``foot_skating_ratio``;
 - ``key_pop_deg``: the largest per-frame joint rotation change at frames 0→1 and 29→30
   (chains: of every window, so both sides of every key);
@@ -677,15 +682,15 @@ def format_report(r: dict) -> str:
         ]
     lines += [
         "",
-        f"| IK | handles ID (cm) | OOD (cm) | max ID / OOD (cm) | unreachable ID / OOD | off the curves ID, mean / max (cm) | MPJPE ID (cm) | skating ID | key pop ID / OOD (°) | turn per frame ID, mean / max (°) | IK ms/{per} | compile (s) |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        f"| IK | handles ID (cm) | OOD (cm) | max ID / OOD (cm) | unreachable ID / OOD | off the curves ID, mean / max (cm) | planted feet OOD, rise / sink (cm) | MPJPE ID (cm) | skating ID | key pop ID / OOD (°) | turn per frame ID, mean / max (°) | IK ms/{per} | compile (s) |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for name, x in r["ik"].items():
         i, o = x["id"], x["ood"]
         lines.append(
             f"| {name} | {i['handles_error_cm']:.4f} | {o['handles_error_cm']:.4f} | {i['handles_error_max_cm']:.2f} / {o['handles_error_max_cm']:.2f} | "
             f"{i['unreachable_fraction']:.3f} / {o['unreachable_fraction']:.3f} | {i['curve_error_cm']:.3f} / {i['curve_error_max_cm']:.2f} | "
-            f"{pm(i, 'mpjpe_cm', 3)} | {pm(i, 'foot_skating_ratio', 4)} | "
+            f"{o['planted_foot_rise_cm']:.2f} / {o['planted_foot_sink_cm']:.2f} | {pm(i, 'mpjpe_cm', 3)} | {pm(i, 'foot_skating_ratio', 4)} | "
             f"{i['key_pop_deg']:.2f} / {o['key_pop_deg']:.2f} | {i['rotation_change_deg']:.2f} / {i['max_rotation_change_deg']:.1f} | "
             f"{i[f'ik_ms_per_{per}']:.1f} | {x['compile_s']:.1f} |"
         )

@@ -135,6 +135,11 @@ class ExactIKParams:
         and slide. A trade against the handles: on Bandai-Namco's OOD handles 4 misses them
         by 0.46 cm and skates 0.011 more than ``refined``, 50 by 1.14 cm and 0.006 more
         (docs/precision.md, *Feet against handles*).
+      plant_height_scale: a planted foot's height weighs ``plant_weight`` times this (1: the
+        same as its horizontal position), above its target only: below it, the foot weighs as
+        horizontally and does not sink into the floor. Below 1, a foot that the body pulls out
+        of its leg's reach rises (a heel lifting) rather than slides: the curves' foot lock
+        holds a planted foot in X and Z only, and the skating metric counts horizontal speed.
       plant_step: cm per frame: a foot target moving less than this horizontally to the next
         frame stands still (0.25: 7.5 cm/s at 30 fps, the skating metric's speed).
       rotation_weight: per unit of ortho6D difference of the six joints' orientations (≈ per rad).
@@ -206,6 +211,7 @@ class ExactIKParams:
     key_hold_weight: Float[Array, ""] | float = 3000.0
     key_hold_decay: Float[Array, ""] | float = 0.85
     plant_weight: Float[Array, ""] | float = 4.0
+    plant_height_scale: Float[Array, ""] | float = 0.25
     plant_step: Float[Array, ""] | float = 0.25
     max_turn: Float[Array, ""] | float = 1.0
     rotation_weight: Float[Array, ""] | float = 20.0
@@ -258,7 +264,7 @@ class _Problem(NamedTuple):
     start: Pose
     target_pos: Float[Array, "6 3"]
     target_quat: Float[Array, "6 4"]
-    position_scale: Array  # (6, 1): per-joint factors on the position rows (_position_scale)
+    position_scale: Array  # (6, 3): per-joint, per-axis factors on the position rows (_position_scale)
     hold: Array  # () per rad: how hard the frame is held at its start pose (next to a key)
     robust: Array | float = 0.0  # (6, 1) cm: each position's Huber threshold (0: least squares)
 
@@ -300,9 +306,20 @@ def _evaluate(params: ExactIKParams, problem: _Problem, delta: Array, root_delta
     distance = safe_norm(miss, keepdims=True)  # (6, 1)
     far = (problem.robust > 0.0) & (distance > problem.robust)
     safe_distance = jnp.where(far, distance, 1.0)
-    row_scale = problem.position_scale * jnp.where(far, jnp.sqrt(problem.robust / safe_distance), 1.0)
+    # A planted foot's lighter height (plant_height_scale) only upwards: below its target it
+    # weighs as horizontally, so a foot rises where the body pulls it and never sinks into the
+    # floor. (The weight switches where the miss does, so the cost stays smooth.) Other joints
+    # weigh their three axes alike, where this changes nothing.
+    scale = problem.position_scale
+    scale = scale.at[:, 1].set(jnp.where(miss[:, 1] < 0.0, scale[:, 0], scale[:, 1]))
+    row_scale = scale * jnp.where(far, jnp.sqrt(problem.robust / safe_distance), 1.0)
     e_pos = miss * row_scale
-    position_cost = problem.position_scale**2 * jnp.where(far, 2.0 * problem.robust * safe_distance - problem.robust**2, distance**2)
+    # Huber's joints are never planted, so their three axes weigh alike (any one stands for all).
+    position_cost = jnp.where(
+        far,
+        scale[:, :1] ** 2 * (2.0 * problem.robust * safe_distance - problem.robust**2),
+        jnp.sum(jnp.square(miss * scale), axis=-1, keepdims=True),
+    )
     # Orientation: 2·vec of the world-frame difference q·q_t⁻¹ (short way), ≈ angle × axis.
     rel = quat_mul(quat_global[idx], quat_conjugate(problem.target_quat))
     rel = jnp.where(rel[..., :1] < 0.0, -rel, rel)
@@ -317,13 +334,15 @@ def _evaluate(params: ExactIKParams, problem: _Problem, delta: Array, root_delta
 
 
 def _position_scale(params: ExactIKParams, pinned: Array, planted: Array, dtype, near: Array | None = None) -> Array:
-    """``(6, 1)`` per-joint factors on the position residuals: the hips' ``hips_position_scale``,
-    times ``handle_weight`` where ``pinned`` ``(6,)``, else ``plant_weight`` where ``planted`` ``(6,)``,
-    else ``handle_weight^near`` where ``near`` ``(6,)`` (0 … 1: next to a handle of that joint)."""
+    """``(6, 3)`` per-joint, per-axis factors on the position residuals: the hips'
+    ``hips_position_scale``, times ``handle_weight`` where ``pinned`` ``(6,)``, else
+    ``plant_weight`` where ``planted`` ``(6,)`` (its height times ``plant_height_scale``), else
+    ``handle_weight^near`` where ``near`` ``(6,)`` (0 … 1: next to a handle of that joint)."""
     scale = jnp.ones(6, dtype).at[0].set(params.hips_position_scale)
     other = 1.0 if near is None else jnp.maximum(jnp.asarray(params.handle_weight, dtype) ** near, 1.0)
     factor = jnp.where(pinned, params.handle_weight, jnp.where(planted, params.plant_weight, other))
-    return (scale * factor.astype(dtype))[:, None]
+    height = jnp.where(planted & ~pinned, params.plant_height_scale, 1.0)  # +Y up
+    return (scale * factor).astype(dtype)[:, None] * jnp.stack([jnp.ones_like(height), height, jnp.ones_like(height)], -1).astype(dtype)
 
 
 def _hold_weights(params: ExactIKParams, problem: _Problem) -> tuple[Array, Array]:
@@ -381,7 +400,7 @@ def _step(params: ExactIKParams, problem: _Problem, delta: Array, root_delta: Ar
     )
     # Marquardt's scaling: the damping of each unknown in proportion to its curvature.
     curvature = jnp.sum(row_weight_sq * jac_free * jac_free, axis=-1)  # (free, 3)
-    root_curvature = params.position_weight**2 * jnp.sum(scale * scale)  # each root axis alike
+    root_curvature = params.position_weight**2 * jnp.sum(scale * scale, axis=0)  # (3,): per root axis
 
     d_excess = _limit_jacobian(params, limit_rel, delta)
     d_excess_t = jnp.swapaxes(d_excess, -1, -2)

@@ -7,7 +7,8 @@ window (:func:`paired_differences`):
 
 - after IK (:func:`window_pose_metrics`): each handle's distance from the IK'd joint and
   whether it was within reach, MPJPE, foot skating, key pop, per-frame joint turns, how far
-  the six joints lie from the curves they were given;
+  the six joints lie from the curves they were given and how far planted feet rise above or
+  sink below theirs;
 - the curves before IK (:func:`window_curve_metrics`): handles, dense and orientation error
   against the mocap, foot skating;
 - the mocap itself (:func:`window_mocap_metrics`): the yardsticks for skating and turns.
@@ -156,7 +157,9 @@ def window_pose_metrics(
     the IK'd six joints lie from them on every frame (``curve_error``: mean over frames and
     joints; ``curve_error_max``): whether the whole body follows the curves, not only at the
     handles. An IK that holds the frames next to a key near the key's pose misses the curves
-    there, and the body catches up with them in a jump a few frames later."""
+    there, and the body catches up with them in a jump a few frames later. With the curves,
+    also the planted feet's largest rise above and sink below their curves (``foot_rise``,
+    ``foot_sink``, cm: :func:`_planted_feet_height`)."""
     return _to_numpy(_pose_figures(config, character, pose, truth, handles, chains, windows, curves))
 
 
@@ -180,10 +183,29 @@ def _pose_figures(config, character, pose, truth, handles, chains, windows, curv
         off = jnp.linalg.norm(six - curves, axis=-1)  # (windows, frames, 6)
         out["curve_error"] = jnp.mean(off, axis=(-2, -1))
         out["curve_error_max"] = jnp.max(off, axis=(-2, -1))
+        out["foot_rise"], out["foot_sink"] = _planted_feet_height(feet, curves[..., list(FEET), :], config.fps)
     if chains is not None:
         paired = jnp.any(conflicting_handles(handles, chains), axis=-1)
         out["handle_unreachable"] = beyond_reach(pos, handles, chains) | (paired & (out["handle_error"] > HANDLE_MISS_CM))
     return out
+
+
+def _planted_feet_height(feet: Array, feet_curves: Array, fps: float) -> tuple[Array, Array]:
+    """Per window: how far (cm) the IK'd feet ``(windows, frames, 2, 3)`` rise above and sink
+    below their curves at most, on the frames where a curve's foot stands still horizontally
+    (slower than the skating metric's 7.5 cm/s to the next frame); 0 where none does. An IK
+    that lets a planted foot give way upwards (``plant_height_scale``) rises; one that sinks
+    puts the foot through the floor."""
+    step = jnp.linalg.norm(jnp.diff(feet_curves[..., ::2], axis=-3), axis=-1)  # (windows, frames - 1, 2), X and Z
+    planted = jnp.concatenate([step, step[..., -1:, :]], axis=-2) * fps < _PLANTED_SPEED
+    height = feet[..., 1] - feet_curves[..., 1]  # +Y up
+    rise = jnp.max(jnp.where(planted, height, 0.0), axis=(-2, -1))
+    sink = jnp.max(jnp.where(planted, -height, 0.0), axis=(-2, -1))
+    return jnp.maximum(rise, 0.0), jnp.maximum(sink, 0.0)
+
+
+# cm/s: a curve's foot slower than this stands still (foot_skating_ratio's speed threshold).
+_PLANTED_SPEED = 7.5
 
 
 def beyond_reach(positions: Float[Array, "*batch frames joints 3"], handles: Handles, chains: ReachChains) -> Bool[Array, "*batch handles"]:
@@ -328,6 +350,10 @@ def summarize_windows(per_window: Mapping[str, np.ndarray], select: np.ndarray |
         out["curve_error_cm"] = float(w["curve_error"].mean())
         out["curve_error_cm_se"] = standard_error(w["curve_error"])
         out["curve_error_max_cm"] = float(w["curve_error_max"].max())
+    for key in ("foot_rise", "foot_sink"):  # planted feet off their curves, up and down
+        if key in w:
+            out[f"planted_{key}_cm"] = float(w[key].mean())
+            out[f"planted_{key}_max_cm"] = float(w[key].max())
     if "mpjpe" in w:
         out["mpjpe_cm"] = float(w["mpjpe"].mean())
         out["mpjpe_cm_se"] = standard_error(w["mpjpe"])

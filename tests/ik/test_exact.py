@@ -20,7 +20,7 @@ from helpers import lapack_calls
 
 from bezmotion.assets import BUNDLED_IK, DEMO_CLIP
 from bezmotion.data.bvh import read_bvh
-from bezmotion.geometry.rotations import quat_angle, quat_from_axis_angle, quat_mul
+from bezmotion.geometry.rotations import quat_angle, quat_from_axis_angle, quat_from_rot6d, quat_mul
 import bezmotion.ik.exact as exact_module
 from bezmotion.ik.exact import ExactIKFn, _errors, exact_ik
 from bezmotion.ik.joint_limits import JointLimits
@@ -328,13 +328,64 @@ def test_planted_feet_hold_their_targets_against_a_handle(bandai):
     raised = targets._replace(
         position=targets.position.at[:, head, 1].add(12.0), pinned=jnp.zeros((FRAMES, 6), bool).at[:, head].set(True)
     )
-    # Every foot planted; 20 steps as in test_composes_with_learned_ik_and_window_solve (the same compiled solve).
-    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, plant_step=100.0, handle_weight=10.0, iterations=20)
+    # Every foot planted; 20 steps as in test_composes_with_learned_ik_and_window_solve (the same
+    # compiled solve). The height weighing as the rest (the default lets a planted foot rise:
+    # test_planted_feet_rise_rather_than_slide).
+    fn, params = exact_ik(
+        protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, plant_step=100.0, handle_weight=10.0, iterations=20, plant_height_scale=1.0
+    )
     solve = lambda p, t: _solve_window(fn, p, t, None, 0)  # noqa: E731
     loose, planted = (solve(dataclasses.replace(params, plant_weight=w), raised) for w in (1.0, 10.0))
     feet_loose, feet_planted = (float(jnp.mean(r.position_error[:, feet])) for r in (loose, planted))
     assert feet_loose > 2.0 and feet_planted < 0.5 * feet_loose, (feet_loose, feet_planted)
     assert float(jnp.mean(planted.position_error[:, head])) > float(jnp.mean(loose.position_error[:, head]))
+
+
+def test_planted_feet_rise_rather_than_slide(bandai):
+    """The same raised head: where the planted feet must give way, a light height
+    (``plant_height_scale``) lets them rise, a heel lifting, and keeps them where they stand
+    horizontally; at 1 they slide as much as they rise."""
+    motion = read_bvh(DEMO_CLIP)
+    truth = pose_from_motion(bandai.character, jnp.asarray(motion.quat_local[10:18]), jnp.asarray(motion.pos_local[10:18]))
+    targets = targets_from_pose(bandai.character, truth)
+    head, feet = 1, [4, 5]
+    raised = targets._replace(
+        position=targets.position.at[:, head, 1].add(12.0), pinned=jnp.zeros((FRAMES, 6), bool).at[:, head].set(True)
+    )
+    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, plant_step=100.0, handle_weight=10.0, iterations=20)
+    solve = lambda p, t: _solve_window(fn, p, t, None, 0)  # noqa: E731
+
+    def feet_miss(head_moved: IKTargets, scale: float) -> tuple[float, float]:
+        """The feet's mean horizontal miss and mean rise (cm) with ``plant_height_scale=scale``."""
+        pose = solve(dataclasses.replace(params, plant_weight=10.0, plant_height_scale=scale), head_moved).pose
+        miss = targets_from_pose(bandai.character, pose).position[:, feet] - targets.position[:, feet]
+        return float(jnp.mean(jnp.linalg.norm(miss[..., ::2], axis=-1))), float(jnp.mean(miss[..., 1]))
+
+    (slide_even, rise_even), (slide_light, rise_light) = feet_miss(raised, 1.0), feet_miss(raised, 0.1)
+    assert slide_light < 0.5 * slide_even, (slide_light, slide_even)
+    assert rise_light > 2.0 * max(rise_even, 0.1), (rise_light, rise_even)
+
+
+def test_planted_foot_height_is_light_only_upwards(bandai):
+    """A planted foot 1 cm above its target costs ``plant_height_scale²`` of what 1 cm below
+    it does (and of 1 cm to the side): the foot may rise, a heel lifting, but not sink into the floor."""
+    character, right_foot = bandai.character, 5
+    params = dataclasses.replace(bandai.params, plant_weight=10.0, plant_height_scale=0.1)
+    start = jax.tree.map(lambda a: a[0], bandai.truth)
+    here = targets_from_pose(character, start)
+    planted = jnp.zeros(6, bool).at[right_foot].set(True)
+    scale = exact_module._position_scale(params, jnp.zeros(6, bool), planted, jnp.float32)
+
+    def cost(offset: list[float]) -> float:
+        """The solve's cost at the start pose, the right foot's target moved by ``offset`` (cm)."""
+        target = here.position.at[right_foot].add(jnp.asarray(offset))
+        problem = exact_module._Problem(start, target, quat_from_rot6d(here.rot6d), scale, jnp.zeros(()))
+        return float(exact_module._evaluate(params, problem, jnp.zeros((len(exact_module._free_joints(character)), 3)), jnp.zeros(3))[-1])
+
+    weight = params.position_weight * params.plant_weight
+    np.testing.assert_allclose(cost([0.0, -1.0, 0.0]), (0.1 * weight) ** 2, rtol=1e-3)  # the foot above its target
+    np.testing.assert_allclose(cost([0.0, 1.0, 0.0]), weight**2, rtol=1e-3)  # below it
+    np.testing.assert_allclose(cost([1.0, 0.0, 0.0]), weight**2, rtol=1e-3)  # beside it
 
 
 @dataclasses.dataclass(frozen=True)

@@ -207,6 +207,36 @@ def test_curve_error_is_how_far_the_six_joints_lie_from_their_curves(clip):
     assert curve_miss(six[1], moved[1]) == {"cm": pytest.approx(2.0, abs=1e-3), "frame": 7}
 
 
+def test_planted_feet_rise_and_sink_against_their_curves(clip):
+    """``foot_rise`` / ``foot_sink``: the feet's largest height above / below their curves on
+    the frames where a curve's foot stands still horizontally; a moving curve's foot is not
+    counted, and 0 where the feet lie on their curves."""
+    from bezmotion.ik.protocol import pose_fk
+    from bezmotion.pipeline.window_figures import summarize_windows, window_pose_metrics
+
+    c = clip.character
+    pose = jax.tree.map(lambda x: jnp.stack([x[:FRAMES], x[5 : 5 + FRAMES]]), clip.pose)  # (2, 31, …)
+    six = np.asarray(pose_fk(c, pose)[1])[..., np.asarray(c.characteristic), :]
+    curves = six.copy()
+    left, right = 4, 5
+    curves[..., [left, right], :] = curves[:, :1, [left, right], :]  # both feet's curves planted (still) throughout
+    curves[..., [left, right], 1] = six[..., [left, right], 1]  # at the feet's own heights
+    handles = Handles(jnp.zeros((2, 1), jnp.int32), jnp.zeros((2, 1), jnp.int32), jnp.zeros((2, 1, 3)), jnp.zeros((2, 1), bool))
+    config = PipelineMetricsConfig(STRIDE, 30.0, 0.0)
+    on = window_pose_metrics(config, c, pose, pose, handles, curves=jnp.asarray(curves))
+    np.testing.assert_allclose(np.stack([on["foot_rise"], on["foot_sink"]]), 0.0, atol=1e-4)
+    curves[0, 10, left, 1] -= 3.0  # window 0: the foot 3 cm above its curve on frame 10
+    curves[1, 12, right, 1] += 1.5  # window 1: 1.5 cm below on frame 12
+    curves[1, 20:, left, 0] += 10.0 * np.arange(FRAMES - 20)  # window 1's left foot moves from frame 20 …
+    curves[1, 22:26, left, 1] -= 5.0  # … so its 5 cm above the curve there is no planted foot's
+    w = window_pose_metrics(config, c, pose, pose, handles, curves=jnp.asarray(curves))
+    np.testing.assert_allclose(w["foot_rise"], [3.0, 0.0], atol=1e-4)
+    np.testing.assert_allclose(w["foot_sink"], [0.0, 1.5], atol=1e-4)
+    out = summarize_windows(w)
+    assert out["planted_foot_rise_cm"] == pytest.approx(1.5, abs=1e-4) and out["planted_foot_rise_max_cm"] == pytest.approx(3.0, abs=1e-4)
+    assert out["planted_foot_sink_max_cm"] == pytest.approx(1.5, abs=1e-4)
+
+
 def test_summaries_give_each_mean_over_windows_its_standard_error():
     """``summarize_windows``: ``…_se`` is the windows' sample standard deviation over √n (a
     window with several values, e.g. dense error per joint, counts once, by its mean), and
