@@ -221,7 +221,10 @@ def test_another_skeleton_gets_the_exact_solve_from_the_rig_by_default(tmp_path)
         positions = fk_positions(motion)
         misses[ik] = float(np.linalg.norm(positions[12, foot] - straight_line(FOOT, 12) - [0, -12, 0]))
         np.testing.assert_allclose(positions[18, hand], straight_line(HAND, 18) + [0, 25, 0], atol=1e-2)
-    assert misses["auto"] < 0.05 and misses["rig"] > 5.0, misses
+    # Under a millimetre (0.06 cm since 2026-12-02: the foot's curve comes straight down into the
+    # handle, so the frames next to it count as planted and their foot may stay above its curve,
+    # plant_height_scale; the solve's start at the handle frame is smoothed with theirs).
+    assert misses["auto"] < 0.1 and misses["rig"] > 5.0, misses
 
 
 def test_the_rig_chains_come_from_the_hierarchy_or_the_mapping_file(tmp_path):
