@@ -30,6 +30,7 @@ from bezmotion.ik.rig import make_rig, rig_ik
 from bezmotion.ik.temporal import FLIP_TURN, KEY_TURN
 
 REACH_TOL_CM = 1e-3
+HEAD, FEET = 1, [4, 5]  # characteristic joints
 FRAMES = 8
 
 
@@ -317,51 +318,47 @@ def test_key_smoothing_filters_only_the_frames_next_to_the_keys(bandai):
         exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, key_smoothing=0.6)
 
 
-def test_planted_feet_hold_their_targets_against_a_handle(bandai):
-    """The head's target 12 cm up, pinned, on 8 consecutive frames of the demo clip: reaching
-    it lifts the hips and the feet give way. Planted feet (``plant_weight``) keep their targets
-    closer, and the head gives up some of its reach instead."""
+def _head_raised(bandai: Case):
+    """``(targets, raised, fn, params)``: 8 consecutive frames of the demo clip, and the same with
+    the head's target 12 cm up and pinned: reaching it lifts the hips, and the feet give way.
+    Every foot planted; 20 steps as in test_composes_with_learned_ik_and_window_solve (the
+    same compiled solve)."""
     motion = read_bvh(DEMO_CLIP)
     truth = pose_from_motion(bandai.character, jnp.asarray(motion.quat_local[10:18]), jnp.asarray(motion.pos_local[10:18]))
     targets = targets_from_pose(bandai.character, truth)
-    head, feet = 1, [4, 5]
     raised = targets._replace(
-        position=targets.position.at[:, head, 1].add(12.0), pinned=jnp.zeros((FRAMES, 6), bool).at[:, head].set(True)
+        position=targets.position.at[:, HEAD, 1].add(12.0), pinned=jnp.zeros((FRAMES, 6), bool).at[:, HEAD].set(True)
     )
-    # Every foot planted; 20 steps as in test_composes_with_learned_ik_and_window_solve (the same
-    # compiled solve). The height weighing as the rest (the default lets a planted foot rise:
-    # test_planted_feet_rise_rather_than_slide).
-    fn, params = exact_ik(
-        protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, plant_step=100.0, handle_weight=10.0, iterations=20, plant_height_scale=1.0
+    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, plant_step=100.0, handle_weight=10.0, iterations=20)
+    return targets, raised, fn, params
+
+
+def test_planted_feet_hold_their_targets_against_a_handle(bandai):
+    """The head raised: planted feet (``plant_weight``) keep their targets closer, and the head
+    gives up some of its reach instead. (The height weighing as the rest: the default lets a
+    planted foot rise, test_planted_feet_rise_rather_than_slide.)"""
+    _, raised, fn, params = _head_raised(bandai)
+    loose, planted = (
+        _solve_window(fn, dataclasses.replace(params, plant_weight=w, plant_height_scale=1.0), raised, None, 0) for w in (1.0, 10.0)
     )
-    solve = lambda p, t: _solve_window(fn, p, t, None, 0)  # noqa: E731
-    loose, planted = (solve(dataclasses.replace(params, plant_weight=w), raised) for w in (1.0, 10.0))
-    feet_loose, feet_planted = (float(jnp.mean(r.position_error[:, feet])) for r in (loose, planted))
+    feet_loose, feet_planted = (float(jnp.mean(r.position_error[:, FEET])) for r in (loose, planted))
     assert feet_loose > 2.0 and feet_planted < 0.5 * feet_loose, (feet_loose, feet_planted)
-    assert float(jnp.mean(planted.position_error[:, head])) > float(jnp.mean(loose.position_error[:, head]))
+    assert float(jnp.mean(planted.position_error[:, HEAD])) > float(jnp.mean(loose.position_error[:, HEAD]))
 
 
 def test_planted_feet_rise_rather_than_slide(bandai):
-    """The same raised head: where the planted feet must give way, a light height
+    """The head raised: where the planted feet must give way, a light height
     (``plant_height_scale``) lets them rise, a heel lifting, and keeps them where they stand
     horizontally; at 1 they slide as much as they rise."""
-    motion = read_bvh(DEMO_CLIP)
-    truth = pose_from_motion(bandai.character, jnp.asarray(motion.quat_local[10:18]), jnp.asarray(motion.pos_local[10:18]))
-    targets = targets_from_pose(bandai.character, truth)
-    head, feet = 1, [4, 5]
-    raised = targets._replace(
-        position=targets.position.at[:, head, 1].add(12.0), pinned=jnp.zeros((FRAMES, 6), bool).at[:, head].set(True)
-    )
-    fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, plant_step=100.0, handle_weight=10.0, iterations=20)
-    solve = lambda p, t: _solve_window(fn, p, t, None, 0)  # noqa: E731
+    targets, raised, fn, params = _head_raised(bandai)
 
-    def feet_miss(head_moved: IKTargets, scale: float) -> tuple[float, float]:
+    def feet_miss(scale: float) -> tuple[float, float]:
         """The feet's mean horizontal miss and mean rise (cm) with ``plant_height_scale=scale``."""
-        pose = solve(dataclasses.replace(params, plant_weight=10.0, plant_height_scale=scale), head_moved).pose
-        miss = targets_from_pose(bandai.character, pose).position[:, feet] - targets.position[:, feet]
+        pose = _solve_window(fn, dataclasses.replace(params, plant_weight=10.0, plant_height_scale=scale), raised, None, 0).pose
+        miss = targets_from_pose(bandai.character, pose).position[:, FEET] - targets.position[:, FEET]
         return float(jnp.mean(jnp.linalg.norm(miss[..., ::2], axis=-1))), float(jnp.mean(miss[..., 1]))
 
-    (slide_even, rise_even), (slide_light, rise_light) = feet_miss(raised, 1.0), feet_miss(raised, 0.1)
+    (slide_even, rise_even), (slide_light, rise_light) = feet_miss(1.0), feet_miss(0.1)
     assert slide_light < 0.5 * slide_even, (slide_light, slide_even)
     assert rise_light > 2.0 * max(rise_even, 0.1), (rise_light, rise_even)
 
