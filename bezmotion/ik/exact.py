@@ -345,7 +345,8 @@ def _position_scale(params: ExactIKParams, pinned: Array, planted: Array, dtype,
     other = 1.0 if near is None else jnp.maximum(jnp.asarray(params.handle_weight, dtype) ** near, 1.0)
     factor = jnp.where(pinned, params.handle_weight, jnp.where(planted, params.plant_weight, other))
     height = jnp.where(planted & ~pinned, params.plant_height_scale, 1.0)  # +Y up
-    return (scale * factor).astype(dtype)[:, None] * jnp.stack([jnp.ones_like(height), height, jnp.ones_like(height)], -1).astype(dtype)
+    axes = jnp.ones((6, 3), dtype).at[:, 1].set(height)
+    return (scale * factor).astype(dtype)[:, None] * axes
 
 
 def _hold_weights(params: ExactIKParams, problem: _Problem) -> tuple[Array, Array]:

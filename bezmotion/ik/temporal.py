@@ -37,8 +37,8 @@ _SLACK = 1e-4  # rad: a ramped step may measure this much over its limit after r
 _HORIZONTAL = np.asarray([1.0, 0.0, 1.0], np.float32)  # X and Z; +Y is up
 
 
-def planted_feet(position: Float[Array, "frames 6 3"], plant_step: Float[Array, ""] | float) -> Array:
-    """``(frames, 6)``: the feet whose targets move less than ``plant_step`` cm horizontally
+def planted_feet(position: Float[Array, "*batch frames 6 3"], plant_step: Float[Array, ""] | float) -> Array:
+    """``(*batch, frames, 6)``: the feet whose targets move less than ``plant_step`` cm horizontally
     to the next frame (the last frame repeats the one before it); hips, head and hands never.
 
     Horizontally, like the foot-skating metric (:func:`~bezmotion.metrics.foot_skating_ratio`)

@@ -35,6 +35,7 @@ from bezmotion.data.windows import split_windows
 from bezmotion.geometry.rotations import quat_angle, quat_from_rot6d
 from bezmotion.ik.protocol import Character, Pose, pose_fk
 from bezmotion.ik.rig import Rig
+from bezmotion.ik.temporal import planted_feet
 from bezmotion.metrics import foot_skating_ratio, key_pop_deg, rotation_change_deg
 
 
@@ -183,22 +184,21 @@ def _pose_figures(config, character, pose, truth, handles, chains, windows, curv
         off = jnp.linalg.norm(six - curves, axis=-1)  # (windows, frames, 6)
         out["curve_error"] = jnp.mean(off, axis=(-2, -1))
         out["curve_error_max"] = jnp.max(off, axis=(-2, -1))
-        out["foot_rise"], out["foot_sink"] = _planted_feet_height(feet, curves[..., list(FEET), :], config.fps)
+        out["foot_rise"], out["foot_sink"] = _planted_feet_height(feet, curves, config.fps)
     if chains is not None:
         paired = jnp.any(conflicting_handles(handles, chains), axis=-1)
         out["handle_unreachable"] = beyond_reach(pos, handles, chains) | (paired & (out["handle_error"] > HANDLE_MISS_CM))
     return out
 
 
-def _planted_feet_height(feet: Array, feet_curves: Array, fps: float) -> tuple[Array, Array]:
+def _planted_feet_height(feet: Array, curves: Array, fps: float) -> tuple[Array, Array]:
     """Per window: how far (cm) the IK'd feet ``(windows, frames, 2, 3)`` rise above and sink
-    below their curves at most, on the frames where a curve's foot stands still horizontally
-    (slower than the skating metric's 7.5 cm/s to the next frame); 0 where none does. An IK
-    that lets a planted foot give way upwards (``plant_height_scale``) rises; one that sinks
-    puts the foot through the floor."""
-    step = jnp.linalg.norm(jnp.diff(feet_curves[..., ::2], axis=-3), axis=-1)  # (windows, frames - 1, 2), X and Z
-    planted = jnp.concatenate([step, step[..., -1:, :]], axis=-2) * fps < _PLANTED_SPEED
-    height = feet[..., 1] - feet_curves[..., 1]  # +Y up
+    below their curves (the six joints', ``(windows, frames, 6, 3)``) at most, on the frames
+    where a curve's foot stands still horizontally (:func:`~bezmotion.ik.temporal.planted_feet`
+    at the skating metric's 7.5 cm/s); 0 where none does. An IK that lets a planted foot give
+    way upwards (``plant_height_scale``) rises; one that sinks puts the foot through the floor."""
+    planted = planted_feet(curves, _PLANTED_SPEED / fps)[..., list(FEET)]  # (windows, frames, 2)
+    height = feet[..., 1] - curves[..., list(FEET), 1]  # +Y up
     rise = jnp.max(jnp.where(planted, height, 0.0), axis=(-2, -1))
     sink = jnp.max(jnp.where(planted, -height, 0.0), axis=(-2, -1))
     return jnp.maximum(rise, 0.0), jnp.maximum(sink, 0.0)
