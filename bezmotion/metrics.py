@@ -112,6 +112,7 @@ def foot_skating_ratio(
     floor_height: float = 0.0,
     height_threshold: float = 5.0,
     speed_threshold: float = 7.5,
+    heights_from: Float[Array, "*batch frames 2 3"] | None = None,
 ) -> Float[Array, ""]:
     """Fraction of frames on which the feet skate (BMM appendix B, after Zhang et al. 2021).
 
@@ -120,8 +121,17 @@ def foot_skating_ratio(
     ``speed_threshold`` cm/s. ``feet_pos`` are the left and right foot joints (cm, +Y up);
     heights are measured from ``floor_height`` — for ankle joints, the ankle's height with
     the foot flat on the ground, so that the test is on the heel as the paper states.
+
+    ``heights_from`` (the same shape; default ``feet_pos``): the feet whose heights decide
+    which frames are on the floor, the speeds still ``feet_pos``'. Given the curves two IKs
+    were both given, it judges them on the same frames: by the paper's test an IK whose
+    sliding feet hover more than ``height_threshold`` above the floor where the curves put
+    them on it skates less than one that keeps them there (docs/precision.md, *Sliding judged
+    on the curves' floor contacts*).
     """
-    height = feet_pos[..., 1:, :, 1] - floor_height
+    if heights_from is not None and heights_from.shape != feet_pos.shape:
+        raise ValueError(f"heights_from has shape {heights_from.shape}, feet_pos {feet_pos.shape}: they must match")
+    height = (feet_pos if heights_from is None else heights_from)[..., 1:, :, 1] - floor_height
     step = feet_pos[..., 1:, :, :] - feet_pos[..., :-1, :, :]
     speed = jnp.sqrt(step[..., 0] ** 2 + step[..., 2] ** 2) * fps
     skating = jnp.all((height < height_threshold) & (speed > speed_threshold), axis=-1)

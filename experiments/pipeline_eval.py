@@ -82,6 +82,10 @@ shared key, which both its windows take).
   the body pulls out of reach either rises (a heel lifting) or slides, and one that sinks
   goes through the floor;
 - ``mpjpe_cm`` (every joint and frame against the mocap window), ``foot_skating_ratio``;
+- ``foot_sliding_ratio``: the same skating test with the *curves'* feet deciding which frames
+  are on the floor (the speeds the IK'd feet's), so every IK on the same curves is judged on
+  the same frames: a foot that slides while lifted off its curve above the test's 5 cm counts
+  here and escapes ``foot_skating_ratio`` (the paper's);
 - ``key_pop_deg``: the largest per-frame joint rotation change at frames 0→1 and 29→30
   (chains: of every window, so both sides of every key);
 - ``rotation_change_deg``: per frame pair, the largest joint rotation change, averaged over
@@ -118,7 +122,7 @@ without trailing digits).
 
 ``paired``: for every two IKs ``a`` before ``b`` in ``--ik``, b minus a window by window on
 the same curves (:func:`~bezmotion.pipeline.window_figures.paired_differences`: ``mpjpe_cm``,
-``foot_skating_ratio``, ``curve_error_cm``). The windows' figures move together between two
+``foot_skating_ratio``, ``foot_sliding_ratio``, ``curve_error_cm``). The windows' figures move together between two
 IKs, so the difference's standard error is much smaller than either mean's: this, not two
 means ± their own se, tells whether one IK beats another. Every per-window figure the
 summaries come from is also saved beside the JSON, ``FILE.windows.npz`` (``np.load``:
@@ -463,6 +467,7 @@ CHAIN_METRICS = {
     "handles_error_cm": "every window's handles, at their chain frames, against the IK'd chain",
     "mpjpe_cm": "every joint and frame of the chain (each shared key once) against the mocap",
     "foot_skating_ratio": "over each chain's frames",
+    "foot_sliding_ratio": "over each chain's frames, on the joined curves' floor contacts",
     "key_pop_deg": "largest per-frame rotation change at each window's first and last frame pair: both sides of every key",
     "max_rotation_change_deg": "over each chain's frames",
     "rotation_change_deg": "each frame pair's largest joint turn, averaged over each chain's frames",
@@ -718,14 +723,15 @@ def format_report(r: dict) -> str:
             f"Paired on the same curves: the second IK minus the first, mean ± se of the per-{per} difference "
             "(in brackets: the share of windows where the second is lower):",
             "",
-            "| IKs | MPJPE ID (cm) | OOD (cm) | skating ID | OOD | off the curves ID (cm) |",
-            "|---|---|---|---|---|---|",
+            "| IKs | MPJPE ID (cm) | OOD (cm) | skating ID | OOD | sliding on the curves' floor contacts ID | OOD | off the curves ID (cm) |",
+            "|---|---|---|---|---|---|---|---|",
         ]
         for pair, x in r["paired"].items():
             i, o = x["id"], x["ood"]
             lines.append(
                 f"| {pair} | {diff(i['mpjpe_cm'], 3)} | {diff(o['mpjpe_cm'], 3)} | {diff(i['foot_skating_ratio'], 4)} | "
-                f"{diff(o['foot_skating_ratio'], 4)} | {diff(i['curve_error_cm'], 3)} |"
+                f"{diff(o['foot_skating_ratio'], 4)} | {diff(i['foot_sliding_ratio'], 4)} | {diff(o['foot_sliding_ratio'], 4)} | "
+                f"{diff(i['curve_error_cm'], 3)} |"
             )
     first_ik = next(iter(r["ik"]))
     lines += [

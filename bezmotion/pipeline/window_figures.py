@@ -160,7 +160,10 @@ def window_pose_metrics(
     handles. An IK that holds the frames next to a key near the key's pose misses the curves
     there, and the body catches up with them in a jump a few frames later. With the curves,
     also the planted feet's largest rise above and sink below their curves (``foot_rise``,
-    ``foot_sink``, cm: :func:`_planted_feet_height`)."""
+    ``foot_sink``, cm: :func:`_planted_feet_height`) and ``sliding``: the skating test with
+    the curves' feet deciding which frames are on the floor (``heights_from`` of
+    :func:`~bezmotion.metrics.foot_skating_ratio`), so IKs on the same curves are judged on the
+    same frames and a sliding foot lifted off its curve is still counted."""
     return _to_numpy(_pose_figures(config, character, pose, truth, handles, chains, windows, curves))
 
 
@@ -185,6 +188,13 @@ def _pose_figures(config, character, pose, truth, handles, chains, windows, curv
         out["curve_error"] = jnp.mean(off, axis=(-2, -1))
         out["curve_error_max"] = jnp.max(off, axis=(-2, -1))
         out["foot_rise"], out["foot_sink"] = _planted_feet_height(feet, curves, config.fps)
+        # The skating test with the curves' feet deciding which frames are on the floor: two IKs
+        # given the same curves judged on the same frames (a foot lifted off its curve while it
+        # slides escapes the paper's test).
+        curve_feet = curves[..., list(FEET), :]
+        out["sliding"] = jax.vmap(
+            lambda f, h: foot_skating_ratio(f, config.fps, floor_height=config.floor_height, heights_from=h)
+        )(feet, curve_feet)
     if chains is not None:
         paired = jnp.any(conflicting_handles(handles, chains), axis=-1)
         out["handle_unreachable"] = beyond_reach(pos, handles, chains) | (paired & (out["handle_error"] > HANDLE_MISS_CM))
@@ -360,6 +370,9 @@ def summarize_windows(per_window: Mapping[str, np.ndarray], select: np.ndarray |
     if "skating" in w:
         out["foot_skating_ratio"] = float(w["skating"].mean())
         out["foot_skating_ratio_se"] = standard_error(w["skating"])
+    if "sliding" in w:
+        out["foot_sliding_ratio"] = float(w["sliding"].mean())
+        out["foot_sliding_ratio_se"] = standard_error(w["sliding"])
     for key, name in (("key_pop", "key_pop_deg"), ("max_rotation_change", "max_rotation_change_deg")):
         if key in w:
             out[name] = float(w[key].max())
@@ -369,7 +382,7 @@ def summarize_windows(per_window: Mapping[str, np.ndarray], select: np.ndarray |
 
 
 # The per-window figures :func:`paired_differences` compares, by their summary name.
-PAIRED_FIGURES = {"mpjpe": "mpjpe_cm", "skating": "foot_skating_ratio", "curve_error": "curve_error_cm"}
+PAIRED_FIGURES = {"mpjpe": "mpjpe_cm", "skating": "foot_skating_ratio", "sliding": "foot_sliding_ratio", "curve_error": "curve_error_cm"}
 
 
 def paired_differences(

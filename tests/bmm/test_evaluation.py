@@ -133,6 +133,24 @@ def test_foot_skating_ratio_by_hand():
     assert float(foot_skating_ratio(jnp.asarray(one), fps)) == 0.0
 
 
+def test_foot_skating_ratio_heights_from_other_feet():
+    """``heights_from``: another motion's feet decide which frames are on the floor, the
+    speeds stay the feet's own; a foot sliding 20 cm up counts where the other's is down."""
+    frames, fps = 11, 30.0
+    sliding = np.zeros((frames, 2, 3), np.float32)
+    sliding[:, :, 0] = np.arange(frames)[:, None]  # 30 cm/s
+    lifted = sliding.copy()
+    lifted[:, 0, 1] = 20.0  # the left foot 20 cm up
+    on_floor = np.zeros_like(sliding)  # still, on the floor
+    assert float(foot_skating_ratio(jnp.asarray(lifted), fps)) == 0.0
+    assert float(foot_skating_ratio(jnp.asarray(lifted), fps, heights_from=jnp.asarray(on_floor))) == 1.0
+    assert float(foot_skating_ratio(jnp.asarray(sliding), fps, heights_from=jnp.asarray(lifted))) == 0.0
+    assert float(foot_skating_ratio(jnp.asarray(on_floor), fps, heights_from=jnp.asarray(sliding))) == 0.0  # still feet never skate
+    # Mismatched frames: jaxtyping's check where it is on (the tests), else the function's own.
+    with pytest.raises((TypeError, ValueError), match="heights_from"):
+        foot_skating_ratio(jnp.asarray(sliding), fps, heights_from=jnp.asarray(sliding[1:]))
+
+
 def test_contact_accuracy_and_mean_position_error():
     prob = jnp.asarray([[0.7, 0.2], [0.4, 0.9]])
     true = jnp.asarray([[True, False], [True, False]])

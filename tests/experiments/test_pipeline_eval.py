@@ -26,7 +26,7 @@ from helpers import assert_trees_identical, load_experiment
 
 METRICS = {
     "handles_error_cm", "handles_error_max_cm", "unreachable_fraction", "mpjpe_cm", "foot_skating_ratio", "key_pop_deg",
-    "curve_error_cm", "curve_error_max_cm", "planted_foot_rise_cm", "planted_foot_sink_cm",
+    "curve_error_cm", "curve_error_max_cm", "planted_foot_rise_cm", "planted_foot_sink_cm", "foot_sliding_ratio",
 }  # fmt: skip
 
 

@@ -237,6 +237,36 @@ def test_planted_feet_rise_and_sink_against_their_curves(clip):
     assert out["planted_foot_sink_max_cm"] == pytest.approx(1.5, abs=1e-4)
 
 
+def test_sliding_is_judged_on_the_curves_floor_contacts(clip):
+    """``sliding``: the skating test on the IK'd feet's speeds with the curves' feet deciding
+    which frames are on the floor. Feet sliding 20 cm above curves on the floor slide but do
+    not skate by the paper's test; curves 20 cm up make the same feet neither."""
+    from bezmotion.pipeline.window_figures import paired_differences, summarize_windows, window_pose_metrics
+
+    c = clip.character
+    pose = jax.tree.map(lambda x: jnp.stack([x[:FRAMES], x[:FRAMES]]), clip.pose)  # (2, 31, …)
+    lifted = pose._replace(root_pos=pose.root_pos + jnp.asarray([0.0, 20.0, 0.0]))  # every joint 20 cm up
+    slide = 2.0 * jnp.arange(FRAMES, dtype=pose.root_pos.dtype)[:, None] * jnp.asarray([1.0, 0.0, 0.0])  # 60 cm/s along X
+    lifted = lifted._replace(root_pos=lifted.root_pos + slide)
+    from bezmotion.ik.protocol import pose_fk
+
+    six = np.asarray(pose_fk(c, pose)[1])[..., np.asarray(c.characteristic), :]
+    floor = float(six[..., 4:6, 1].min())  # the clip's feet at their lowest: on the floor
+    curves = six.copy()
+    curves[1, ..., 1] += 20.0  # window 1's curves 20 cm up too
+    handles = Handles(jnp.zeros((2, 1), jnp.int32), jnp.zeros((2, 1), jnp.int32), jnp.zeros((2, 1, 3)), jnp.zeros((2, 1), bool))
+    config = PipelineMetricsConfig(STRIDE, 30.0, floor)
+    w = window_pose_metrics(config, c, lifted, pose, handles, curves=jnp.asarray(curves))
+    np.testing.assert_array_equal(w["skating"], [0.0, 0.0])  # 20 cm up: off the floor by the paper's test
+    assert w["sliding"][0] > 0.5 and w["sliding"][1] == 0.0
+    out = summarize_windows(w)
+    assert out["foot_sliding_ratio"] == pytest.approx(w["sliding"].mean()) and out["foot_sliding_ratio_se"] is not None
+    on_curves = window_pose_metrics(config, c, pose, pose, handles, curves=jnp.asarray(curves))
+    np.testing.assert_array_equal(on_curves["sliding"][1], 0.0)
+    paired = paired_differences(on_curves, w)
+    assert paired["foot_sliding_ratio"]["mean"] == pytest.approx((w["sliding"] - on_curves["sliding"]).mean())
+
+
 def test_summaries_give_each_mean_over_windows_its_standard_error():
     """``summarize_windows``: ``…_se`` is the windows' sample standard deviation over √n (a
     window with several values, e.g. dense error per joint, counts once, by its mean), and
