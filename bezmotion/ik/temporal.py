@@ -39,7 +39,14 @@ _HORIZONTAL = np.asarray([1.0, 0.0, 1.0], np.float32)  # X and Z; +Y is up
 
 def planted_feet(position: Float[Array, "*batch frames 6 3"], plant_step: Float[Array, ""] | float) -> Array:
     """``(*batch, frames, 6)``: the feet whose targets move less than ``plant_step`` cm horizontally
-    to the next frame (the last frame repeats the one before it); hips, head and hands never.
+    to the next frame or from the one before (both frames of a still step); hips, head and
+    hands never.
+
+    Both frames: the last frame of a foot's still run is still against the frame before it.
+    Marked by the step to the next frame only, it was not planted, and the exact IK, its foot
+    weighing ``plant_weight`` on the frame before and 1 on it, let the foot jump about 0.5 cm
+    off its still target there, a one-frame slide at the end of nearly every stance on
+    Bandai-Namco's walks (docs/precision.md, *The last frame of a still foot*).
 
     Horizontally, like the foot-skating metric (:func:`~bezmotion.metrics.foot_skating_ratio`)
     and the curves' foot lock (:func:`~bezmotion.bmm.foot_lock.lock_feet`, which holds X and Z
@@ -47,7 +54,9 @@ def planted_feet(position: Float[Array, "*batch frames 6 3"], plant_step: Float[
     the still feet at the frames where the exact IK skated more than ``refined`` unplanted
     (docs/precision.md, *Feet against handles*).
     """
-    contact = foot_contacts(position * _HORIZONTAL, FEET, threshold=jnp.square(plant_step))
+    still_next = foot_contacts(position * _HORIZONTAL, FEET, threshold=jnp.square(plant_step))  # (…, frames, 2)
+    still_before = jnp.concatenate([jnp.zeros_like(still_next[..., :1, :]), still_next[..., :-1, :]], axis=-2)
+    contact = still_next | still_before
     return jnp.zeros(position.shape[:-1], bool).at[..., np.asarray(FEET)].set(contact)
 
 

@@ -14,15 +14,19 @@ from bezmotion.metrics import rotation_change_deg
 
 
 def test_planted_feet_marks_still_foot_targets_only():
-    """A foot target moving less than ``plant_step`` cm horizontally to the next frame is
-    planted, whatever its height does (the last frame repeats the one before); hips, head and
-    hands never are."""
-    position = jnp.zeros((4, 6, 3)).at[:, 5, 0].set(jnp.asarray([0.0, 1.0, 1.1, 5.0]))  # right foot: still, then moving
-    position = position.at[:, 4, 1].set(jnp.asarray([0.0, 2.0, 4.0, 6.0]))  # left foot: its heel rising, still planted
+    """A foot target moving less than ``plant_step`` cm horizontally to the next frame or from
+    the one before is planted (both frames of a still step), whatever its height does; hips,
+    head and hands never are."""
+    position = jnp.zeros((5, 6, 3)).at[:, 5, 0].set(jnp.asarray([0.0, 1.0, 1.1, 5.0, 9.0]))  # right foot: moving, still, moving
+    position = position.at[:, 4, 1].set(jnp.asarray([0.0, 2.0, 4.0, 6.0, 8.0]))  # left foot: its heel rising, still planted
     position = position.at[:, 3, 0].set(0.0)  # a still hand stays unplanted
     planted = np.asarray(planted_feet(position, 0.5))
-    np.testing.assert_array_equal(planted[:, 4], [True, True, True, True])
-    np.testing.assert_array_equal(planted[:, 5], [False, True, False, False])
+    np.testing.assert_array_equal(planted[:, 4], [True] * 5)
+    np.testing.assert_array_equal(planted[:, 5], [False, True, True, False, False])  # frames 1 and 2: the still step's two ends
+    ends = position.at[:, 5, 0].set(jnp.asarray([0.0, 5.0, 9.0, 9.1, 9.2]))  # still from frame 2 to the end
+    np.testing.assert_array_equal(np.asarray(planted_feet(ends, 0.5))[:, 5], [False, False, True, True, True])
+    batched = np.asarray(planted_feet(jnp.stack([position, ends]), 0.5))
+    np.testing.assert_array_equal(batched[:, :, 5], [[False, True, True, False, False], [False, False, True, True, True]])
     assert not planted[:, :4].any()
 
 
