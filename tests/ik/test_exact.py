@@ -363,6 +363,22 @@ def test_planted_feet_rise_rather_than_slide(bandai):
     assert rise_light > 2.0 * max(rise_even, 0.1), (rise_light, rise_even)
 
 
+def test_a_still_runs_last_frame_is_held_like_the_rest(bandai):
+    """A foot target still on frames 0–4 and moving from 4 to 5 on: frame 4, the still run's
+    last (still against frame 3), is planted like the frames before it, so with the head pulled
+    up its foot keeps its target as they do instead of jumping off it for one frame."""
+    targets, raised, fn, params = _head_raised(bandai)
+    right_foot = FEET[1]
+    still = raised.position[0, right_foot]
+    path = jnp.where(jnp.arange(FRAMES)[:, None] <= 4, still, still + jnp.asarray([0.0, 0.0, 3.0]) * (jnp.arange(FRAMES)[:, None] - 4))
+    raised = raised._replace(position=raised.position.at[:, right_foot].set(path))
+    pose = _solve_window(fn, dataclasses.replace(params, plant_step=0.25), raised, None, 0).pose
+    miss = targets_from_pose(bandai.character, pose).position[:, right_foot] - path
+    horizontal = np.asarray(jnp.linalg.norm(miss[:, ::2], axis=-1))
+    assert horizontal[4] < 1.5 * horizontal[:4].max() + 0.05, horizontal
+    assert horizontal[4] < 0.5 * horizontal[5], horizontal  # the first moving frame gives way
+
+
 def test_planted_foot_height_is_light_only_upwards(bandai):
     """A planted foot 1 cm above its target costs ``plant_height_scale²`` of what 1 cm below
     it does (and of 1 cm to the side): the foot may rise, a heel lifting, but not sink into the floor."""
