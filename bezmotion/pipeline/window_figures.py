@@ -108,8 +108,15 @@ def handle_distances(positions: Float[Array, "*batch frames joints 3"], handles:
     return jnp.linalg.norm(picked - handles.position, axis=-1)
 
 
-def _per_window(fn, x: Array) -> Array:
-    return jax.vmap(fn)(x)
+def _per_window(fn, *x: Array) -> Array:
+    return jax.vmap(fn)(*x)
+
+
+def _skating(config: PipelineMetricsConfig, feet: Array, heights_from: Array | None = None) -> Array:
+    """Per window: :func:`~bezmotion.metrics.foot_skating_ratio` of ``feet`` ``(windows, frames, 2, 3)``,
+    on the floor where ``heights_from``'s feet are (default: their own)."""
+    ratio = lambda f, h: foot_skating_ratio(f, config.fps, floor_height=config.floor_height, heights_from=h)  # noqa: E731
+    return _per_window(ratio, feet, feet if heights_from is None else heights_from)
 
 
 def _to_numpy(figures: Mapping[str, Array]) -> dict[str, np.ndarray]:
@@ -179,7 +186,7 @@ def _pose_figures(config, character, pose, truth, handles, chains, windows, curv
         "handle_valid": handles.valid,
         "mpjpe": jnp.mean(per_joint, axis=-1),
         "mpjpe_per_joint": per_joint,
-        "skating": _per_window(lambda f: foot_skating_ratio(f, config.fps, floor_height=config.floor_height), feet),
+        "skating": _skating(config, feet),
         "key_pop": _key_pop(pose.quat_local, windows),
         **_turn_figures(pose.quat_local),
     }
@@ -191,10 +198,7 @@ def _pose_figures(config, character, pose, truth, handles, chains, windows, curv
         # The skating test with the curves' feet deciding which frames are on the floor: two IKs
         # given the same curves judged on the same frames (a foot lifted off its curve while it
         # slides escapes the paper's test).
-        curve_feet = curves[..., list(FEET), :]
-        out["sliding"] = jax.vmap(
-            lambda f, h: foot_skating_ratio(f, config.fps, floor_height=config.floor_height, heights_from=h)
-        )(feet, curve_feet)
+        out["sliding"] = _skating(config, feet, heights_from=curves[..., list(FEET), :])
     if chains is not None:
         paired = jnp.any(conflicting_handles(handles, chains), axis=-1)
         out["handle_unreachable"] = beyond_reach(pos, handles, chains) | (paired & (out["handle_error"] > HANDLE_MISS_CM))
@@ -282,9 +286,7 @@ def _curve_figures(config, positions, handles, true_positions, orientations) -> 
         "handle_error": handle_distances(positions, handles),
         "handle_valid": handles.valid,
         "dense": jnp.mean(jnp.linalg.norm(positions - true_positions, axis=-1), axis=-2),
-        "skating": _per_window(
-            lambda f: foot_skating_ratio(f, config.fps, floor_height=config.floor_height), positions[..., list(FEET), :]
-        ),
+        "skating": _skating(config, positions[..., list(FEET), :]),
     }
     if orientations is not None:
         out["orientation"] = jnp.mean(_angle_deg(*orientations), axis=-2)
@@ -306,7 +308,7 @@ def _mocap_figures(config, character, truth, windows) -> dict[str, Array]:
     _, pos = pose_fk(character, truth)
     feet = pos[..., np.asarray(character.characteristic[4:6]), :]
     return {
-        "skating": _per_window(lambda f: foot_skating_ratio(f, config.fps, floor_height=config.floor_height), feet),
+        "skating": _skating(config, feet),
         "key_pop": _key_pop(truth.quat_local, windows),
         **_turn_figures(truth.quat_local),
     }

@@ -241,6 +241,7 @@ def test_sliding_is_judged_on_the_curves_floor_contacts(clip):
     """``sliding``: the skating test on the IK'd feet's speeds with the curves' feet deciding
     which frames are on the floor. Feet sliding 20 cm above curves on the floor slide but do
     not skate by the paper's test; curves 20 cm up make the same feet neither."""
+    from bezmotion.ik.protocol import pose_fk
     from bezmotion.pipeline.window_figures import paired_differences, summarize_windows, window_pose_metrics
 
     c = clip.character
@@ -248,8 +249,6 @@ def test_sliding_is_judged_on_the_curves_floor_contacts(clip):
     lifted = pose._replace(root_pos=pose.root_pos + jnp.asarray([0.0, 20.0, 0.0]))  # every joint 20 cm up
     slide = 2.0 * jnp.arange(FRAMES, dtype=pose.root_pos.dtype)[:, None] * jnp.asarray([1.0, 0.0, 0.0])  # 60 cm/s along X
     lifted = lifted._replace(root_pos=lifted.root_pos + slide)
-    from bezmotion.ik.protocol import pose_fk
-
     six = np.asarray(pose_fk(c, pose)[1])[..., np.asarray(c.characteristic), :]
     floor = float(six[..., 4:6, 1].min())  # the clip's feet at their lowest: on the floor
     curves = six.copy()
