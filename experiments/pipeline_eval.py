@@ -6,6 +6,7 @@
     python experiments/pipeline_eval.py --corpus lafan1 --bmm runs/bmm/model --ik-model runs/ik/model --out lafan1.json
     python experiments/pipeline_eval.py --corpus bandai_namco --windows 20 --segments 3 --ik exact --out chains.json
     python experiments/pipeline_eval.py --corpus bandai_namco --ik refined exact --foot-lock --out locked.json   # feet locked first
+    python experiments/pipeline_eval.py --corpus lafan1 --bmm bandai_namco --out transferred.json   # another skeleton's BMM
 
 **Windows.** The validation split of the corpus (Bandai-Namco: every 10th take; LaFAN1:
 subject 5), or with ``--bvh-dir`` every ``*.bvh`` of a folder of the corpus's skeleton (a
@@ -16,6 +17,14 @@ handles and OOD noise (±16 cm per axis) come from ``fold_in(key, window row)``,
 window's handles depend on the window alone and the first ``n`` windows of a larger run
 are an ``n``-window run. ``--handle-frames`` puts handles on control frames (``grid``,
 the paper), between them (``off_grid``) or on any intermediate frame (``any``).
+
+**Another skeleton's BMM.** The six joints' curves do not name a skeleton, so a BMM trained
+on one drives any other: ``--bmm`` of another skeleton than ``--corpus`` (a registered
+model's own, or ``--trained-on NAME|PROFILE.json`` for a saved folder) has its curves moved
+to the corpus's skeleton by :class:`~bezmotion.pipeline.transfer.Transfer` (the ratio of
+the bundled profiles' heights, the six joints' mean orientation offsets), conditioned in its
+own space and hit exactly in the corpus's, as ``bezmotion inbetween`` does for a clip of
+another skeleton. The settings record ``bmm_trained_on`` and the ``transfer``.
 
 **Curves once.** Each window's BMM curves are sampled once (``--steps`` DDIM steps, key
 ``fold_in(--sample-seed, window row)``, in distribution and OOD) and every IK of ``--ik``
@@ -198,6 +207,8 @@ from bezmotion.pipeline.window_figures import (
 )
 from bezmotion.data.windows import join_windows
 from bezmotion.pipeline.inbetweening import KEY_BLEND_FRAMES, WindowCurves
+from bezmotion.pipeline.authoring import load_profile
+from bezmotion.pipeline.transfer import Transfer
 from _common import window_labels
 
 CORPORA = ("bandai_namco", "lafan1")
@@ -213,6 +224,11 @@ class Options:
     bmm: str = option(
         "bundled", help="a saved BMM folder or a registered model's name (`bezmotion models`); 'bundled' (default): the corpus's own (LaFAN1's once trained here)"
     )
+    trained_on: str | None = option(
+        None, metavar="NAME|PROFILE.json",
+        help="the skeleton --bmm was trained on: a profile name (bandai_namco, lafan1) or a profile JSON; default: a "
+        "registered model's own, a saved folder's the corpus's; another skeleton's curves are transferred to the corpus's",
+    )  # fmt: skip
     ik_model: str = option("bundled", help="a saved learned IK folder or a registered model's name; 'bundled' (default): the corpus's own")
     joint_limits: str | None = option(None, help="the exact IK's joint limits JSON (default: joint_limits.json beside the IK model, if any)")
     no_limits: bool = False
@@ -257,6 +273,11 @@ class Options:
         if self.segments < 1:
             raise ValueError(f"--segments {self.segments}: must be ≥ 1 (windows per chain; 1 = single windows)")
         exact_settings(self.exact)  # raises on a malformed or unknown setting
+        if self.trained_on is not None:
+            try:
+                load_profile(self.trained_on)
+            except ValueError as error:
+                raise ValueError(f"--trained-on {self.trained_on}: {error}") from None
 
 
 def model_path(args: Options, what: str) -> Path:
@@ -272,6 +293,20 @@ def model_path(args: Options, what: str) -> Path:
     if not folder.is_dir():
         raise ValueError(f"{flag} {value}: no saved model folder there")
     return folder
+
+
+def bmm_transfer(args: Options) -> tuple[str, Transfer | None]:
+    """``(skeleton, transfer)``: the skeleton ``--bmm`` was trained on (``--trained-on``, else a
+    registered model's own, else the corpus's) and the transfer of its curves to the corpus's
+    skeleton (:meth:`~bezmotion.pipeline.transfer.Transfer.between` their bundled profiles,
+    as ``bezmotion inbetween`` moves a model to a clip of a known skeleton); None for the same."""
+    trained_on = args.trained_on
+    if trained_on is None:
+        _, entry = resolve_folder(args.corpus if args.bmm == "bundled" else args.bmm, "bmm")
+        trained_on = args.corpus if entry is None else entry.skeleton
+    if trained_on == args.corpus:
+        return trained_on, None
+    return trained_on, Transfer.between(load_profile(trained_on), load_profile(args.corpus))
 
 
 def open_windows(args: Options) -> tuple[Corpus, CurveDataset]:
@@ -365,15 +400,18 @@ def chain_chunk(args: Options) -> int:
     return max(1, args.chunk // args.segments)
 
 
-def sample_items(args: Options, bmm, character, items: Items, cond: str, keys: jax.Array, coupled: bool = True) -> WindowCurves:
-    """The curves of every item, sampled once (chains: ``(items, K, …)`` per window)."""
+def sample_items(
+    args: Options, bmm, character, items: Items, cond: str, keys: jax.Array, transfer: Transfer | None, coupled: bool = True
+) -> WindowCurves:
+    """The curves of every item, sampled once (chains: ``(items, K, …)`` per window), moved
+    to the corpus's skeleton by ``transfer`` (:func:`bmm_transfer`) where the BMM's is another."""
     if args.segments == 1:
         return sample_window_curves(
-            bmm, character, items.truth, items.handles[cond], keys,
+            bmm, character, items.truth, items.handles[cond], keys, transfer=transfer,
             steps=args.steps, with_key_velocities=args.key_velocities, chunk=args.chunk, foot_lock=sampler_foot_lock(args),
         )  # fmt: skip
     return sample_chain_curves(
-        bmm, character, items.truth, items.handles[cond], keys,
+        bmm, character, items.truth, items.handles[cond], keys, transfer=transfer,
         coupled=coupled, steps=args.steps, chunk=chain_chunk(args), foot_lock=sampler_foot_lock(args),
         with_key_velocities=args.key_velocities,
     )  # fmt: skip
@@ -486,6 +524,7 @@ def main(argv: list[str] | None = None) -> dict:
     bmm = load_model(model_path(args, "bmm"))
     if args.off_grid_prior is not None:
         bmm = with_off_grid_prior(bmm, args.off_grid_prior)
+    trained_on, transfer = bmm_transfer(args)
     ik_model = load_ik_model(model_path(args, "ik_model"))
     character = ik_model.character
     corpus, dataset = open_windows(args)
@@ -520,7 +559,7 @@ def main(argv: list[str] | None = None) -> dict:
     after_ik: dict[str, dict] = {name: {} for name in iks}
     for cond in CONDITIONS:
         t0 = time.perf_counter()
-        curves = sample_items(args, bmm, character, items, cond, keys)
+        curves = sample_items(args, bmm, character, items, cond, keys, transfer)
         print(f"{cond}: curves of {n} {what} sampled once ({time.perf_counter() - t0:.0f} s)", flush=True)
         dense = joined(args, curves)
         curve_windows["bmm"][cond] = window_curve_metrics(
@@ -529,7 +568,7 @@ def main(argv: list[str] | None = None) -> dict:
         ref_positions = reference_positions(items, cond, dataset.layout)
         curve_windows["reference"][cond] = window_curve_metrics(config, ref_positions, items.metric_handles[cond], true_targets.position)
         if k > 1:  # the same windows sampled independently (same noise), for the jump at the shared keys
-            independent = joined(args, sample_items(args, bmm, character, items, cond, keys, coupled=False))
+            independent = joined(args, sample_items(args, bmm, character, items, cond, keys, transfer, coupled=False))
             curve_windows.setdefault("bmm_independent", {})[cond] = window_curve_metrics(
                 config, independent.positions, items.metric_handles[cond], true_targets.position, independent.rot6d, true_targets.rot6d
             )
@@ -558,6 +597,8 @@ def main(argv: list[str] | None = None) -> dict:
         "source": args.bvh_dir or f"{args.corpus} validation",
         "settings": {
             "bmm": str(model_path(args, "bmm")), "ik_model": str(model_path(args, "ik_model")), "joint_limits": limited,
+            "bmm_trained_on": trained_on,
+            "transfer": None if transfer is None else {"scale": float(transfer.scale), "rot_offset": np.asarray(transfer.rot_offset).tolist()},
             "handle_frames": args.handle_frames, "off_grid_prior": bmm.config.off_grid_prior, "steps": args.steps, "key_blend_frames": args.key_blend,
             "key_velocities": args.key_velocities, "foot_lock": args.foot_lock, "foot_lock_anchor": args.foot_lock_anchor,
             "chunk": args.chunk, "seed": args.seed, "sample_seed": args.sample_seed, "segments": k,
@@ -640,6 +681,13 @@ def save_per_window(path: Path, labels, rows, ik_windows: dict, curve_windows: d
     print(f"wrote {path}")
 
 
+def transferred(settings: dict) -> str:
+    """The report's words for a BMM of another skeleton (``settings["transfer"]``), or none."""
+    if not settings.get("transfer"):
+        return ""
+    return f"the BMM trained on {settings['bmm_trained_on']}, its curves transferred (× {settings['transfer']['scale']:.3f}), "
+
+
 def format_report(r: dict) -> str:
     s = r["settings"]
     m = r["mocap"]
@@ -653,6 +701,7 @@ def format_report(r: dict) -> str:
     per, items = ("window", f"{r['windows']} windows") if seg is None else ("chain", f"{seg['chains']} chains of {seg['k']} windows")
     lines = [
         f"Pipeline on {r['source']}: {items}, handles on {s['handle_frames']} frames, {s['steps']} DDIM steps, "
+        f"{transferred(s)}"
         f"key blend {s['key_blend_frames']} frames{'; the keys’ velocities given to the curves' if s.get('key_velocities') else ''}"
         f"{'; feet locked on their predicted contacts' if s.get('foot_lock') else ''}"
         f"{' (each run at the mean of its conditions)' if s.get('foot_lock') and s.get('foot_lock_anchor') == 'mean' else ''}; the curves sampled once, every IK on the same curves ({r['seconds']:.0f} s).",

@@ -22,6 +22,8 @@ from bezmotion.bmm.evaluation import make_eval_set
 from bezmotion.data.bvh import read_bvh, write_bvh
 from bezmotion.data.windows import split_windows
 from bezmotion.metrics import chain_velocity_jumps
+from bezmotion.pipeline.authoring import load_profile
+from bezmotion.pipeline.transfer import Transfer
 from helpers import assert_trees_identical, load_experiment
 
 METRICS = {
@@ -156,10 +158,45 @@ def test_foot_lock_locks_the_curves_every_ik_is_given(experiment, clips, monkeyp
     assert seen == ["nearest", "nearest", False, False]  # both conditions' curves (the default anchor), then the plain run's
     assert locked["settings"]["foot_lock"] and not plain["settings"]["foot_lock"]
     assert locked["settings"]["foot_lock_anchor"] == "nearest"
+    assert plain["settings"]["bmm_trained_on"] == "bandai_namco" and plain["settings"]["transfer"] is None  # the bundled BMM's own
     assert "feet locked on their predicted contacts" in out.with_suffix(".md").read_text()
     # Locking moves the feet (the walk has contacts), so the curves differ; handles still hold.
     assert locked["curves"]["bmm"]["id"]["dense_error_cm"] != plain["curves"]["bmm"]["id"]["dense_error_cm"]
     assert locked["curves"]["bmm"]["id"]["handles_error_cm"] < 1e-3
+
+
+def test_a_bmm_of_another_skeleton_has_its_curves_transferred(experiment, clips, monkeypatch, tmp_path):
+    """``--trained-on`` another skeleton: the curves are moved over by the transfer between the
+    two bundled profiles (as ``bezmotion inbetween`` does) and still pass through every handle."""
+    monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path / "cache"))
+    seen = []
+
+    def sample(*args, **kwargs):
+        seen.append(kwargs["transfer"])
+        return real_sample(*args, **kwargs)
+
+    real_sample = experiment.sample_window_curves
+    monkeypatch.setattr(experiment, "sample_window_curves", sample)
+    out = tmp_path / "moved.json"
+    moved = experiment.main(
+        ["--out", str(out), "--trained-on", "lafan1", "--bvh-dir", str(clips), "--steps", "2", "--chunk", "4", "--windows", "2", "--ik", "rig"]
+    )
+    expected = Transfer.between(load_profile("lafan1"), load_profile("bandai_namco"))
+    assert len(seen) == 2  # both conditions' curves
+    for transfer in seen:
+        np.testing.assert_array_equal(transfer.scale, expected.scale)
+        np.testing.assert_array_equal(transfer.rot_offset, expected.rot_offset)
+    assert moved["settings"]["bmm_trained_on"] == "lafan1"
+    assert moved["settings"]["transfer"]["scale"] == pytest.approx(float(expected.scale))
+    assert "the BMM trained on lafan1, its curves transferred" in out.with_suffix(".md").read_text()
+    for cond in ("id", "ood"):
+        assert moved["curves"]["bmm"][cond]["handles_error_cm"] < 1e-3
+
+
+def test_trained_on_must_name_a_profile(experiment, capsys):
+    with pytest.raises(SystemExit):
+        experiment.main(["--out", "x.json", "--trained-on", "giraffe"])
+    assert "--trained-on giraffe: not a bundled profile (bandai_namco, lafan1) nor a profile file" in capsys.readouterr().err
 
 
 def test_per_window_draws_do_not_depend_on_the_number_of_windows(experiment, clips, monkeypatch, tmp_path):
