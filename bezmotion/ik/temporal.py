@@ -110,8 +110,10 @@ def limit_turns(
     and backwards spreads it over both sides. The window solve keeps its keys, and between
     its passes and after the last also the frames with a handle, so a bend that only the
     handle's frame made (the frames next to it held at their start) becomes a ramp into it.
-    Between two kept frames, a joint that cannot turn within the limits (kept frames too
-    close along a fast spin for a ramp) keeps its poses there. Poses that never turn that
+    Between two kept frames, a joint that cannot turn within the limits along its poses (kept
+    frames too close along a fast spin for a ramp) turns the shortest way from the one to the
+    other instead, each step a share in proportion to its limit, where that fits the limits;
+    else it keeps its poses there. Poses that never turn that
     fast are returned unchanged (bit for bit); ``turn ≤ 0`` turns it off (per step: that
     step); the hips' position is never changed.
     """
@@ -160,12 +162,18 @@ def limit_turns(
     limited = follow(limited[::-1], kept[::-1], turns[::-1], _SLACK)[::-1]
     # Where two kept frames lie too far apart along the poses' path for the frames between to
     # ramp at the limits (a joint spinning fast between a key and a handle), the passes cannot
-    # meet and the rest falls on one step, often one with a tight limit (next to a key): a joint
-    # that still turns beyond a step's limit between two kept frames keeps its poses there (the
-    # kept frames are the same in both).
+    # meet and the rest falls on one step, often one with a tight limit (next to a key). Such a
+    # joint turns the shortest way from the one kept frame to the other instead, each step a
+    # share of that turn in proportion to its limit, where that fits within every step's limit:
+    # the long way round is an IK's twist following curves whose orientations spin (the
+    # Bandai-Namco BMM's on LaFAN1's falls turned an upper arm 260° in the six frames between a
+    # handle and a key), not motion (the mocap's joints turn at most 43° a frame). Where even the
+    # shortest way does not fit, the joint keeps its poses there (the kept frames are the same in all).
     steps_over = (turns[:, None] > 0.0) & (quat_angle(limited[:-1], limited[1:]) > turns[:, None] + 2.0 * _SLACK)
     failed = jax.ops.segment_max(steps_over.astype(jnp.int32), before[:-1], num_segments=frames) > 0  # (stretch, joints)
-    limited = jnp.where(failed[before][:, :, None], q, limited)
+    shortest, fits = _shortest_ramps(q, turns, before, after)
+    fallback = jnp.where(fits[:, :, None], shortest, q)
+    limited = jnp.where(failed[before][:, :, None], fallback, limited)
     # Unchanged frames keep their own quaternion (not slerp's sign of it): a no-op stays exact.
     same = jnp.abs(jnp.sum(limited * q, axis=-1, keepdims=True)) >= 1.0 - 1e-7
     return pose._replace(quat_local=jnp.where(same, q, limited))
@@ -218,6 +226,22 @@ def turn_out_of_keys(
     kept = anchors | jnp.asarray(distance == 0)
     pose = limit_turns(pose, turns_near_keys(distance, key_turn, turn, frames), kept)
     return limit_turns(pose, turn, kept | jnp.asarray(distance == 1))
+
+
+def _shortest_ramps(q: Array, turns: Array, before: Array, after: Array) -> tuple[Array, Array]:
+    """``(ramps, fits)``: every joint of ``q`` ``(frames, joints, 4)`` turning the shortest way
+    from the kept frame at or before each frame (``before`` ``(frames,)``) to the one at or after
+    it (``after``), each step ``(frames − 1,)`` turning a share of that turn in proportion to its
+    limit (``turns``; π for an unlimited step), and ``(frames, joints)`` whether that keeps every
+    step of the stretch within its limit (the shortest turn ≤ the sum of the stretch's limits)."""
+    weight = jnp.where(turns > 0.0, turns, jnp.pi)
+    reach = jnp.concatenate([jnp.zeros(1, turns.dtype), jnp.cumsum(weight)])  # (frames,): the limits summed up to each frame
+    budget = reach[after] - reach[before]  # (frames,): the stretch's limits summed
+    fraction = (reach - reach[before]) / jnp.where(budget > 0.0, budget, 1.0)
+    start, end = q[before], q[after]
+    ramps = slerp(start, end, jnp.broadcast_to(fraction[:, None], q.shape[:2]))
+    fits = quat_angle(start, end) <= budget[:, None] + _SLACK
+    return ramps, fits
 
 
 def _running_min(values: Array, restart: Array, reverse: bool) -> Array:

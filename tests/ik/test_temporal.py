@@ -133,12 +133,13 @@ def test_limit_turns_spreads_a_step_over_both_sides(before, after):
     np.testing.assert_array_equal(out[np.asarray([0, -1])], quat[np.asarray([0, -1])])
 
 
-def test_limit_turns_leaves_a_joint_it_cannot_ramp():
-    """A joint spinning 50° a frame for six frames between two kept frames (0 and 6) cannot turn
-    at most 43° a frame and still meet both: ramped, the rest would still fall on one step over
-    the limit, so it keeps its poses, bit for bit; another joint's lasting 60° step in the same
-    window is still ramped, and so is a third's after the kept frame 6, whose spin before it is kept
-    (the guard holds between two kept frames, not over the window)."""
+def test_limit_turns_takes_the_shortest_way_where_the_poses_spin_too_fast():
+    """A joint spinning 50° a frame for six frames between two kept frames (0 and 6) cannot
+    follow its poses at most 43° a frame: it turns the shortest way between them instead (60°
+    back, 10° a frame), the kept frames as given, bit for bit; another joint's lasting 60° step
+    in the same window is still ramped along its poses, and a third, spinning up to the kept
+    frame 6 and stepping 60° after it, turns the short way before it and ramps after it (each
+    stretch between kept frames on its own)."""
     frames = 9
     z = jnp.broadcast_to(jnp.asarray([0.0, 0.0, 1.0]), (frames, 3))
     spin = quat_from_axis_angle(z, jnp.radians(jnp.asarray([0, 50, 100, 150, 200, 250, 300, 310, 320], jnp.float32)))
@@ -148,11 +149,24 @@ def test_limit_turns_leaves_a_joint_it_cannot_ramp():
     quat = jnp.stack([spin, flipped, then_step], axis=1)
     limit = np.radians(43.0)
     out = limit_turns(Pose(jnp.zeros((frames, 3)), quat), limit, jnp.zeros(frames, bool).at[6].set(True)).quat_local
-    np.testing.assert_array_equal(out[:, 0], spin)
-    np.testing.assert_array_equal(out[:7, 2], then_step[:7])
+    short_way = quat_from_axis_angle(z[:7], jnp.radians(-10.0 * jnp.arange(7, dtype=jnp.float32)))
+    for joint in (0, 2):
+        np.testing.assert_array_equal(out[np.asarray([0, 6]), joint], quat[np.asarray([0, 6]), joint])
+        assert np.degrees(np.asarray(quat_angle(out[:7, joint], short_way))).max() < 1e-3
+    np.testing.assert_array_equal(out[7:, 0], spin[7:])  # after the kept frame: within the limit, unchanged
     turns = np.radians(np.asarray(rotation_change_deg(out)))
     assert turns[:, 1].max() == pytest.approx(limit, abs=1e-4)  # 60° → 43° + 17°
     assert turns[6:, 2].max() == pytest.approx(limit, abs=1e-4)  # 60° → 17° + 43° after the kept frame
+
+
+def test_limit_turns_leaves_a_joint_it_cannot_turn_even_the_shortest_way():
+    """Kept frames 0 and 3 with a joint spinning 50° a frame between them: 150° even the
+    shortest way, more than three steps of 43° allow, so it keeps its poses, bit for bit."""
+    frames = 5
+    z = jnp.broadcast_to(jnp.asarray([0.0, 0.0, 1.0]), (frames, 3))
+    spin = quat_from_axis_angle(z, jnp.radians(jnp.asarray([0, 50, 100, 150, 160], jnp.float32)))[:, None]
+    out = limit_turns(Pose(jnp.zeros((frames, 3)), spin), np.radians(43.0), jnp.zeros(frames, bool).at[3].set(True)).quat_local
+    np.testing.assert_array_equal(out, spin)
 
 
 def test_limit_turns_takes_a_limit_per_step():
@@ -179,12 +193,13 @@ def test_limit_turns_takes_a_limit_per_step():
     np.testing.assert_array_equal(limit_turns(Pose(root, quat), jnp.full(frames - 1, 0.5)).quat_local, scalar)
 
 
-def test_turn_out_of_keys_keeps_the_step_of_a_joint_that_cannot_leave_slowly():
+def test_turn_out_of_keys_turns_a_joint_that_cannot_leave_slowly_the_shortest_way():
     """Keys at frames 0 and 12, an anchor at 6, 11.5° on the step out of a key easing to 43°
     over 4 frames. A joint stepping 60° right after the key leaves it at 11.5° and ramps; one
-    spinning 10°, 40°, 40°, 40°, 60°, 20° up to the anchor cannot leave that slowly (the eased
-    limits add up to 179° of its 210°): it keeps its 10° out of the key, and its 60° is ramped
-    at 43°; the key frames and the anchor as given."""
+    spinning 10°, 40°, 40°, 40°, 60°, 20° up to the anchor cannot leave that slowly along its
+    poses (the eased limits add up to 179° of its 210°): it turns the shortest way to the
+    anchor (150° back), each step its limit's share, so no step beyond its limit; the key
+    frames and the anchor as given."""
     frames, key_turn, turn = 13, 0.2, np.radians(43.0)
     z = jnp.broadcast_to(jnp.asarray([0.0, 0.0, 1.0]), (frames, 3))
     stepped = np.where(np.arange(frames) >= 1, 60.0, 0.0)
@@ -194,10 +209,11 @@ def test_turn_out_of_keys_keeps_the_step_of_a_joint_that_cannot_leave_slowly():
     anchors = jnp.zeros(frames, bool).at[6].set(True)
     out = turn_out_of_keys(Pose(jnp.zeros((frames, 3)), quat), distance, key_turn, turn, 4, anchors).quat_local
     turns = np.radians(np.asarray(rotation_change_deg(out)))
+    limits = np.asarray(turns_near_keys(distance, key_turn, turn, 4))
     assert turns[0, 0] == pytest.approx(key_turn, abs=1e-4)
-    assert np.all(turns[:, 0] <= np.asarray(turns_near_keys(distance, key_turn, turn, 4)) + 1e-4)
-    assert turns[0, 1] == pytest.approx(np.radians(10.0), abs=1e-4)
-    assert turns[:, 1].max() <= turn + 1e-4
+    assert np.all(turns <= limits[:, None] + 1e-4)
+    assert turns[:6, 1].sum() == pytest.approx(np.radians(150.0), abs=1e-4)  # the short way, every step the same way
+    np.testing.assert_allclose(turns[:6, 1], np.radians(150.0) * limits[:6] / limits[:6].sum(), atol=1e-4)
     np.testing.assert_array_equal(out[np.asarray([0, 6, 12])], quat[np.asarray([0, 6, 12])])
     with pytest.raises(ValueError, match=r"one value per frame, \(13,\), got \(12,\)"):
         turn_out_of_keys(Pose(jnp.zeros((frames, 3)), quat), distance[:-1], key_turn, turn, 4, anchors)
