@@ -141,21 +141,27 @@ def test_every_ik_on_the_same_curves_and_windows_independent_of_their_count(expe
         jax.tree.map(lambda a, b: np.testing.assert_allclose(a, np.asarray(b)[:2], atol=1e-3), small, large)
 
 
-def test_foot_lock_locks_the_curves_every_ik_is_given(experiment, clips, monkeypatch, tmp_path):
+@pytest.fixture
+def sampler_calls(experiment, monkeypatch, tmp_path):
+    """The keyword arguments of every ``sample_window_curves`` call the script makes."""
     monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path / "cache"))
-    seen = []
+    calls = []
 
     def sample(*args, **kwargs):
-        seen.append(kwargs["foot_lock"])
+        calls.append(kwargs)
         return real_sample(*args, **kwargs)
 
     real_sample = experiment.sample_window_curves
     monkeypatch.setattr(experiment, "sample_window_curves", sample)
+    return calls
+
+
+def test_foot_lock_locks_the_curves_every_ik_is_given(experiment, clips, sampler_calls, tmp_path):
     common = ["--bvh-dir", str(clips), "--steps", "2", "--chunk", "4", "--windows", "2", "--ik", "rig"]
     out = tmp_path / "locked.json"
     locked = experiment.main(["--out", str(out), "--foot-lock", *common])
     plain = experiment.main(["--out", str(tmp_path / "plain.json"), *common])
-    assert seen == ["nearest", "nearest", False, False]  # both conditions' curves (the default anchor), then the plain run's
+    assert [c["foot_lock"] for c in sampler_calls] == ["nearest", "nearest", False, False]  # both conditions' curves (the default anchor), then the plain run's
     assert locked["settings"]["foot_lock"] and not plain["settings"]["foot_lock"]
     assert locked["settings"]["foot_lock_anchor"] == "nearest"
     assert plain["settings"]["bmm_trained_on"] == "bandai_namco" and plain["settings"]["transfer"] is None  # the bundled BMM's own
@@ -165,25 +171,16 @@ def test_foot_lock_locks_the_curves_every_ik_is_given(experiment, clips, monkeyp
     assert locked["curves"]["bmm"]["id"]["handles_error_cm"] < 1e-3
 
 
-def test_a_bmm_of_another_skeleton_has_its_curves_transferred(experiment, clips, monkeypatch, tmp_path):
+def test_a_bmm_of_another_skeleton_has_its_curves_transferred(experiment, clips, sampler_calls, tmp_path):
     """``--trained-on`` another skeleton: the curves are moved over by the transfer between the
     two bundled profiles (as ``bezmotion inbetween`` does) and still pass through every handle."""
-    monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path / "cache"))
-    seen = []
-
-    def sample(*args, **kwargs):
-        seen.append(kwargs["transfer"])
-        return real_sample(*args, **kwargs)
-
-    real_sample = experiment.sample_window_curves
-    monkeypatch.setattr(experiment, "sample_window_curves", sample)
     out = tmp_path / "moved.json"
     moved = experiment.main(
         ["--out", str(out), "--trained-on", "lafan1", "--bvh-dir", str(clips), "--steps", "2", "--chunk", "4", "--windows", "2", "--ik", "rig"]
     )
     expected = Transfer.between(load_profile("lafan1"), load_profile("bandai_namco"))
-    assert len(seen) == 2  # both conditions' curves
-    for transfer in seen:
+    assert len(sampler_calls) == 2  # both conditions' curves
+    for transfer in (c["transfer"] for c in sampler_calls):
         np.testing.assert_array_equal(transfer.scale, expected.scale)
         np.testing.assert_array_equal(transfer.rot_offset, expected.rot_offset)
     assert moved["settings"]["bmm_trained_on"] == "lafan1"
