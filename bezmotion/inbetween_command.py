@@ -45,6 +45,9 @@ known, why (:func:`handle_misses`). Both also go to ``summary.json``.
 ``--mapping MAP.json`` (:func:`bezmotion.pipeline.authoring.read_mapping`). A BMM
 trained on another skeleton drives it through a transfer (BMM §5.2) with the character's
 bundled profile, or for other skeletons a profile measured on the input files' frames.
+Without ``--model`` / ``--ik-model``, the models are the first registered ones trained on the
+clips' skeleton that are here (bundled, or trained locally by the commands ``bezmotion models``
+lists: LaFAN1's), else the bundled Bandai-Namco ones (:func:`default_models`).
 ``--ik auto`` (default) takes the exact IK (the learned IK, then a least-squares solve that
 puts all six joints on their curves, handles on the hips and head included, without
 popping at the keys) when the learned IK was trained on this skeleton, else the same solve
@@ -72,6 +75,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from bezmotion.assets.registry import trained_for
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, load_model
 from bezmotion.data.bvh import BvhMotion, read_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
@@ -152,12 +156,15 @@ class InbetweenOptions:
         "exact: the learned IK then a least-squares solve onto all six curves (hips and head too); "
         "exact_rig: the rig then the same solve (any skeleton, no training)",
     )  # fmt: skip
-    model: str = option(
-        "bandai_namco", metavar="NAME|PATH", help="the BMM: a pretrained model's name (bandai_namco, default; bezmotion models lists them) or a saved BMM's folder"
-    )
-    ik_model: str = option(
-        "bandai_namco", metavar="NAME|PATH", help="the learned IK: a pretrained model's name (default bandai_namco) or a saved one's folder"
-    )
+    model: str | None = option(
+        None, metavar="NAME|PATH",
+        help="the BMM: a pretrained model's name (bezmotion models lists them) or a saved BMM's folder; default: one "
+        "trained on the clips' skeleton that is here (bundled or trained locally), else bandai_namco",
+    )  # fmt: skip
+    ik_model: str | None = option(
+        None, metavar="NAME|PATH",
+        help="the learned IK: a pretrained model's name or a saved one's folder; default as --model's",
+    )  # fmt: skip
     trained_on: str | None = option(
         None, metavar="NAME|PROFILE.json", help="the skeleton --model was trained on: a profile name (bandai_namco, lafan1) or a profile JSON; "
         "default: a named model's own; for a folder, the clips' skeleton (no transfer)",
@@ -445,6 +452,7 @@ class Plan:
     folder: Path | None
     label: str
     key_velocity: Any = None  # (keys, 6, 3) cm/frame with --key-velocities
+    models: dict[str, str | None] | None = None  # {"bmm": name or folder, "ik": the learned IK's, None without one}
 
 
 def _outputs(args: InbetweenOptions) -> tuple[list[dict[str, Path]], Path | None]:
@@ -462,6 +470,21 @@ def _outputs(args: InbetweenOptions) -> tuple[list[dict[str, Path]], Path | None
         raise ValueError(f"--out {out}: exists and is not a folder")
     names = {".bvh": "inbetween", ".glb": "inbetween"} | ({} if args.no_preview else {".gif": "preview"})
     return [{s: out / f"{stem}{tag(k)}{s}" for s, stem in names.items()} for k in range(n)], out
+
+
+DEFAULT_MODEL = "bandai_namco"  # the bundled models: any skeleton, through a transfer
+
+
+def default_models(skeleton: str | None, model: str | None, ik_model: str | None) -> tuple[str, str]:
+    """``(--model, --ik-model)``: each as given, or the first registered model trained on the
+    clips' ``skeleton`` (a recognised preset) that is here (:func:`~bezmotion.assets.registry.trained_for`:
+    bundled, or trained locally), else :data:`DEFAULT_MODEL`. A model of the clips' own
+    skeleton needs no transfer, and its learned IK fits them (the exact IK rather than
+    ``exact_rig`` under ``--ik auto``)."""
+    return (
+        model if model is not None else trained_for(skeleton, "bmm") or DEFAULT_MODEL,
+        ik_model if ik_model is not None else trained_for(skeleton, "ik") or DEFAULT_MODEL,
+    )
 
 
 def plan(args: InbetweenOptions) -> Plan:
@@ -505,11 +528,12 @@ def plan(args: InbetweenOptions) -> Plan:
         _role(r, recognised)
 
     # The models.
+    model_name, ik_model_name = default_models(recognised.preset, args.model, args.ik_model)
     try:
-        bmm_dir, bundled_trained_on = resolve_bmm(args.model)
+        bmm_dir, bundled_trained_on = resolve_bmm(model_name)
         bmm = load_model(bmm_dir)
     except (FileNotFoundError, ValueError, TypeError) as error:
-        raise _error("--model", args.model, error) from None
+        raise _error("--model", model_name, error) from None
     window = bmm.config.num_frames
     reference = None
     if args.clip is not None:
@@ -536,10 +560,10 @@ def plan(args: InbetweenOptions) -> Plan:
     ik_model = ik_folder = None
     if ik == "auto" or ik in LEARNED_IK_CHOICES:
         try:
-            ik_folder = resolve_ik_model(args.ik_model)
+            ik_folder = resolve_ik_model(ik_model_name)
             ik_model = load_ik_model(ik_folder)
         except (FileNotFoundError, ValueError, TypeError) as error:
-            raise _error("--ik-model", args.ik_model, error) from None
+            raise _error("--ik-model", ik_model_name, error) from None
         if ik == "auto":
             try:
                 check_ik_model(ik_model, character)
@@ -557,13 +581,13 @@ def plan(args: InbetweenOptions) -> Plan:
             ik, recognised, rest_quat_local=np.asarray(key_poses[0].quat_local), ik_model=ik_model, limits=limits, exact_settings=settings
         )
     except ValueError as error:
-        raise ValueError(f"--ik {ik}: the learned IK {args.ik_model} does not fit this skeleton: {error}") from None
+        raise ValueError(f"--ik {ik}: the learned IK {ik_model_name} does not fit this skeleton: {error}") from None
 
     handles, records = resolve_handles(requests, recognised, key_poses, bmm)
     reach = reach_chains(make_rig(character, recognised.rig_spec, rest_quat_local=np.asarray(key_poses[0].quat_local)))
     return Plan(
         recognised, start_motion, key_poses, reference, bmm, ik, ik_fn, ik_params, transfer, handles, records, reach, outputs, folder,
-        label, key_velocity,
+        label, key_velocity, {"bmm": model_name, "ik": None if ik_model is None else ik_model_name},
     )  # fmt: skip
 
 
@@ -665,7 +689,8 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
     windows = len(p.keys) - 1
     frames = windows * (p.bmm.config.num_frames - 1) + 1
     say(
-        f"{p.label}: {character.name} ({character.num_joints} joints), IK {p.ik}, {len(p.handle_records)} handle(s), "
+        f"{p.label}: {character.name} ({character.num_joints} joints), BMM {p.models['bmm']}, IK {p.ik}"
+        + (f" (learned IK {p.models['ik']})" if p.models["ik"] is not None else "") + f", {len(p.handle_records)} handle(s), "
         f"{n} sample(s) of {frames} frames" + (f" ({windows} windows, one chain)" if windows > 1 else "") + f", {args.steps} DDIM steps"
         + (", transferred from the BMM's skeleton" if p.transfer is not None else "")
     )
@@ -734,6 +759,7 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
         "windows": windows,
         "fps": p.start_motion.nominal_fps,
         "ik": p.ik,
+        "models": p.models,
         "steps": args.steps,
         "foot_lock": args.foot_lock,
         "exact": exact_settings(args.exact),

@@ -263,6 +263,45 @@ def test_a_lafan1_skeleton_is_recognised_and_gets_the_bundled_transfer(rng):
     assert float(transfer.scale) == pytest.approx(profile.height / load_profile("bandai_namco").height, rel=1e-6)
 
 
+def test_models_default_to_those_of_the_clips_skeleton_trained_here(tmp_path, monkeypatch):
+    """Without ``--model`` / ``--ik-model``, a clip of a skeleton with registered models that are
+    here (LaFAN1's, once trained locally) gets them: no transfer, and the exact IK on its own
+    learned IK under ``--ik auto``; before they are trained, or when named, the bundled ones."""
+    import jax
+
+    from conftest import synthetic_clip
+    from bezmotion.assets import BUNDLED_BMM
+    from bezmotion.assets.registry import trained_for
+    from bezmotion.data.bvh import BvhMotion
+    from bezmotion.ik.protocol import Character
+    from bezmotion.ik.protores import ProtoResConfig, ProtoResModel, init_protores, save_ik_model
+    from bezmotion.inbetween_command import default_models
+
+    monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path / "cache"))
+    skeleton, quat, root = synthetic_clip(40, seed=3)
+    clip = tmp_path / "walk1_subject1.bvh"
+    write_bvh(clip, BvhMotion.from_skeleton(skeleton, quat, root, rotation_order="zyx"))
+    argv = [str(clip), "--frames", "0", "30", "--steps", "2", "--no-progress"]
+    assert trained_for("lafan1", "bmm") is None and trained_for("bandai_namco", "ik") == "bandai_namco" and trained_for(None, "ik") is None
+    before = plan(parse_options(InbetweenOptions, argv))  # nothing trained on LaFAN1 here: the bundled models
+    assert before.models == {"bmm": "bandai_namco", "ik": None} and before.ik == "exact_rig" and before.transfer is not None
+
+    # "Train" lafan1_cpu here: the bundled BMM's files, and a small untrained IK of the LaFAN1 skeleton.
+    runs = tmp_path / "cache" / "runs"
+    shutil.copytree(BUNDLED_BMM, runs / "bmm_lafan1_cpu_residual" / "model")
+    character = Character.from_bvh(read_bvh(clip), "lafan1")
+    config = ProtoResConfig(22, encoder_width=16, stage_blocks=1, decoder_width=16, decoder_blocks=1, embedding_dim=8)
+    graphdef, params = init_protores(config, key=jax.random.key(0))
+    save_ik_model(runs / "ik_lafan1" / "model", ProtoResModel(params, character, graphdef, config))
+    assert trained_for("lafan1", "bmm") == trained_for("lafan1", "ik") == "lafan1_cpu"
+    own = plan(parse_options(InbetweenOptions, argv))
+    assert own.models == {"bmm": "lafan1_cpu", "ik": "lafan1_cpu"} and own.ik == "exact" and own.transfer is None
+    named = plan(parse_options(InbetweenOptions, [*argv, "--model", "bandai_namco", "--ik-model", "bandai_namco"]))
+    assert named.models == {"bmm": "bandai_namco", "ik": None} and named.ik == "exact_rig" and named.transfer is not None
+    assert default_models("lafan1", "my_bmm/", None) == ("my_bmm/", "lafan1_cpu")
+    assert default_models(None, None, None) == ("bandai_namco", "bandai_namco")
+
+
 # ----------------------------------------------------------------------------- handles
 
 

@@ -352,6 +352,18 @@ def model_folder(name: str, part: Part, *, root: str | os.PathLike | None = None
     return folder
 
 
+def trained_for(skeleton: str | None, part: Part) -> str | None:
+    """The first registered model trained on ``skeleton`` (a profile name, e.g. a recognised
+    clip's preset) whose ``"bmm"`` or ``"ik"`` is here: bundled, or trained into ``<cache>/runs``
+    by its commands. None when there is none (or no ``skeleton``)."""
+    if part not in PARTS:
+        raise ValueError(f"part must be one of {PARTS}, got {part!r}")
+    for entry in REGISTRY.values():
+        if skeleton is not None and entry.skeleton == skeleton and (entry.folder(part) / "config.json").is_file():
+            return entry.name
+    return None
+
+
 def resolve_folder(name_or_path: str | os.PathLike, part: Part) -> tuple[Path, ModelEntry | None]:
     """``(folder, entry or None)`` of a registered name (checked, :func:`model_folder`) or a saved model's folder."""
     entry = REGISTRY.get(str(name_or_path))
@@ -469,6 +481,7 @@ __all__ = [
     "pretrained",
     "read_manifest",
     "resolve_folder",
+    "trained_for",
     "verify_folder",
     "write_manifest",
 ]
