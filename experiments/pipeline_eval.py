@@ -302,7 +302,7 @@ def bmm_transfer(args: Options) -> tuple[str, Transfer | None]:
     as ``bezmotion inbetween`` moves a model to a clip of a known skeleton); None for the same."""
     trained_on = args.trained_on
     if trained_on is None:
-        _, entry = resolve_folder(args.corpus if args.bmm == "bundled" else args.bmm, "bmm")
+        entry = REGISTRY.get(args.corpus if args.bmm == "bundled" else args.bmm)  # None: a saved folder
         trained_on = args.corpus if entry is None else entry.skeleton
     if trained_on == args.corpus:
         return trained_on, None

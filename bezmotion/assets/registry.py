@@ -356,11 +356,14 @@ def trained_for(skeleton: str | None, part: Part) -> str | None:
     """The first registered model trained on ``skeleton`` (a profile name, e.g. a recognised
     clip's preset) whose ``"bmm"`` or ``"ik"`` is here: bundled, or trained into ``<cache>/runs``
     by its commands. None when there is none (or no ``skeleton``)."""
-    if part not in PARTS:
-        raise ValueError(f"part must be one of {PARTS}, got {part!r}")
     for entry in REGISTRY.values():
-        if skeleton is not None and entry.skeleton == skeleton and (entry.folder(part) / "config.json").is_file():
-            return entry.name
+        if skeleton is None or entry.skeleton != skeleton:
+            continue
+        try:
+            model_folder(entry.name, part, verify=False)  # raises where it is not here
+        except FileNotFoundError:
+            continue
+        return entry.name
     return None
 
 

@@ -366,15 +366,10 @@ def summarize_windows(per_window: Mapping[str, np.ndarray], select: np.ndarray |
         if key in w:
             out[f"planted_{key}_cm"] = float(w[key].mean())
             out[f"planted_{key}_max_cm"] = float(w[key].max())
-    if "mpjpe" in w:
-        out["mpjpe_cm"] = float(w["mpjpe"].mean())
-        out["mpjpe_cm_se"] = standard_error(w["mpjpe"])
-    if "skating" in w:
-        out["foot_skating_ratio"] = float(w["skating"].mean())
-        out["foot_skating_ratio_se"] = standard_error(w["skating"])
-    if "sliding" in w:
-        out["foot_sliding_ratio"] = float(w["sliding"].mean())
-        out["foot_sliding_ratio_se"] = standard_error(w["sliding"])
+    for key, name in (("mpjpe", "mpjpe_cm"), ("skating", "foot_skating_ratio"), ("sliding", "foot_sliding_ratio")):
+        if key in w:
+            out[name] = float(w[key].mean())
+            out[f"{name}_se"] = standard_error(w[key])
     for key, name in (("key_pop", "key_pop_deg"), ("max_rotation_change", "max_rotation_change_deg")):
         if key in w:
             out[name] = float(w[key].max())
