@@ -312,6 +312,7 @@ def resolve_handles(
     key_positions = np.stack([np.asarray(pose_fk(character, p)[1])[idx] for p in keys])  # (keys, 6, 3)
     per_window: list[tuple[list[str], list[int], list[np.ndarray]]] = [([], [], []) for _ in range(len(keys) - 1)]
     records = []
+    placed: dict[tuple[str, int], tuple[str, np.ndarray]] = {}  # (joint, frame) -> (handle as written, position)
     for r in requests:
         role = _role(r, recognised)
         if not 0 <= r.frame <= last:
@@ -324,6 +325,10 @@ def resolve_handles(
         if r.relative:
             j, t = CHARACTERISTIC_JOINTS.index(role), local / span
             position = position + (1.0 - t) * key_positions[window, j] + t * key_positions[window + 1, j]
+        earlier = placed.setdefault((role, r.frame), (r.source, position))
+        if not np.array_equal(earlier[1], position):  # the sampler would refuse it too, naming neither
+            shown = ", ".join(f"({', '.join(f'{x:.2f}' for x in p)})" for p in (earlier[1], position))
+            raise ValueError(f"{r.source}: {role} at frame {r.frame} has another handle, {earlier[0]}, at a different position: {shown} cm")
         try:  # the sampler's own rules for handle frames, reported with the handle as written
             Handles.from_frames([role], [local], position[None], config=bmm.config)
         except ValueError as error:
@@ -580,8 +585,9 @@ def plan(args: InbetweenOptions) -> Plan:
         ik_fn, ik_params = make_ik(
             ik, recognised, rest_quat_local=np.asarray(key_poses[0].quat_local), ik_model=ik_model, limits=limits, exact_settings=settings
         )
-    except ValueError as error:
-        raise ValueError(f"--ik {ik}: the learned IK {ik_model_name} does not fit this skeleton: {error}") from None
+    except ValueError as error:  # the settings were checked above: what is left is the IK against the skeleton
+        fit = f"the learned IK {ik_model_name} does not fit this skeleton: " if ik in LEARNED_IK_CHOICES else ""
+        raise ValueError(f"--ik {ik}: {fit}{error}") from None
 
     handles, records = resolve_handles(requests, recognised, key_poses, bmm)
     reach = reach_chains(make_rig(character, recognised.rig_spec, rest_quat_local=np.asarray(key_poses[0].quat_local)))

@@ -444,6 +444,12 @@ def _cases(tmp):
         "no keys": (["--handle", "head@12=+0,1,0"], "give the key poses"),
         "unknown exact setting": ([*keys, "--ik", "exact", "--exact", "speed=3"], "--exact speed=3: expected NAME=VALUE with NAME one of"),
         "exact setting not a number": ([*keys, "--ik", "exact", "--exact", "iterations=x"], "--exact iterations=x: 'x' is not a number"),
+        "exact setting out of its range": ([*keys, "--ik", "exact", "--exact", "smoothing=0.9"], "--exact smoothing=0.9: must lie in [0.0, 0.5]"),
+        "exact step count not whole": ([*keys, "--ik", "exact", "--exact", "iterations=2.5"], "--exact iterations=2.5: iterations is a count, a whole number"),
+        "two handles on one joint and frame": (
+            [*keys, "--handle", "head@12=+0,1,0", "head@12=+0,2,0"],
+            "--handle head@12=+0,2,0: head at frame 12 has another handle, --handle head@12=+0,1,0, at a different position: (",
+        ),
         "exact settings for another IK": ([*keys, "--exact", "plant_weight=10"], "--exact plant_weight=10: the settings of the exact IK, not of --ik rig"),
         "one key frame": ([clip, "--frames", "5"], "--frames 5: needs at least two key frames"),
         "one --key": (["--key", f"{clip}@3"], f"--key {clip}@3: needs at least two --key poses"),

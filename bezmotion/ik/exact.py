@@ -642,7 +642,9 @@ def exact_settings(items: tuple[str, ...] | list[str], flag: str = "--exact") ->
     keyword arguments: floats, ints for the static counts.
 
     Raises:
-      ValueError: naming the item, for a malformed one, an unknown NAME or a non-number.
+      ValueError: naming the item, for a malformed one, an unknown NAME, a non-number, a
+        fractional step count or a value out of the setting's range (:func:`exact_ik`'s checks,
+        so a command line's mistake names the flag it came with).
     """
     fields = {f.name: f for f in dataclasses.fields(ExactIKParams)}
     settable = sorted(set(fields) - {"inner", "character", "limits"})
@@ -652,9 +654,17 @@ def exact_settings(items: tuple[str, ...] | list[str], flag: str = "--exact") ->
         if not sep or name not in settable:
             raise ValueError(f"{flag} {item}: expected NAME=VALUE with NAME one of {settable}")
         try:
-            settings[name] = int(value) if fields[name].metadata.get("static") else float(value)
+            number = float(value)
         except ValueError:
             raise ValueError(f"{flag} {item}: {value!r} is not a number") from None
+        if fields[name].metadata.get("static"):
+            if not number.is_integer():
+                raise ValueError(f"{flag} {item}: {name} is a count, a whole number")
+            number = int(number)
+        problem = _setting_problem(name, number)
+        if problem:
+            raise ValueError(f"{flag} {item}: {problem}")
+        settings[name] = number
     return settings
 
 
@@ -701,14 +711,21 @@ _SETTING_RANGES = {
 def _check_setting(name: str, value: Any) -> None:
     """Raise ValueError, naming the setting and value, for a plain number out of its range (or
     NaN), or a non-integer step count; arrays (e.g. traced values) pass unchecked."""
+    problem = _setting_problem(name, value)
+    if problem:
+        raise ValueError(f"exact IK setting {name}={value!r}: {problem}")
+
+
+def _setting_problem(name: str, value: Any) -> str | None:
+    """What is wrong with ``value`` for the setting ``name`` (None: nothing, or not a plain number)."""
     is_integer = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
     static = next(f for f in dataclasses.fields(ExactIKParams) if f.name == name).metadata.get("static")
     if static and not is_integer:
-        raise ValueError(f"exact IK setting {name}={value!r}: must be an integer")
+        return "must be an integer"
     if not (is_integer or isinstance(value, (float, np.floating))):
-        return
-    low, high, low_excluded = _SETTING_RANGES.get(name, (0.0, np.inf, False))
+        return None
+    low, high, low_excluded = _SETTING_RANGES.get(name, (0, np.inf, False) if static else (0.0, np.inf, False))
     above_low = low < value if low_excluded else low <= value
     if not (above_low and value <= high):  # NaN fails both
-        interval = f"{'(' if low_excluded else '['}{low}, {'∞)' if high == np.inf else f'{high}]'}"
-        raise ValueError(f"exact IK setting {name}={value!r}: must lie in {interval}")
+        return f"must lie in {'(' if low_excluded else '['}{low}, {'∞)' if high == np.inf else f'{high}]'}"
+    return None

@@ -229,7 +229,14 @@ def test_lafan1_needs_its_models(experiment, capsys, tmp_path, monkeypatch):
 
 @pytest.mark.parametrize(
     "setting, message",
-    [("iterations", "expected NAME=VALUE"), ("speed=3", "expected NAME=VALUE"), ("iterations=many", "'many' is not a number")],
+    [
+        ("iterations", "expected NAME=VALUE"),
+        ("speed=3", "expected NAME=VALUE"),
+        ("iterations=many", "'many' is not a number"),
+        ("iterations=-1", "must lie in [0, ∞)"),
+        ("window_passes=1.5", "window_passes is a count, a whole number"),
+        ("key_hold_decay=2", "must lie in [0.0, 1.0]"),
+    ],
 )
 def test_exact_settings_are_checked(experiment, capsys, setting, message):
     with pytest.raises(SystemExit):
