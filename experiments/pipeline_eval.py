@@ -178,7 +178,7 @@ from bezmotion.data.curves import CurveDataset, curve_dataset
 from bezmotion.data.sources import load_corpus
 from bezmotion.ik.exact import exact_ik, exact_settings
 from bezmotion.ik.joint_limits import JointLimits
-from bezmotion.ik.protocol import Pose, targets_from_pose
+from bezmotion.ik.protocol import Character, Pose, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik
 from bezmotion.io import atomic_path, write_results
@@ -309,13 +309,29 @@ def bmm_transfer(args: Options) -> tuple[str, Transfer | None]:
     return trained_on, Transfer.between(load_profile(trained_on), load_profile(args.corpus))
 
 
-def open_windows(args: Options) -> tuple[Corpus, CurveDataset]:
-    """The corpus (validation split, or a whole BVH folder validating) and its curve dataset."""
-    if args.bvh_dir is None:
-        corpus = load_corpus(args.corpus, progress=False)
-    else:  # every file validates
-        corpus = load_corpus(args.bvh_dir, characteristic=args.corpus, validation_every=1, progress=False)
-    return corpus, curve_dataset(corpus, "validation", progress=False)
+def open_windows(args: Options, character: Character | None = None) -> tuple[Corpus, CurveDataset]:
+    """The corpus (validation split, or a whole BVH folder validating) and its curve dataset;
+    ``character``: the IK model's, whose skeleton the corpus must have (None: not checked).
+
+    Raises:
+      SystemExit: one line naming ``--bvh-dir`` (or the corpus) for a folder that cannot be
+        read (a malformed BVH: its file and line), whose skeleton is not ``character``'s, or
+        that holds no whole window.
+    """
+    source = f"--bvh-dir {args.bvh_dir}" if args.bvh_dir else args.corpus
+    try:
+        if args.bvh_dir is None:
+            corpus = load_corpus(args.corpus, progress=False)
+        else:  # every file validates
+            corpus = load_corpus(args.bvh_dir, characteristic=args.corpus, validation_every=1, progress=False)
+        if character is not None and (corpus.skeleton.names, corpus.skeleton.parents) != (character.skeleton.names, character.skeleton.parents):
+            raise ValueError(f"its skeleton is not the IK model's ({character.name}); use clips of the {args.corpus} skeleton")
+        dataset = curve_dataset(corpus, "validation", progress=False)
+        if len(dataset.ctrl_pos) == 0:
+            raise ValueError(f"no {dataset.layout.num_frames}-frame window in its clips")
+    except (OSError, ValueError) as error:
+        raise SystemExit(f"pipeline_eval.py: error: {source}: {' '.join(str(error).split())}") from None
+    return corpus, dataset
 
 
 def build_iks(args: Options, ik_model, rig) -> tuple[dict[str, tuple], bool]:
@@ -527,11 +543,7 @@ def main(argv: list[str] | None = None) -> dict:
     trained_on, transfer = bmm_transfer(args)
     ik_model = load_ik_model(model_path(args, "ik_model"))
     character = ik_model.character
-    corpus, dataset = open_windows(args)
-    if corpus.skeleton.names != character.skeleton.names or corpus.skeleton.parents != character.skeleton.parents:
-        raise ValueError(f"{args.bvh_dir or args.corpus}: its skeleton is not the IK model's ({character.name}); use clips of the {args.corpus} skeleton")
-    if len(dataset.ctrl_pos) == 0:
-        raise ValueError(f"{args.bvh_dir or args.corpus}: no {dataset.layout.num_frames}-frame window in its clips")
+    corpus, dataset = open_windows(args, character)
     clips = motion_clips(corpus, "validation")
     items = draw_items(args, dataset, clips, character)
     k, truth = args.segments, items.truth

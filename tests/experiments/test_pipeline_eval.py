@@ -196,6 +196,21 @@ def test_trained_on_must_name_a_profile(experiment, capsys):
     assert "--trained-on giraffe: not a bundled profile (bandai_namco, lafan1) nor a profile file" in capsys.readouterr().err
 
 
+def test_a_folder_it_cannot_evaluate_is_one_line_naming_it(experiment, monkeypatch, tmp_path):
+    monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path / "cache"))
+    malformed, short = tmp_path / "malformed", tmp_path / "short"
+    malformed.mkdir(), short.mkdir()
+    shutil.copy(DEMO_CLIP, malformed / "walk.bvh")
+    (malformed / "cut.bvh").write_text(DEMO_CLIP.read_text()[:3000])  # stops inside the hierarchy
+    motion = read_bvh(DEMO_CLIP)
+    write_bvh(short / "walk.bvh", dataclasses.replace(motion, quat_local=motion.quat_local[:20], pos_local=motion.pos_local[:20]))
+    for folder, message in ((malformed, f"--bvh-dir {malformed}: {malformed / 'cut.bvh'}:"), (short, f"--bvh-dir {short}: no windows of 31 frames in 1 clips (longest 20)")):
+        with pytest.raises(SystemExit) as exit_:
+            experiment.main(["--out", str(tmp_path / "x.json"), "--bvh-dir", str(folder), "--ik", "rig"])
+        assert str(exit_.value.code).startswith(f"pipeline_eval.py: error: {message}") and "\n" not in str(exit_.value.code)
+    assert not (tmp_path / "x.json").exists()
+
+
 def test_per_window_draws_do_not_depend_on_the_number_of_windows(experiment, clips, monkeypatch, tmp_path):
     monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path / "cache"))
     args = experiment.parse_options(experiment.Options, ["--out", "x.json", "--bvh-dir", str(clips)])
