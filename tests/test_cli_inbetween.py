@@ -438,6 +438,8 @@ def _cases(tmp):
         "missing handles file": ([*keys, "--handles", f"{tmp}/h.json"], f"--handles {tmp}/h.json: no such file"),
         "bad handle": ([*keys, "--handle", "right_hand@12=1,2"], "--handle right_hand@12=1,2: expected JOINT@FRAME=X,Y,Z"),
         "unknown output format": ([*keys, "--out", f"{tmp}/x.fbx"], f"--out {tmp}/x.fbx: unknown output format '.fbx'"),
+        "output under a file": ([*keys, "--out", f"{tmp}/notes.bvh/x.bvh"], f"--out {tmp}/notes.bvh/x.bvh: {tmp}/notes.bvh is a file, not a folder"),
+        "output folder under a file": ([*keys, "--out", f"{tmp}/notes.bvh/a/b"], f"--out {tmp}/notes.bvh/a/b: {tmp}/notes.bvh is a file, not a folder"),
         "no samples": ([*keys, "--samples", "0"], "--samples 0: must be at least 1"),
         "not a number": ([*keys, "--samples", "x"], "argument --samples: invalid int value: 'x'"),
         "unknown profile": ([*keys, "--trained-on", "amass"], "--trained-on amass: not a bundled profile"),
