@@ -25,7 +25,7 @@ from typing import Any
 import jax
 import numpy as np
 
-from bezmotion.io import atomic_write_text, save_figure
+from bezmotion.io import atomic_write_text, check_writable_folder, save_figure
 from bezmotion.assets import DEMO_CLIP, DEMO_CLIP_ATTRIBUTION
 from bezmotion.data.bvh import read_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, FEET
@@ -174,6 +174,10 @@ def demo(
         raise ValueError(f"--steps must be at least 1, got {steps}")
     if bmm_corpus is not None and bmm_corpus not in profile_names():
         raise ValueError(f"--bmm-corpus must be one of {profile_names()}, got {bmm_corpus!r}")
+    try:
+        check_writable_folder(out)
+    except ValueError as error:
+        raise ValueError(f"--out {out}: {error}") from None
     started = time.perf_counter()
     bmm_folder, trained_on = _resolve("--bmm", bmm_dir, resolve_bmm)
     bmm_corpus = bmm_corpus if bmm_corpus is not None else trained_on or "bandai_namco"
@@ -195,7 +199,10 @@ def demo(
     _, true_pos = pose_fk(character, truth)
     j = CHARACTERISTIC_JOINTS.index(joint)
     handle_pos = np.asarray(true_pos[frame, character.characteristic[j]]) + np.asarray(offset, np.float32)
-    handles = Handles.from_frames([joint], [frame], handle_pos[None], config=bmm.config)
+    try:
+        handles = Handles.from_frames([joint], [frame], handle_pos[None], config=bmm.config)
+    except ValueError as error:
+        raise ValueError(f"--frame {frame} --offset {' '.join(f'{x:g}' for x in offset)}: {error}") from None
     # Curves of another skeleton are moved over (BMM §5.2).
     transfer = None if bmm_corpus == recognised.preset else make_transfer(load_profile(bmm_corpus), target_profile(recognised, [motion]))
     start, end = jax.tree.map(lambda x: x[0], truth), jax.tree.map(lambda x: x[-1], truth)

@@ -63,7 +63,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import re
 import sys
 import time
@@ -84,7 +83,7 @@ from bezmotion.ik.exact import exact_settings
 from bezmotion.ik.protocol import Character, Pose, pose_fk, targets_from_pose
 from bezmotion.ik.protores import load_ik_model
 from bezmotion.ik.rig import make_rig
-from bezmotion.io import atomic_write_text
+from bezmotion.io import atomic_write_text, check_writable_folder
 from bezmotion.options import option, options
 from bezmotion.pipeline import inbetween, inbetween_chain, join_chain_curves, pose_to_bvh
 from bezmotion.pipeline.window_figures import (
@@ -469,30 +468,18 @@ def _outputs(args: InbetweenOptions) -> tuple[list[dict[str, Path]], Path | None
     if out.suffix:
         try:
             suffix = check_output(out)
-            _check_folder_writable(out.parent)
+            check_writable_folder(out.parent)
         except ValueError as error:
             raise _error("--out", out, error) from None
         return [{suffix: out.with_name(f"{out.stem}{tag(k)}{out.suffix}")} for k in range(n)], None
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out}: exists and is not a folder")
     try:
-        _check_folder_writable(out)
+        check_writable_folder(out)
     except ValueError as error:
         raise _error("--out", out, error) from None
     names = {".bvh": "inbetween", ".glb": "inbetween"} | ({} if args.no_preview else {".gif": "preview"})
     return [{s: out / f"{stem}{tag(k)}{s}" for s, stem in names.items()} for k in range(n)], out
-
-
-def _check_folder_writable(folder: Path) -> None:
-    """Raise ValueError unless the files can go in ``folder``: its nearest existing ancestor
-    (itself, once made) is a folder we may write in, so a run fails before it samples."""
-    existing = folder.absolute()
-    while not existing.exists():
-        existing = existing.parent
-    if not existing.is_dir():
-        raise ValueError(f"{existing} is a file, not a folder")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise ValueError(f"cannot write in {existing}")
 
 
 DEFAULT_MODEL = "bandai_namco"  # the bundled models: any skeleton, through a transfer

@@ -39,6 +39,19 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
         raise
 
 
+def check_writable_folder(folder: str | os.PathLike) -> None:
+    """Raise ValueError unless files can be written in ``folder`` (made if missing): its nearest
+    existing ancestor (itself, if it exists) must be a folder we may write in. For a command's
+    checks before any work, so a bad output path fails first, not after the work."""
+    existing = Path(folder).absolute()
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise ValueError(f"{existing} is a file, not a folder")
+    if not os.access(existing, os.W_OK | os.X_OK):
+        raise ValueError(f"cannot write in {existing}")
+
+
 def _umask() -> int:
     """The process umask, read without changing it where the system says it (Linux)."""
     try:

@@ -123,8 +123,10 @@ def test_demo_prints_the_data_attribution(demo_run, capsys):
 @pytest.mark.parametrize(
     ("args", "message"),
     [
-        (["--frame", "0"], "strictly between 0 and 30"),
+        (["--frame", "0"], "--frame 0 --offset 0 25 0: handles sit on integer frames strictly between 0 and 30"),
         (["--frame", "30"], "strictly between 0 and 30"),
+        (["--offset", "0", "nan", "0"], "--frame 12 --offset 0 nan 0: handle positions must be finite"),
+        (["--exact", "smoothing=2"], "--exact smoothing=2: must lie in [0.0, 0.5]"),
         (["--steps", "0"], "--steps must be at least 1, got 0"),
         (["--bmm-corpus", "amass"], "--bmm-corpus must be one of"),
         (["--exact", "nope=1"], "--exact nope=1: expected NAME=VALUE with NAME one of"),
@@ -134,6 +136,13 @@ def test_demo_prints_the_data_attribution(demo_run, capsys):
 def test_demo_rejects_bad_arguments_with_a_clear_message(tmp_path, capsys, args, message):
     assert main(["demo", "--out", str(tmp_path), *args]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_demo_refuses_an_output_folder_under_a_file_before_it_works(tmp_path, capsys):
+    (tmp_path / "notes").write_text("mine\n")
+    assert main(["demo", "--out", str(tmp_path / "notes" / "demo")]) == 2
+    assert f"--out {tmp_path}/notes/demo: {tmp_path}/notes is a file, not a folder" in capsys.readouterr().err
+    assert (tmp_path / "notes").read_text() == "mine\n"
 
 
 def test_demo_rejects_an_unknown_channel_layout(tmp_path):

@@ -1,4 +1,4 @@
-"""Atomic writes (``bezmotion.io``): ordinary file permissions, no half-written files."""
+"""Atomic writes (``bezmotion.io``): ordinary file permissions, no half-written files; output folders checked before work."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import stat
 
 import pytest
 
-from bezmotion.io import _umask, atomic_path, atomic_write_bytes, atomic_write_text
+from bezmotion.io import _umask, atomic_path, atomic_write_bytes, atomic_write_text, check_writable_folder
 
 
 @pytest.fixture
@@ -59,3 +59,13 @@ def test_a_failed_atomic_write_leaves_the_old_file(tmp_path):
             tmp.write_text("half")
             raise RuntimeError("boom")
     assert path.read_text() == "old\n" and [p.name for p in tmp_path.iterdir()] == ["a.txt"]
+
+
+def test_a_writable_folder_is_one_whose_nearest_existing_ancestor_is_a_folder(tmp_path):
+    check_writable_folder(tmp_path)
+    check_writable_folder(tmp_path / "not" / "yet" / "made")  # made when written
+    (tmp_path / "file").write_text("")
+    for under_a_file in (tmp_path / "file", tmp_path / "file" / "sub" / "dir"):
+        with pytest.raises(ValueError, match=f"^{tmp_path}/file is a file, not a folder$"):
+            check_writable_folder(under_a_file)
+    assert not (tmp_path / "not").exists()  # checking makes nothing
