@@ -433,8 +433,9 @@ def _step(params: ExactIKParams, problem: _Problem, delta: Array, root_delta: Ar
     return move_free, move_root
 
 
-def _levenberg_marquardt(params: ExactIKParams, problem: _Problem, iterations: int):
-    """Fixed-count Levenberg–Marquardt on one frame: ``(delta, root_delta, cost)``.
+def _levenberg_marquardt(params: ExactIKParams, problems: _Problem, iterations: int):
+    """Fixed-count Levenberg–Marquardt on a batch of frames (``problems``: leading frame
+    axis): ``(delta, root_delta, cost)``, each frame's own solve.
 
     A step that lowers the cost is taken and the damping relaxed; one that does not is
     refused and the damping raised. A fixed count keeps every frame of a batch in step
@@ -445,14 +446,23 @@ def _levenberg_marquardt(params: ExactIKParams, problem: _Problem, iterations: i
     reaches the targets). Gauss–Newton converges only linearly while the prior pulls
     against the targets (it ignores the targets' curvature times that pull); the proximal
     half converges quadratically onto reachable targets from the prior's near-solution.
+
+    The frames run in lock step (the loop over steps outside the map over frames) so that a
+    step evaluates its second trust-region candidate only where some frame needs one: where
+    no joint's turn exceeds its frame's radius, both candidates are the whole step, and one
+    evaluation gives the very numbers two would (a third of a step's time; the benchmark's
+    window never needs the second). Under an outer ``vmap`` the branch becomes a select and
+    both are evaluated, as before.
     """
     n_free = len(_free_joints(params.character))
-    dtype = problem.start.root_pos.dtype
-    delta, root_delta = jnp.zeros((n_free, 3), dtype), jnp.zeros(3, dtype)
-    evaluated = _evaluate(params, problem, delta, root_delta)
+    frames, dtype = problems.start.root_pos.shape[0], problems.start.root_pos.dtype
+    delta, root_delta = jnp.zeros((frames, n_free, 3), dtype), jnp.zeros((frames, 3), dtype)
+    evaluate = jax.vmap(lambda problem, d, r: _evaluate(params, problem, d, r))
+    prior_cost = jax.vmap(lambda problem, d, r, anchor: _prior_cost(params, problem, d, r, anchor))
+    evaluated = evaluate(problems, delta, root_delta)
 
-    def step(carry, proximal):
-        delta, root_delta, damping, radius, evaluated = carry
+    def propose(problem, delta, root_delta, damping, radius, evaluated, proximal):
+        """One frame's step and its two trust-region shapes."""
         zero = (jnp.zeros_like(delta), jnp.zeros_like(root_delta))
         anchor = jax.tree.map(lambda a, b: jnp.where(proximal, a, b), (delta, root_delta), zero)
         current = evaluated[-1] + _prior_cost(params, problem, delta, root_delta, anchor)
@@ -468,45 +478,52 @@ def _levenberg_marquardt(params: ExactIKParams, problem: _Problem, iterations: i
         # in the positions, is never shortened. The region shrinks after a refused step and
         # grows back after a taken one: near a straight limb the right steps are long.
         turns = safe_norm(move_free)
-        clipped = move_free * jnp.minimum(1.0, radius / jnp.maximum(turns, 1e-12))[..., None]
-        shortened = move_free * jnp.minimum(1.0, radius / jnp.maximum(jnp.max(turns), 1e-12))
-
+        clipped = delta + jnp.where(ok, move_free * jnp.minimum(1.0, radius / jnp.maximum(turns, 1e-12))[..., None], 0.0)
+        shortened = delta + jnp.where(ok, move_free * jnp.minimum(1.0, radius / jnp.maximum(jnp.max(turns), 1e-12)), 0.0)
         new_root = root_delta + jnp.where(ok, move_root, 0.0)
+        return anchor, current, ok, clipped, shortened, new_root, jnp.max(turns) > radius
 
-        def attempt(move):
-            new_delta = delta + jnp.where(ok, move, 0.0)
-            candidate = _evaluate(params, problem, new_delta, new_root)
-            return new_delta, candidate, candidate[-1] + _prior_cost(params, problem, new_delta, new_root, anchor)
-
-        by_joint, whole = attempt(clipped), attempt(shortened)
-        new_delta, candidate, new_cost = jax.tree.map(
-            lambda a, b: jnp.where(by_joint[-1] <= whole[-1], a, b), by_joint, whole
+    def step(carry, proximal):
+        delta, root_delta, damping, radius, evaluated = carry
+        anchor, current, ok, clipped, shortened, new_root, shapes_differ = jax.vmap(propose, in_axes=(0, 0, 0, 0, 0, 0, None))(
+            problems, delta, root_delta, damping, radius, evaluated, proximal
         )
+
+        def attempt(new_delta):
+            candidate = evaluate(problems, new_delta, new_root)
+            return new_delta, candidate, candidate[-1] + prior_cost(problems, new_delta, new_root, anchor)
+
+        def better_shape():
+            by_joint, whole = attempt(clipped), attempt(shortened)
+            keep = by_joint[-1] <= whole[-1]
+            return jax.tree.map(lambda a, b: jnp.where(keep.reshape(keep.shape + (1,) * (a.ndim - 1)), a, b), by_joint, whole)
+
+        new_delta, candidate, new_cost = jax.lax.cond(jnp.any(shapes_differ), better_shape, lambda: attempt(clipped))
         better = ok & (new_cost <= current)
-        pick = lambda a, b: jax.tree.map(lambda x, y: jnp.where(better, x, y), a, b)  # noqa: E731
+        pick = lambda a, b: jax.tree.map(lambda x, y: jnp.where(better.reshape(better.shape + (1,) * (x.ndim - 1)), x, y), a, b)  # noqa: E731
         delta, root_delta, evaluated = pick((new_delta, new_root, candidate), (delta, root_delta, evaluated))
         damping = jnp.where(better, damping * _DAMPING_DOWN, jnp.maximum(damping * _DAMPING_UP, _DAMPING_FIRST))
         radius = jnp.where(better, jnp.minimum(radius * _RADIUS_GROW, params.max_turn), radius * _RADIUS_SHRINK)
         return (delta, root_delta, damping, radius, evaluated), None
 
     proximal = jnp.arange(iterations) >= iterations // 2
-    init = (delta, root_delta, jnp.zeros((), dtype), jnp.asarray(params.max_turn, dtype), evaluated)
+    init = (delta, root_delta, jnp.zeros(frames, dtype), jnp.full(frames, params.max_turn, dtype), evaluated)
     (delta, root_delta, _, _, evaluated), _ = jax.lax.scan(step, init, proximal)
     return delta, root_delta, evaluated[-1]
 
 
-def _solve(
+def _problem(
     params: ExactIKParams,
     start: Pose,
     targets: IKTargets,
-    iterations: int,
     hold: Array | float = 0.0,
     planted: Array | None = None,
     near: Array | None = None,
-) -> Pose:
-    """One frame: the least-squares pose from ``start`` (held there with weight ``hold`` per
-    rad), the feet marked in ``planted`` ``(6,)`` weighing ``plant_weight``, the joints next
-    to a handle of theirs weighing ``handle_weight^near`` (``near`` ``(6,)``, :func:`_near_handles`)."""
+) -> _Problem:
+    """One frame's problem: the least-squares pose from ``start`` (held there with weight
+    ``hold`` per rad), the feet marked in ``planted`` ``(6,)`` weighing ``plant_weight``, the
+    joints next to a handle of theirs weighing ``handle_weight^near`` (``near`` ``(6,)``,
+    :func:`_near_handles`)."""
     pinned = jnp.zeros(6, bool) if targets.pinned is None else targets.pinned
     planted = jnp.zeros(6, bool) if planted is None else planted
     dtype = start.root_pos.dtype
@@ -515,9 +532,13 @@ def _solve(
     # several cm gives way much further (demo frames 10–17 with the head pinned 12 cm up, at
     # plant_weight 10 and robust_cm 2: the feet 6.1 cm off their targets against least squares' 3.4).
     robust = jnp.where(pinned | planted, 0.0, jnp.asarray(params.robust_cm, dtype))[:, None]
-    problem = _Problem(start, targets.position, quat_from_rot6d(targets.rot6d), scale, jnp.asarray(hold, dtype), robust)
-    delta, root_delta, _ = _levenberg_marquardt(params, problem, iterations)
-    return _apply(params.character, start, delta, root_delta)
+    return _Problem(start, targets.position, quat_from_rot6d(targets.rot6d), scale, jnp.asarray(hold, dtype), robust)
+
+
+def _solve(params: ExactIKParams, problems: _Problem, iterations: int) -> Pose:
+    """The frames' poses ``(frames, …)`` solving ``problems`` (:func:`_problem`, stacked)."""
+    delta, root_delta, _ = _levenberg_marquardt(params, problems, iterations)
+    return jax.vmap(lambda start, d, r: _apply(params.character, start, d, r))(problems.start, delta, root_delta)
 
 
 def _near_handles(pinned: Bool[Array, "frames 6"], spread: Array | float, dtype) -> Array:
@@ -573,7 +594,8 @@ class ExactIKFn:
 
     def with_residual(self, params: ExactIKParams, targets: IKTargets) -> ExactIKResult:
         """One frame, with what is left of each target (:class:`ExactIKResult`)."""
-        pose = _solve(params, self.inner(params.inner, targets), targets, params.iterations)
+        problem = jax.tree.map(lambda x: x[None], _problem(params, self.inner(params.inner, targets), targets))
+        pose = jax.tree.map(lambda x: x[0], _solve(params, problem, params.iterations))
         return ExactIKResult(pose, *_errors(params.character, pose, targets))
 
     def solve_window(
@@ -623,7 +645,8 @@ class ExactIKFn:
             start = smooth(pose, filter_weight)
             if keys is not None:
                 start = blend_to_chain_keys(start, keys, key_blend_frames)
-            return jax.vmap(lambda s, t, h, p, n: _solve(params, s, t, params.iterations, h, p, n))(start, targets, hold, planted, near), None
+            problems = jax.vmap(lambda s, t, h, p, n: _problem(params, s, t, h, p, n))(start, targets, hold, planted, near)
+            return _solve(params, problems, params.iterations), None
 
         # The passes as a loop, not unrolled: the solve is traced and compiled once, not once a pass.
         pose, _ = jax.lax.scan(one_pass, pose, jnp.arange(params.window_passes) == 0)
