@@ -30,7 +30,7 @@ moves its subtree's points by axis × lever) and the normal equations are solved
 dual form (a 36 × 36 system per frame instead of QR on the 69-column Jacobian). A fixed
 step count keeps a batch of frames in lock step. On the demo window (31 frames) one pass
 measured ~8 ms against optimistix's 263 ms at the same accuracy; docs/precision.md gives
-today's timings (the window solve's two passes ~15 ms on a 2-core CPU, issue 15 aims at
+today's timings (the window solve's two passes ~12 ms on a 2-core CPU, issue 15 aims at
 5 ms) and what was tried to go faster. Gradients pass through the unrolled steps.
 
 A target out of reach is approached as closely as the limbs allow (the positions'
