@@ -131,6 +131,25 @@ def test_unreachable_targets_finite_with_residual(bandai):
     assert np.all(error[:, 3] < 200.0)
 
 
+def test_a_windows_frames_solved_together_are_each_solved_as_alone(bandai):
+    """The frames' Levenberg–Marquardt steps run in lock step, one trust-region branch for the
+    window (the second candidate evaluated where any frame needs it): each frame's pose is still
+    its own solve, here with every other frame's hand out of reach (long, clipped steps there)."""
+    targets = targets_from_pose(bandai.character, bandai.truth)
+    targets = targets._replace(position=targets.position.at[::2, 3].add(jnp.asarray([0.0, 200.0, 0.0])))
+    alone = bandai.solve(bandai.params, targets).pose  # each frame its own solve (a batch of one, mapped)
+
+    @jax.jit
+    def together(params, targets):
+        start = jax.vmap(rig_ik, in_axes=(None, 0))(params.inner, targets)
+        problems = jax.vmap(lambda s, t: exact_module._problem(params, s, t))(start, targets)
+        return exact_module._solve(params, problems, params.iterations)
+
+    pose = together(bandai.params, targets)
+    np.testing.assert_allclose(np.asarray(pose.root_pos), np.asarray(alone.root_pos), atol=1e-3)
+    assert float(jnp.max(quat_angle(pose.quat_local, alone.quat_local))) < 1e-4
+
+
 def test_finite_gradients(bandai):
     targets = targets_from_pose(bandai.character, bandai.truth)
     one = jax.tree.map(lambda x: x[:2], targets)
