@@ -11,6 +11,14 @@ milliseconds per window separately, one window (latency) and ``--batch`` windows
     python benchmarks/ik_exact.py --repeats 20 --exact window_passes=1 --out ik_exact_one_pass.json   # half the solves
     XLA_FLAGS=--xla_force_host_platform_device_count=2 python benchmarks/ik_exact.py --repeats 20 --out ik_exact_2dev.json
 
+``--real N`` also times the window solve as the pipeline runs it (``solve_frames``: the keys
+joined) on N Bandai-Namco validation windows (``../shared/data``), one window a call as
+``bezmotion inbetween`` runs them, each with 1–4 handles moved up to ±16 cm and spread over
+±6 frames like a curve through them (the issue's OOD handles): the benchmark's own window has
+no keys and one handle, and needs less of the solve's work.
+
+    python benchmarks/ik_exact.py --repeats 20 --real 40 --out ik_exact_real.json
+
 XLA runs one CPU computation on one core (the solve's operations are too small for its
 intra-op threads). With several JAX devices (on a CPU: ``XLA_FLAGS`` as above, one per
 core), the ``--batch`` windows are split over them (a 1-D mesh over the batch axis), so
@@ -19,7 +27,9 @@ the throughput figure uses every core; the one-window figure stays on one device
 
 from __future__ import annotations
 
+import statistics
 import sys
+import time
 
 import jax
 import jax.numpy as jnp
@@ -28,12 +38,15 @@ import numpy as np
 from _timing import machine_info, report, time_jitted
 from bezmotion.assets import BUNDLED_IK, DEMO_CLIP
 from bezmotion.data.bvh import read_bvh
+from bezmotion.data.corpus import motion_clips
+from bezmotion.data.sources import load_corpus
 from bezmotion.ik.exact import exact_ik, exact_settings
 from bezmotion.ik.joint_limits import JointLimits
-from bezmotion.ik.protocol import Character, pose_from_motion, targets_from_pose
+from bezmotion.ik.protocol import Character, IKTargets, Pose, pose_from_motion, solve_frames, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik
 from bezmotion.options import option, options, parse_options
+from bezmotion.pipeline.inbetweening import KEY_BLEND_FRAMES
 from bezmotion.xla_options import inference_compiler_options
 
 
@@ -44,6 +57,11 @@ class Options:
     iterations: int | None = option(None, help="Levenberg-Marquardt steps (default: ExactIKParams')")
     exact: tuple[str, ...] = option((), repeat=True, metavar="NAME=VALUE", help="an ExactIKParams setting (e.g. window_passes=1); may repeat")
     out: str | None = option(None, help="write the result as JSON to this file (atomically)")
+    real: int = option(0, help="also time the exact IK on this many real Bandai-Namco validation windows with keys and handles (0: none)")
+
+    def __post_init__(self):
+        if self.real < 0:
+            raise ValueError(f"--real {self.real}: must be ≥ 0")
 
 
 def main(argv: list[str] | None = None) -> dict:
@@ -83,9 +101,57 @@ def main(argv: list[str] | None = None) -> dict:
             }
             print(f"{label}: compile {rows[label]['compile_s']:.1f} s, {rows[label]['ms_per_window']:.2f} ms/window "
                   f"(min {rows[label]['ms_per_window_min']:.2f}), batched {rows[label][f'ms_per_window_batched_{args.batch}']:.2f}", flush=True)  # fmt: skip
+    if args.real:
+        exact_fn, exact_params = exact_ik(protores_ik_fn, model, character, limits=limits, **settings)
+        rows["exact on learned, real windows"] = time_real_windows(exact_fn, exact_params, character, args.real, args.repeats, options_)
     result = {"benchmark": "ik_exact", "frames": 31, "batch": args.batch, "batch_devices": devices, "settings": settings, "rows": rows, "machine": machine_info()}
-    summary = {k: {m: v for m, v in r.items() if m not in ("single", "batched")} for k, r in rows.items()}
+    summary = {k: {m: v for m, v in r.items() if m not in ("single", "batched", "ms_each_window")} for k, r in rows.items()}
     return report(result, summary, args.out)
+
+
+def real_windows(character: Character, count: int, seed: int = 0) -> list[tuple[IKTargets, tuple[Pose, Pose]]]:
+    """``count`` Bandai-Namco validation windows of 31 frames as ``(targets, (start key, end key))``:
+    the mocap's six joints, 1–4 of them moved up to ±16 cm at a frame 1…29 (a handle) and the
+    move spread over ±6 frames (a curve through it)."""
+    clips = motion_clips(load_corpus("bandai_namco", progress=False), "validation")
+    rng = np.random.default_rng(seed)
+    t = np.arange(31)
+    windows = []
+    for _ in range(count):
+        c = rng.integers(len(clips.starts) - 1)
+        s = rng.integers(clips.starts[c], clips.starts[c + 1] - 31)
+        truth = pose_from_motion(character, jnp.asarray(clips.quat_local[s : s + 31], jnp.float32), jnp.asarray(clips.pos_local[s : s + 31], jnp.float32))
+        targets = targets_from_pose(character, truth)
+        position, pinned = np.asarray(targets.position).copy(), np.zeros((31, 6), bool)
+        for _ in range(rng.integers(1, 5)):
+            joint, frame = rng.integers(6), rng.integers(1, 30)
+            position[:, joint] += np.maximum(0.0, 1.0 - np.abs(t - frame) / 6.0)[:, None] * rng.uniform(-16.0, 16.0, 3)
+            pinned[frame, joint] = True
+        keys = (jax.tree.map(lambda x: x[0], truth), jax.tree.map(lambda x: x[-1], truth))
+        windows.append((targets._replace(position=jnp.asarray(position), pinned=jnp.asarray(pinned)), keys))
+    return windows
+
+
+def time_real_windows(fn, params, character: Character, count: int, repeats: int, compiler_options) -> dict:
+    """ms per window of ``solve_frames`` (keys joined over ``KEY_BLEND_FRAMES``) on
+    :func:`real_windows`: compiled once, each window's median of ``repeats`` calls."""
+    windows = real_windows(character, count)
+    solve = jax.jit(lambda p, t, k: solve_frames(fn, p, t, keys=k, key_blend_frames=KEY_BLEND_FRAMES), compiler_options=compiler_options)
+    started = time.perf_counter()
+    compiled = solve.lower(params, *windows[0]).compile()
+    compile_s = time.perf_counter() - started
+    medians = []
+    for targets, keys in windows:
+        jax.block_until_ready(compiled(params, targets, keys))
+        times = []
+        for _ in range(repeats):
+            started = time.perf_counter()
+            jax.block_until_ready(compiled(params, targets, keys))
+            times.append(time.perf_counter() - started)
+        medians.append(statistics.median(times))
+    row = {"compile_s": compile_s, "windows": count, "ms_per_window": 1e3 * statistics.median(medians), "ms_per_window_mean": 1e3 * statistics.fmean(medians)}
+    print(f"exact on learned, {count} real windows: compile {compile_s:.1f} s, {row['ms_per_window']:.2f} ms/window (median of the windows' medians)", flush=True)
+    return row | {"ms_each_window": [1e3 * m for m in medians]}
 
 
 if __name__ == "__main__":
