@@ -465,16 +465,13 @@ def _outputs(args: InbetweenOptions) -> tuple[list[dict[str, Path]], Path | None
     out = args.out
     n = args.samples
     tag = (lambda k: "") if n == 1 else (lambda k: f"_{k}")
-    if out.suffix:
-        try:
+    try:
+        if out.suffix:
             suffix = check_output(out)
             check_writable_folder(out.parent)
-        except ValueError as error:
-            raise _error("--out", out, error) from None
-        return [{suffix: out.with_name(f"{out.stem}{tag(k)}{out.suffix}")} for k in range(n)], None
-    if out.exists() and not out.is_dir():
-        raise ValueError(f"--out {out}: exists and is not a folder")
-    try:
+            return [{suffix: out.with_name(f"{out.stem}{tag(k)}{out.suffix}")} for k in range(n)], None
+        if out.exists() and not out.is_dir():
+            raise ValueError("exists and is not a folder")
         check_writable_folder(out)
     except ValueError as error:
         raise _error("--out", out, error) from None

@@ -461,6 +461,10 @@ def _levenberg_marquardt(params: ExactIKParams, problems: _Problem, iterations: 
     prior_cost = jax.vmap(lambda problem, d, r, anchor: _prior_cost(params, problem, d, r, anchor))
     evaluated = evaluate(problems, delta, root_delta)
 
+    def where_frames(mask, a, b):
+        """``a`` where a frame's ``mask`` ``(frames,)`` holds, else ``b`` (pytrees of per-frame arrays)."""
+        return jax.tree.map(lambda x, y: jnp.where(mask.reshape(mask.shape + (1,) * (x.ndim - 1)), x, y), a, b)
+
     def propose(problem, delta, root_delta, damping, radius, evaluated, proximal):
         """One frame's step and its two trust-region shapes."""
         zero = (jnp.zeros_like(delta), jnp.zeros_like(root_delta))
@@ -495,13 +499,11 @@ def _levenberg_marquardt(params: ExactIKParams, problems: _Problem, iterations: 
 
         def better_shape():
             by_joint, whole = attempt(clipped), attempt(shortened)
-            keep = by_joint[-1] <= whole[-1]
-            return jax.tree.map(lambda a, b: jnp.where(keep.reshape(keep.shape + (1,) * (a.ndim - 1)), a, b), by_joint, whole)
+            return where_frames(by_joint[-1] <= whole[-1], by_joint, whole)
 
         new_delta, candidate, new_cost = jax.lax.cond(jnp.any(shapes_differ), better_shape, lambda: attempt(clipped))
         better = ok & (new_cost <= current)
-        pick = lambda a, b: jax.tree.map(lambda x, y: jnp.where(better.reshape(better.shape + (1,) * (x.ndim - 1)), x, y), a, b)  # noqa: E731
-        delta, root_delta, evaluated = pick((new_delta, new_root, candidate), (delta, root_delta, evaluated))
+        delta, root_delta, evaluated = where_frames(better, (new_delta, new_root, candidate), (delta, root_delta, evaluated))
         damping = jnp.where(better, damping * _DAMPING_DOWN, jnp.maximum(damping * _DAMPING_UP, _DAMPING_FIRST))
         radius = jnp.where(better, jnp.minimum(radius * _RADIUS_GROW, params.max_turn), radius * _RADIUS_SHRINK)
         return (delta, root_delta, damping, radius, evaluated), None
