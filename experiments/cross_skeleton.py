@@ -1,19 +1,26 @@
-"""The full pipeline after IK, on each skeleton and across skeletons (BMM Table 1 after IK, §6.4).
+"""The full pipeline after IK on each skeleton, driven by its own BMM and by the other skeleton's (BMM §6.4).
 
     python experiments/cross_skeleton.py --out results/cross_skeleton.json
+    python experiments/cross_skeleton.py --model lafan1=lafan1_cpu --windows 100 --ik learned exact --out results/cross_100.json
 
-For each target skeleton (LaFAN1 subject 5, Bandai-Namco validation takes) the start and
-end poses and 1–4 intermediate handles of each window come from the mocap (the windows
-and handles of ``experiments/bmm_lafan1.py``: same draws, OOD = ±16 cm noise). Curves
-from a BMM trained on the *same* skeleton, and from the BMM trained on the *other*
-skeleton moved over by :class:`bezmotion.pipeline.inbetweening.Transfer` (hip-height ratio, fixed
-orientation offsets), drive the target skeleton through its own learned IK
-(``experiments/train_ik.py``), the same followed by the rig's exact two-bone arms and legs
-(ours, :func:`bezmotion.ik.protores.protores_refined_ik_fn`), and the analytic rig alone
-(:mod:`bezmotion.ik.rig`).
-Reported after IK, on the full skeleton: handles error in distribution and OOD, foot
-skating, MPJPE against the mocap window. The same-skeleton LaFAN1 row with the learned
-IK is the analogue of the paper's Table 1 BMM row (0.8914 / 1.7090 cm, skating 0.2176).
+The six characteristic joints' curves do not name a skeleton, so a BMM trained on one drives
+any other. For each target skeleton (``--targets``: LaFAN1 subject 5, Bandai-Namco
+validation takes) this runs ``experiments/pipeline_eval.py`` twice on the same windows and
+handles (its draws: a window's handles and OOD noise, ±16 cm, depend on the window alone):
+once with the target's own BMM, once with the other skeleton's BMM, its curves moved over by
+:class:`~bezmotion.pipeline.transfer.Transfer` (the ratio of the bundled profiles' heights,
+the six joints' mean orientation offsets). Both drive the target's own IKs (``--ik``; the
+default: the learned IK, it with the rig's exact two-bone limbs, the analytic rig, and the
+exact IK on the learned one), each IK on the same sampled curves.
+
+The models are registered ones (``bezmotion models``): ``--model CORPUS=NAME`` picks the
+BMM and IK of a corpus (default: the corpus's own name, bundled for Bandai-Namco; LaFAN1's
+are trained locally, e.g. ``lafan1_cpu`` in about an hour). Every run's full JSON, Markdown
+report and per-window figures sit beside ``--out`` (``OUT.<target>.<bmm>.json``); ``--out``
+gathers them: handles error after IK in distribution and OOD, MPJPE against the mocap window,
+foot skating, key pop and the IK's milliseconds per window, and the curves' dense error
+before IK. The same-skeleton LaFAN1 row with the learned IK is the analogue of the paper's
+Table 1 BMM row (0.8914 / 1.7090 cm, skating 0.2176).
 """
 
 from __future__ import annotations
@@ -21,23 +28,10 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import jax
-import numpy as np
-
+import pipeline_eval
+from bezmotion.assets.registry import REGISTRY
 from bezmotion.io import write_results
-from bezmotion.assets import PROFILES_DIR
-from bezmotion.bmm.evaluation import floor_height_from, make_eval_set
-from bezmotion.data.corpus import motion_clips
-from bezmotion.data.curves import curve_dataset
-from bezmotion.data.sources import load_corpus
-from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
-from bezmotion.ik.rig import make_rig, rig_ik
-from bezmotion.pipeline import CharacterProfile, Transfer
-from bezmotion.pipeline.evaluation import evaluate_pipeline, ground_truth_pose_metrics, window_poses
-from bezmotion.pipeline.window_figures import PipelineMetricsConfig
-from bezmotion.bmm.sampling import load_model
-from bezmotion.options import option, options, parse_options
-from _common import runs_dir
+from bezmotion.options import option, options, options_from, options_parser, parse_options
 
 CORPORA = ("lafan1", "bandai_namco")
 PAPER_LAFAN1 = {"handles_error_cm": 0.8914, "ood_handles_error_cm": 1.7090, "foot_skating_ratio": 0.2176, "gt_foot_skating_ratio": 0.1209}
@@ -45,70 +39,109 @@ PAPER_LAFAN1 = {"handles_error_cm": 0.8914, "ood_handles_error_cm": 1.7090, "foo
 
 @options
 class Options:
-    out: str = option(help="output JSON (a .md report is written beside it)")
+    out: str = option(help="output JSON (a .md report is written beside it, each run's own files too)")
     targets: tuple[str, ...] = option(CORPORA, choices=CORPORA, help="target skeletons (default: all)")
     windows: int = option(500, help="validation windows per skeleton (0 = all)")
-    bmm_dir: str | None = option(None, help="BMM per corpus ({corpus} is filled in; default <cache>/runs/bmm_{corpus}_cpu_residual/model)")
-    ik_dir: str | None = option(None, help="learned IK per corpus ({corpus} is filled in; default <cache>/runs/ik_{corpus}/model)")
+    model: tuple[str, ...] = option(
+        (), repeat=True, metavar="CORPUS=NAME",
+        help="the registered model (BMM and IK) of a corpus, e.g. lafan1=lafan1_cpu (default: the corpus's own name); may repeat",
+    )  # fmt: skip
+    ik: tuple[str, ...] = option(("learned", "refined", "rig", "exact"), choices=pipeline_eval.IKS, help="the target's IKs, each on the same curves")
+    foot_lock: bool = option(False, help="lock the curves' feet on their predicted contacts before any IK (pipeline_eval's --foot-lock)")
 
     def __post_init__(self):
-        if self.bmm_dir is None:
-            object.__setattr__(self, "bmm_dir", str(runs_dir("bmm_{corpus}_cpu_residual", "model")))
-        if self.ik_dir is None:
-            object.__setattr__(self, "ik_dir", str(runs_dir("ik_{corpus}", "model")))
+        if self.windows < 0:
+            raise ValueError(f"--windows {self.windows}: must be ≥ 0")
+        models(self)  # raises naming a malformed --model
 
 
-def evaluate_target(args, target: str, bmms: dict, profiles: dict) -> dict:
-    corpus = load_corpus(target, progress=False)
-    val_set = curve_dataset(corpus, "validation", progress=False)
-    clips = motion_clips(corpus, "validation")
-    ik_model = load_ik_model(Path(args.ik_dir.format(corpus=target)))
-    character = ik_model.character
-    eval_set = make_eval_set(val_set, key=jax.random.key(1234), num_windows=args.windows or None)
-    truth = window_poses(character, clips, val_set, eval_set.rows)
-    # The joints the rig does not solve (clavicles, toes) keep one real pose's rotations.
-    rig = make_rig(character, target, rest_quat_local=np.asarray(truth.quat_local[0, 0]))
-    iks = {
-        "learned IK": (protores_ik_fn, ik_model),
-        "learned IK + exact limbs (ours)": (protores_refined_ik_fn, (ik_model, rig)),
-        "analytic rig": (rig_ik, rig),
-    }
-    config = PipelineMetricsConfig(val_set.layout.stride, val_set.fps, floor_height_from(val_set))
-    out = {
-        "windows": int(truth.root_pos.shape[0]),
-        "floor_height_cm": config.floor_height,
-        "mocap": {name: ground_truth_pose_metrics(config, character, truth, fn, params) for name, (fn, params) in iks.items()},
-        "rows": [],
-    }
-    for source_corpus, bmm in bmms.items():
-        transfer = None if source_corpus == target else Transfer.between(profiles[source_corpus], profiles[target])
-        for ik_name, (fn, params) in iks.items():
-            t0 = time.perf_counter()
-            metrics = evaluate_pipeline(config, bmm, fn, params, character, truth, eval_set, key=jax.random.key(7), transfer=transfer)
-            out["rows"].append({"bmm": source_corpus, "ik": ik_name, **metrics, "eval_s": time.perf_counter() - t0})
-            print(f"  {target}: BMM({source_corpus}) + {ik_name}: {metrics}", flush=True)
+def models(args: Options) -> dict[str, str]:
+    """``{corpus: registered model name}`` from ``--model`` (each corpus's own name by default).
+
+    Raises:
+      ValueError: naming the item, for one that is not ``CORPUS=NAME``, an unknown corpus or
+        name, or a model of another skeleton than its corpus's.
+    """
+    chosen = {corpus: corpus for corpus in CORPORA}
+    for item in args.model:
+        corpus, sep, name = item.partition("=")
+        if not sep or corpus not in CORPORA:
+            raise ValueError(f"--model {item}: expected CORPUS=NAME with CORPUS one of {list(CORPORA)}")
+        entry = REGISTRY.get(name)
+        if entry is None:
+            raise ValueError(f"--model {item}: {name!r} is not a registered model ({', '.join(sorted(REGISTRY))}; `bezmotion models`)")
+        if entry.skeleton != corpus:
+            raise ValueError(f"--model {item}: {name} poses the {entry.skeleton} skeleton, not {corpus}'s")
+        chosen[corpus] = name
+    return chosen
+
+
+def run_path(out: str | Path, target: str, source: str) -> Path:
+    """Where the run of ``target``'s windows driven by ``source``'s BMM writes its JSON."""
+    return Path(out).with_suffix(f".{target}.{source}.json")
+
+
+def runs(args: Options) -> list[tuple[str, str, list[str]]]:
+    """``(target, source, pipeline_eval argv)`` of every run: each target's windows driven by its
+    own BMM, then by each other corpus's (a registered model of another skeleton is transferred
+    by ``pipeline_eval`` itself), always through the target's own IKs."""
+    chosen = models(args)
+    out = []
+    for target in args.targets:
+        for source in (target, *(c for c in CORPORA if c != target)):
+            argv = [
+                "--corpus", target, "--bmm", chosen[source], "--ik-model", chosen[target], "--windows", str(args.windows),
+                "--ik", *args.ik, *(["--foot-lock"] if args.foot_lock else []), "--out", str(run_path(args.out, target, source)),
+            ]  # fmt: skip
+            out.append((target, source, argv))
     return out
+
+
+def check_runs(args: Options) -> list[pipeline_eval.Options]:
+    """Every run's options, checked before any work (a LaFAN1 model not trained here, say):
+    SystemExit with pipeline_eval's message, naming the run."""
+    checked = []
+    for target, source, argv in runs(args):
+        parser = options_parser(pipeline_eval.Options, prog=f"cross_skeleton.py ({target} driven by {source}'s BMM)")
+        checked.append(options_from(parser, pipeline_eval.Options, parser.parse_args(argv)))
+    return checked
+
+
+def gather(target: str, source: str, result: dict) -> list[dict]:
+    """The report's rows of one run: per IK, the figures ``format_report`` tabulates."""
+    curves = result["curves"]["bmm"]
+    rows = []
+    for ik, x in result["ik"].items():
+        i, o = x["id"], x["ood"]
+        rows.append({
+            "target": target, "bmm": source, "ik": ik, "windows": result["windows"],
+            "transfer_scale": (result["settings"]["transfer"] or {}).get("scale"),
+            "handles_error_cm": i["handles_error_cm"], "ood_handles_error_cm": o["handles_error_cm"],
+            "mpjpe_cm": i["mpjpe_cm"], "ood_mpjpe_cm": o["mpjpe_cm"],
+            "foot_skating_ratio": i["foot_skating_ratio"], "mocap_foot_skating_ratio": result["mocap"]["foot_skating_ratio"],
+            "key_pop_deg": max(i["key_pop_deg"], o["key_pop_deg"]), "ik_ms_per_window": i["ik_ms_per_window"],
+            "curves_dense_error_cm": curves["id"]["dense_error_cm"], "ood_curves_dense_error_cm": curves["ood"]["dense_error_cm"],
+        })  # fmt: skip
+    return rows
 
 
 def format_report(results: dict) -> str:
     lines = [
-        f"Pipeline after IK (10 DDIM steps, BMM curves → dense trajectories → IK), {results['seconds']:.0f} s.",
+        f"Pipeline after IK on each skeleton, driven by its own BMM and the other's (transferred); each target's windows and "
+        f"handles the same for both BMMs, every IK on the same curves ({results['seconds']:.0f} s). Each run's full report: "
+        f"`{Path(results['out']).with_suffix('')}.<target>.<bmm>.md`.",
         "",
-        "| target skeleton | BMM trained on | IK | handles error ID (cm) | OOD (cm) | foot skating ID | MPJPE ID (cm) |",
-        "|---|---|---|---|---|---|---|",
+        "| target skeleton | BMM trained on | IK | handles ID (cm) | OOD (cm) | MPJPE ID / OOD (cm) | skating ID (mocap) | key pop (°) | "
+        "curves' dense error ID / OOD (cm) | IK ms/window |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for target, r in results["targets"].items():
-        for ik_name, m in r["mocap"].items():
-            lines.append(
-                f"| {target} ({r['windows']} windows) | mocap, {ik_name} of the true six joints | {ik_name} | – | – | "
-                f"{m['ik_of_mocap_foot_skating_ratio']:.4f} (mocap {m['foot_skating_ratio']:.4f}) | {m['ik_of_mocap_mpjpe_cm']:.3f} |"
-            )
-        for row in r["rows"]:
-            lines.append(
-                f"| {target} | {row['bmm']}{'' if row['bmm'] == target else ' (transferred)'} | {row['ik']} | "
-                f"{row['id']['handles_error_cm']:.4f} | {row['ood']['handles_error_cm']:.4f} | {row['id']['foot_skating_ratio']:.4f} | "
-                f"{row['id']['mpjpe_cm']:.3f} |"
-            )
+    for r in results["rows"]:
+        source = r["bmm"] if r["transfer_scale"] is None else f"{r['bmm']} (transferred, × {r['transfer_scale']:.3f})"
+        lines.append(
+            f"| {r['target']} ({r['windows']} windows) | {source} | {r['ik']} | {r['handles_error_cm']:.4f} | {r['ood_handles_error_cm']:.4f} | "
+            f"{r['mpjpe_cm']:.3f} / {r['ood_mpjpe_cm']:.3f} | {r['foot_skating_ratio']:.4f} ({r['mocap_foot_skating_ratio']:.4f}) | "
+            f"{r['key_pop_deg']:.1f} | {r['curves_dense_error_cm']:.3f} / {r['ood_curves_dense_error_cm']:.3f} | {r['ik_ms_per_window']:.1f} |"
+        )
     p = PAPER_LAFAN1
     lines += ["", f"Paper (full LaFAN1, ProtoRes): handles error {p['handles_error_cm']} / OOD {p['ood_handles_error_cm']} cm, "
               f"foot skating {p['foot_skating_ratio']} (mocap {p['gt_foot_skating_ratio']})."]  # fmt: skip
@@ -117,19 +150,16 @@ def format_report(results: dict) -> str:
 
 def main(argv: list[str] | None = None) -> dict:
     args = parse_options(Options, argv, description=__doc__)
+    check_runs(args)
     started = time.perf_counter()
-    bmms = {corpus: load_model(Path(args.bmm_dir.format(corpus=corpus))) for corpus in CORPORA}
-    profiles = {corpus: CharacterProfile.load(PROFILES_DIR / f"{corpus}.json") for corpus in CORPORA}
-    results = {
-        "bmm_dirs": {c: args.bmm_dir.format(corpus=c) for c in CORPORA},
-        "ik_dirs": {c: args.ik_dir.format(corpus=c) for c in CORPORA},
-        "transfer": {f"{a}->{b}": float(profiles[b].height / profiles[a].height) for a in CORPORA for b in CORPORA if a != b},
-        "targets": {target: evaluate_target(args, target, bmms, profiles) for target in args.targets},
-        "paper_lafan1": PAPER_LAFAN1,
-    }
+    results = {"out": args.out, "models": models(args), "runs": {}, "rows": [], "paper_lafan1": PAPER_LAFAN1}
+    for target, source, run_argv in runs(args):
+        print(f"{target} driven by {source}'s BMM: pipeline_eval.py {' '.join(run_argv)}", flush=True)
+        result = pipeline_eval.main(run_argv)
+        results["runs"][f"{target}.{source}"] = str(run_path(args.out, target, source))
+        results["rows"] += gather(target, source, result)
     results["seconds"] = time.perf_counter() - started
-    report = format_report(results)
-    write_results(args.out, results, report)
+    write_results(args.out, results, format_report(results))
     return results
 
 

@@ -224,7 +224,7 @@ README_COMMANDS = [
     ("experiments", "train_ik", ["--corpus", "lafan1", "--out-dir", "~/.cache/bezmotion/runs/ik_lafan1"]),
     ("experiments", "ik_subsets", ["--out", "results/ik_subsets.json"]),
     ("experiments", "character_profiles", ["--out-dir", "bezmotion/assets/profiles"]),
-    ("experiments", "cross_skeleton", ["--out", "results/cross_skeleton.json"]),
+    ("experiments", "cross_skeleton", ["--model", "lafan1=lafan1_cpu", "--out", "results/cross_skeleton.json"]),
     ("benchmarks", "delta_inference", []),
     ("benchmarks", "fk", []),
     ("benchmarks", "bvh_parse", []),
