@@ -128,7 +128,8 @@ def gather(target: str, source: str, result: dict) -> list[dict]:
 def format_report(results: dict) -> str:
     lines = [
         f"Pipeline after IK on each skeleton, driven by its own BMM and the other's (transferred); each target's windows and "
-        f"handles the same for both BMMs, every IK on the same curves ({results['seconds']:.0f} s). Each run's full report: "
+        f"handles the same for both BMMs, every IK on the same curves{'; feet locked on their predicted contacts first' if results['foot_lock'] else ''} "
+        f"({results['seconds']:.0f} s). Each run's full report: "
         f"`{Path(results['out']).with_suffix('')}.<target>.<bmm>.md`.",
         "",
         "| target skeleton | BMM trained on | IK | handles ID (cm) | OOD (cm) | MPJPE ID / OOD (cm) | skating ID (mocap) | key pop (°) | "
@@ -152,7 +153,7 @@ def main(argv: list[str] | None = None) -> dict:
     args = parse_options(Options, argv, description=__doc__)
     check_runs(args)
     started = time.perf_counter()
-    results = {"out": args.out, "models": models(args), "runs": {}, "rows": [], "paper_lafan1": PAPER_LAFAN1}
+    results = {"out": args.out, "models": models(args), "foot_lock": args.foot_lock, "runs": {}, "rows": [], "paper_lafan1": PAPER_LAFAN1}
     for target, source, run_argv in runs(args):
         print(f"{target} driven by {source}'s BMM: pipeline_eval.py {' '.join(run_argv)}", flush=True)
         result = pipeline_eval.main(run_argv)
