@@ -19,6 +19,12 @@ no keys and one handle, and needs less of the solve's work.
 
     python benchmarks/ik_exact.py --repeats 20 --real 40 --out ik_exact_real.json
 
+``--parts`` splits the exact IK's time on the benchmark's window: its window solve without any
+Levenberg–Marquardt step (the learned IK, the filters, the keys, the finish) against the whole,
+in alternating rounds, and the ms per step from the two.
+
+    python benchmarks/ik_exact.py --repeats 20 --parts --out ik_exact_parts.json
+
 XLA runs one CPU computation on one core (the solve's operations are too small for its
 intra-op threads). With several JAX devices (on a CPU: ``XLA_FLAGS`` as above, one per
 core), the ``--batch`` windows are split over them (a 1-D mesh over the batch axis), so
@@ -58,6 +64,7 @@ class Options:
     exact: tuple[str, ...] = option((), repeat=True, metavar="NAME=VALUE", help="an ExactIKParams setting (e.g. window_passes=1); may repeat")
     out: str | None = option(None, help="write the result as JSON to this file (atomically)")
     real: int = option(0, help="also time the exact IK on this many real Bandai-Namco validation windows with keys and handles (0: none)")
+    parts: bool = option(False, help="also time the exact IK on learned without its Levenberg-Marquardt steps, alternating with it: its fixed part and ms per step")
 
     def __post_init__(self):
         if self.real < 0:
@@ -101,12 +108,42 @@ def main(argv: list[str] | None = None) -> dict:
             }
             print(f"{label}: compile {rows[label]['compile_s']:.1f} s, {rows[label]['ms_per_window']:.2f} ms/window "
                   f"(min {rows[label]['ms_per_window_min']:.2f}), batched {rows[label][f'ms_per_window_batched_{args.batch}']:.2f}", flush=True)  # fmt: skip
+    if args.parts:
+        rows["exact on learned, part by part"] = time_parts(model, character, limits, settings, targets, args.repeats, options_)
     if args.real:
         exact_fn, exact_params = exact_ik(protores_ik_fn, model, character, limits=limits, **settings)
         rows["exact on learned, real windows"] = time_real_windows(exact_fn, exact_params, character, args.real, args.repeats, options_)
     result = {"benchmark": "ik_exact", "frames": 31, "batch": args.batch, "batch_devices": devices, "settings": settings, "rows": rows, "machine": machine_info()}
     summary = {k: {m: v for m, v in r.items() if m not in ("single", "batched", "ms_each_window")} for k, r in rows.items()}
     return report(result, summary, args.out)
+
+
+def time_parts(model, character: Character, limits: JointLimits, settings: dict, targets: IKTargets, repeats: int, compiler_options, rounds: int = 4) -> dict:
+    """Where the exact IK's time goes: ms per window of its window solve on the learned IK with
+    no Levenberg–Marquardt steps (``iterations=0``: the learned IK, the filters between the
+    passes, the finish) and with its steps, timed in alternating rounds (this machine's speed
+    drifts within minutes), and from the two the ms per step (``window_passes × iterations``
+    steps a window)."""
+    solves = {}
+    for label, extra in (("no_steps", {"iterations": 0}), ("with_steps", {})):
+        fn, params = exact_ik(protores_ik_fn, model, character, limits=limits, **(settings | extra))
+        solves[label] = (jax.jit(fn.solve_window, compiler_options=compiler_options).lower(params, targets).compile(), params)
+    times: dict[str, list[float]] = {label: [] for label in solves}
+    for _ in range(rounds):
+        for label, (compiled, params) in solves.items():
+            jax.block_until_ready(compiled(params, targets))
+            for _ in range(repeats):
+                started = time.perf_counter()
+                jax.block_until_ready(compiled(params, targets))
+                times[label].append(time.perf_counter() - started)
+    ms = {label: 1e3 * statistics.median(t) for label, t in times.items()}
+    params = solves["with_steps"][1]
+    steps = params.window_passes * params.iterations
+    row = {"ms_per_window_no_steps": ms["no_steps"], "ms_per_window": ms["with_steps"], "steps": steps,
+           "ms_per_step": (ms["with_steps"] - ms["no_steps"]) / max(steps, 1), "rounds": rounds}  # fmt: skip
+    print(f"exact on learned, part by part: {row['ms_per_window_no_steps']:.2f} ms without steps, {row['ms_per_window']:.2f} with "
+          f"{steps} steps: {row['ms_per_step']:.3f} ms a step", flush=True)  # fmt: skip
+    return row
 
 
 def real_windows(character: Character, count: int, seed: int = 0) -> list[tuple[IKTargets, tuple[Pose, Pose]]]:

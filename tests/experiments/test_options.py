@@ -230,6 +230,7 @@ README_COMMANDS = [
     ("benchmarks", "bvh_parse", []),
     ("benchmarks", "inbetween", ["--windows", "1", "2", "4", "--ik", "learned", "exact", "--out", "results/inbetween.json"]),
     ("benchmarks", "ik_exact", ["--repeats", "20", "--real", "40", "--out", "results/ik_exact_real.json"]),
+    ("benchmarks", "ik_exact", ["--repeats", "20", "--parts", "--out", "results/ik_exact_parts.json"]),
 ]
 
 
