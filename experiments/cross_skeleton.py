@@ -60,9 +60,9 @@ def models(args: Options) -> dict[str, str]:
 
     Raises:
       ValueError: naming the item, for one that is not ``CORPUS=NAME``, an unknown corpus or
-        name, or a model of another skeleton than its corpus's.
+        name, a model of another skeleton than its corpus's, or a corpus given twice.
     """
-    chosen = {corpus: corpus for corpus in CORPORA}
+    chosen, given = {corpus: corpus for corpus in CORPORA}, {}
     for item in args.model:
         corpus, sep, name = item.partition("=")
         if not sep or corpus not in CORPORA:
@@ -72,7 +72,9 @@ def models(args: Options) -> dict[str, str]:
             raise ValueError(f"--model {item}: {name!r} is not a registered model ({', '.join(sorted(REGISTRY))}; `bezmotion models`)")
         if entry.skeleton != corpus:
             raise ValueError(f"--model {item}: {name} poses the {entry.skeleton} skeleton, not {corpus}'s")
-        chosen[corpus] = name
+        if corpus in given:
+            raise ValueError(f"--model {given[corpus]} and --model {item}: one model per corpus")
+        chosen[corpus], given[corpus] = name, item
     return chosen
 
 

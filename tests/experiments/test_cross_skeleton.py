@@ -35,17 +35,18 @@ def test_each_target_is_driven_by_its_own_bmm_and_the_others_through_its_own_iks
 
 
 @pytest.mark.parametrize(
-    "item, message",
+    "items, message",
     [
-        ("lafan1", "--model lafan1: expected CORPUS=NAME"),
-        ("giraffe=bandai_namco", "--model giraffe=bandai_namco: expected CORPUS=NAME with CORPUS one of"),
-        ("lafan1=zebra", "--model lafan1=zebra: 'zebra' is not a registered model"),
-        ("lafan1=bandai_namco", "--model lafan1=bandai_namco: bandai_namco poses the bandai_namco skeleton, not lafan1's"),
+        (["lafan1"], "--model lafan1: expected CORPUS=NAME"),
+        (["giraffe=bandai_namco"], "--model giraffe=bandai_namco: expected CORPUS=NAME with CORPUS one of"),
+        (["lafan1=zebra"], "--model lafan1=zebra: 'zebra' is not a registered model"),
+        (["lafan1=bandai_namco"], "--model lafan1=bandai_namco: bandai_namco poses the bandai_namco skeleton, not lafan1's"),
+        (["lafan1=lafan1_cpu", "lafan1=lafan1"], "--model lafan1=lafan1_cpu and --model lafan1=lafan1: one model per corpus"),
     ],
 )
-def test_a_model_must_be_a_registered_one_of_its_corpus_skeleton(experiment, capsys, item, message):
+def test_a_model_must_be_a_registered_one_of_its_corpus_skeleton(experiment, capsys, items, message):
     with pytest.raises(SystemExit):
-        experiment.main(["--out", "x.json", "--model", item])
+        experiment.main(["--out", "x.json", *(a for item in items for a in ("--model", item))])
     assert message in capsys.readouterr().err
 
 
