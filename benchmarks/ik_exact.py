@@ -118,6 +118,17 @@ def main(argv: list[str] | None = None) -> dict:
     return report(result, summary, args.out)
 
 
+def call_times(compiled, args: tuple, repeats: int) -> list[float]:
+    """Seconds of ``repeats`` calls of a compiled function, after one untimed call."""
+    jax.block_until_ready(compiled(*args))
+    times = []
+    for _ in range(repeats):
+        started = time.perf_counter()
+        jax.block_until_ready(compiled(*args))
+        times.append(time.perf_counter() - started)
+    return times
+
+
 def time_parts(model, character: Character, limits: JointLimits, settings: dict, targets: IKTargets, repeats: int, compiler_options, rounds: int = 4) -> dict:
     """Where the exact IK's time goes: ms per window of its window solve on the learned IK with
     no Levenberg–Marquardt steps (``iterations=0``: the learned IK, the filters between the
@@ -131,11 +142,7 @@ def time_parts(model, character: Character, limits: JointLimits, settings: dict,
     times: dict[str, list[float]] = {label: [] for label in solves}
     for _ in range(rounds):
         for label, (compiled, params) in solves.items():
-            jax.block_until_ready(compiled(params, targets))
-            for _ in range(repeats):
-                started = time.perf_counter()
-                jax.block_until_ready(compiled(params, targets))
-                times[label].append(time.perf_counter() - started)
+            times[label] += call_times(compiled, (params, targets), repeats)
     ms = {label: 1e3 * statistics.median(t) for label, t in times.items()}
     params = solves["with_steps"][1]
     steps = params.window_passes * params.iterations
@@ -177,15 +184,7 @@ def time_real_windows(fn, params, character: Character, count: int, repeats: int
     started = time.perf_counter()
     compiled = solve.lower(params, *windows[0]).compile()
     compile_s = time.perf_counter() - started
-    medians = []
-    for targets, keys in windows:
-        jax.block_until_ready(compiled(params, targets, keys))
-        times = []
-        for _ in range(repeats):
-            started = time.perf_counter()
-            jax.block_until_ready(compiled(params, targets, keys))
-            times.append(time.perf_counter() - started)
-        medians.append(statistics.median(times))
+    medians = [statistics.median(call_times(compiled, (params, targets, keys), repeats)) for targets, keys in windows]
     row = {"compile_s": compile_s, "windows": count, "ms_per_window": 1e3 * statistics.median(medians), "ms_per_window_mean": 1e3 * statistics.fmean(medians)}
     print(f"exact on learned, {count} real windows: compile {compile_s:.1f} s, {row['ms_per_window']:.2f} ms/window (median of the windows' medians)", flush=True)
     return row | {"ms_each_window": [1e3 * m for m in medians]}

@@ -99,14 +99,12 @@ def runs(args: Options) -> list[tuple[str, str, list[str]]]:
     return out
 
 
-def check_runs(args: Options) -> list[pipeline_eval.Options]:
+def check_runs(args: Options) -> None:
     """Every run's options, checked before any work (a LaFAN1 model not trained here, say):
     SystemExit with pipeline_eval's message, naming the run."""
-    checked = []
     for target, source, argv in runs(args):
         parser = options_parser(pipeline_eval.Options, prog=f"cross_skeleton.py ({target} driven by {source}'s BMM)")
-        checked.append(options_from(parser, pipeline_eval.Options, parser.parse_args(argv)))
-    return checked
+        options_from(parser, pipeline_eval.Options, parser.parse_args(argv))
 
 
 def gather(target: str, source: str, result: dict) -> list[dict]:
