@@ -185,7 +185,7 @@ class InbetweenOptions:
     foot_lock: bool = option(True, help=FOOT_LOCK_HELP)
     exact: tuple[str, ...] = option((), repeat=True, metavar="NAME=VALUE", help=EXACT_HELP)
     no_preview: bool = option(False, help="with --out FOLDER: no preview.gif (drawing it takes a few seconds)")
-    no_progress: bool = option(False, help="no progress lines on stderr")
+    no_progress: bool = option(False, help="no progress lines on stderr (warnings and missed handles still go there)")
 
 
 # ----------------------------------------------------------------------------- handles
@@ -211,6 +211,10 @@ class HandleRequest:
 
 
 _HANDLE_SLOTS = 4
+# How far (cm) a handle may lie from the straight line between the keys around its frame. A
+# window is one second at 30 fps, and nobody moves 100 m in it: a handle beyond is a slip of
+# units (mm for cm) or digits, and float32 curves there lose the centimetres they are judged by.
+HANDLE_FARTHEST_CM = 10_000.0
 _HANDLE = re.compile(r"^\s*(?P<joint>[^@=\s]+)\s*@\s*(?P<frame>[^=]*?)\s*=\s*(?P<plus>\+)?(?P<xyz>.*)$")
 _HANDLE_FORM = "JOINT@FRAME=X,Y,Z (a position, cm) or JOINT@FRAME=+X,Y,Z (an offset from the straight line between the keys)"
 
@@ -301,9 +305,10 @@ def resolve_handles(
       window's own frames (:func:`~bezmotion.pipeline.inbetween_chain`). The records keep the
       frames as written (counted from the first key).
     Raises:
-      ValueError: an unknown joint, a frame outside the in-between or on a key of a chain, or
-        one the sampler refuses (:meth:`Handles.from_frames`), each naming the handle as it
-        was written.
+      ValueError: an unknown joint, a frame outside the in-between or on a key of a chain,
+        one the sampler refuses (:meth:`Handles.from_frames`), or a position farther than
+        :data:`HANDLE_FARTHEST_CM` from the line between the keys, each naming the handle as
+        it was written.
     """
     character = recognised.character
     span = bmm.config.num_frames - 1
@@ -321,10 +326,15 @@ def resolve_handles(
             raise ValueError(f"{r.source}: frame {r.frame} is a key of the chain (keys at {list(range(0, last + 1, span))}); handles go between them")
         window = min(r.frame // span, len(keys) - 2)
         local = r.frame - span * window  # the frame in its window (0 and 30 are the window's keys)
-        position = np.asarray(r.value, np.float64)
-        if r.relative:
-            j, t = CHARACTERISTIC_JOINTS.index(role), local / span
-            position = position + (1.0 - t) * key_positions[window, j] + t * key_positions[window + 1, j]
+        j, t = CHARACTERISTIC_JOINTS.index(role), local / span
+        line = (1.0 - t) * key_positions[window, j] + t * key_positions[window + 1, j]  # between the keys around it
+        position = np.asarray(r.value, np.float64) + (line if r.relative else 0.0)
+        away = float(np.linalg.norm(position - line))
+        if away > HANDLE_FARTHEST_CM:  # a slip of units or digits: no window's motion goes that far
+            raise ValueError(
+                f"{r.source}: {role} at frame {r.frame} lies {away / 100:.6g} m from the straight line between the keys' "
+                f"{role} positions, farther than {HANDLE_FARTHEST_CM / 100:.0f} m (positions and offsets are in cm)"
+            )
         earlier = placed.setdefault((role, r.frame), (r.source, position))
         if not np.array_equal(earlier[1], position):  # the sampler would refuse it too, naming neither
             shown = ", ".join(f"({', '.join(f'{x:.2f}' for x in p)})" for p in (earlier[1], position))
@@ -689,6 +699,7 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
     Raises:
       ValueError: a bad argument, before anything is written.
     """
+    warn = say or _stderr  # warnings and missed handles are results: --no-progress keeps them
     say = say or ((lambda _: None) if args.no_progress else _stderr)
     started = time.perf_counter()
     p = plan(args)  # no progress line before it: a bad argument's error is the only output
@@ -707,7 +718,7 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
     conflict = np.asarray(conflicting_handles(written, p.reach))
     warnings = handle_conflicts(p.handle_records, conflict, p.reach)
     for warning in warnings:
-        say(f"warning: {warning}")
+        warn(f"warning: {warning}")
     export = dict(fps=p.start_motion.nominal_fps, channels=None if args.channels == "default" else p.start_motion.channels, template=p.start_motion)
     samples = []
     for k in range(n):
@@ -755,10 +766,14 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
         misses = handle_misses(p.handle_records, errors, np.asarray(beyond_reach(jnp.asarray(pos), written, p.reach)), conflict.any(axis=-1))
         entry["handle_misses"] = misses
         samples.append(entry)
-        worst = f", handles hit within {max(errors):.2g} cm" if errors else ""
+        worst = (
+            "" if not errors
+            else f", handles hit within {max(errors):.2g} cm" if not misses
+            else f", {len(misses)} of {len(errors)} handle(s) missed, by up to {max(errors):.1f} cm"
+        )  # fmt: skip
         print(f"sample {k}: {', '.join(entry['files'].values())}{worst} ({seconds:.1f} s)")
         for line in misses:
-            say(line)
+            warn(line)
     summary = {
         "keys": p.label,
         "character": character.name,

@@ -138,9 +138,10 @@ def test_handles_out_of_reach_are_reported_with_why(tmp_path):
     """On frame 15 a hips handle and a left-foot handle 120 cm below the foot's straight line,
     farther apart than the leg is long: a warning before sampling that no pose meets both. A
     right-hand handle 200 cm above its straight line: reported after the run as missed, beyond
-    the arm's reach. A handle that is hit gets no line."""
+    the arm's reach. A handle that is hit gets no line. Both reports reach stderr under
+    --no-progress too (they are results, not progress), and stdout counts the misses."""
     out = tmp_path / "far"
-    code, _, stderr = run_cli(
+    code, stdout, stderr = run_cli(
         DEMO_CLIP, "--frames", "0", "30", "--handle", "hips@15=+0,0,0", "--handle", "left_foot@15=+0,-120,0",
         "--handle", "right_hand@20=+0,200,0", "--handle", "left_hand@12=+0,5,0", "--no-preview", "--out", out, *FAST,
     )  # fmt: skip
@@ -155,6 +156,8 @@ def test_handles_out_of_reach_are_reported_with_why(tmp_path):
     assert f"handle right_hand@20 missed by {errors['right_hand@20']:.1f} cm: beyond the limb's reach from where the IK put its root" in misses
     assert any(m.startswith("handle left_foot@15 missed by") for m in misses)
     assert not any("left_hand" in m or "hips" in m for m in misses)
+    assert stderr.splitlines() == [f"bezmotion inbetween: {line}" for line in [f"warning: {warning}", *misses]]
+    assert f"{len(misses)} of 4 handle(s) missed, by up to {max(errors.values()):.1f} cm" in stdout and "hit within" not in stdout
 
 
 def test_two_files_and_a_gif(tmp_path):
@@ -437,6 +440,10 @@ def _cases(tmp):
         "missing learned IK": ([*keys, "--ik", "refined", "--ik-model", f"{tmp}/models/ik"], f"--ik-model {tmp}/models/ik: not a saved learned IK"),
         "missing handles file": ([*keys, "--handles", f"{tmp}/h.json"], f"--handles {tmp}/h.json: no such file"),
         "bad handle": ([*keys, "--handle", "right_hand@12=1,2"], "--handle right_hand@12=1,2: expected JOINT@FRAME=X,Y,Z"),
+        "handle 100 m away": (
+            [*keys, "--handle", "head@12=+0,20000,0"],
+            "--handle head@12=+0,20000,0: head at frame 12 lies 200 m from the straight line between the keys' head positions, farther than 100 m",
+        ),
         "unknown output format": ([*keys, "--out", f"{tmp}/x.fbx"], f"--out {tmp}/x.fbx: unknown output format '.fbx'"),
         "output under a file": ([*keys, "--out", f"{tmp}/notes.bvh/x.bvh"], f"--out {tmp}/notes.bvh/x.bvh: {tmp}/notes.bvh is a file, not a folder"),
         "output folder under a file": ([*keys, "--out", f"{tmp}/notes.bvh/a/b"], f"--out {tmp}/notes.bvh/a/b: {tmp}/notes.bvh is a file, not a folder"),
