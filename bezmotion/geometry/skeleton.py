@@ -18,18 +18,25 @@ from jaxtyping import Array, Float
 from bezmotion.geometry.rotations import quat_conjugate, quat_mul, quat_rotate
 
 
+def check_parents(parents: Sequence[int], names: Sequence[str] | None = None) -> None:
+    """Raise ``ValueError`` unless ``parents`` lists the root first (parent -1) and every other
+    joint after its parent: the order forward kinematics places them in. ``names`` (optional)
+    name the joints in the message."""
+    parents = [int(p) for p in np.asarray(parents).reshape(-1)]
+    shown = (lambda j: f"joint {j}") if names is None else (lambda j: f"joint {j} ({names[j]!r})")
+    if parents and parents[0] != -1:
+        raise ValueError(f"{shown(0)} must be the root with parent -1, got {parents[0]}")
+    for j, p in enumerate(parents[1:], start=1):
+        if not (0 <= p < j):
+            raise ValueError(f"{shown(j)} has parent {p}; parents must precede their children (0 <= parent < {j})")
+
+
 def _validate_topology(parents: tuple[int, ...], names: tuple[str, ...]) -> None:
     if len(parents) == 0:
         raise ValueError("a skeleton needs at least one joint")
     if len(names) != len(parents):
         raise ValueError(f"{len(names)} names for {len(parents)} parents")
-    if parents[0] != -1:
-        raise ValueError(f"joint 0 ({names[0]!r}) must be the root with parent -1, got {parents[0]}")
-    for j, p in enumerate(parents[1:], start=1):
-        if not (0 <= p < j):
-            raise ValueError(
-                f"joint {j} ({names[j]!r}) has parent {p}; parents must precede their children (0 <= parent < {j})"
-            )
+    check_parents(parents, names)
     seen: dict[str, int] = {}
     for j, name in enumerate(names):
         if not isinstance(name, str) or not name:
@@ -133,6 +140,7 @@ def forward_kinematics(
         raise ValueError(
             f"{len(parents)} parents, {num_joints} joint rotations and {pos_local.shape[-2]} joint translations disagree"
         )
+    check_parents(parents)
     batch = jnp.broadcast_shapes(
         quat_local.shape[:-2], pos_local.shape[:-2], () if root_pos is None else root_pos.shape[:-1]
     )

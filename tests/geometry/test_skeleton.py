@@ -92,6 +92,22 @@ def test_forward_kinematics_rejects_mismatched_topology(rng):
         forward_kinematics(skeleton.parents[:4], quat, skeleton.offsets)
 
 
+@pytest.mark.parametrize(
+    ("parents", "message"),
+    [
+        ((-1, 5, 0), r"joint 1 has parent 5; parents must precede"),
+        ((-1, 2, 0), r"joint 1 has parent 2"),
+        ((0, 0, 1), r"joint 0 must be the root with parent -1, got 0"),
+    ],
+    ids=["parent-out-of-range", "parent-after-child", "root-with-a-parent"],
+)
+def test_forward_kinematics_rejects_parents_out_of_order(parents, message):
+    """Parents FK cannot place in order raise naming the joint (before, an index past the end
+    was clipped by XLA's gather and gave finite, wrong positions)."""
+    with pytest.raises(ValueError, match=message):
+        forward_kinematics(parents, jnp.zeros((2, 3, 4)).at[..., 0].set(1.0), jnp.zeros((3, 3)))
+
+
 # -------------------------------------------------------------------------------- pytrees
 
 
