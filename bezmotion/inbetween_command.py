@@ -79,6 +79,7 @@ from bezmotion.assets.registry import trained_for
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, load_model
 from bezmotion.data.bvh import BvhMotion, read_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
+from bezmotion.data.clip_frame import CM_PER_UNIT, UP_AXES, ClipFrame, detect_units, detect_up
 from bezmotion.ik.exact import exact_settings
 from bezmotion.ik.protocol import Character, Pose, pose_fk, targets_from_pose
 from bezmotion.ik.protores import load_ik_model
@@ -170,6 +171,12 @@ class InbetweenOptions:
         "default: a named model's own; for a folder, the clips' skeleton (no transfer)",
     )  # fmt: skip
     mapping: Path | None = option(None, metavar="MAP.json", help="JSON or TOML naming the six characteristic joints (and optionally the rig's chains) of another skeleton")
+    units: str = option(
+        "auto", choices=("auto", *CM_PER_UNIT),
+        help="the clips' length unit; auto (default): told from the skeleton's size (cm, m or mm; inches need --units in). "
+        "The in-between is written in it; handles, reports and the .glb are in cm (.glb: m), Y up",
+    )  # fmt: skip
+    up: str = option("auto", choices=("auto", *UP_AXES), help="the clips' up axis; auto (default): where the head stands above the feet")
     out: Path = option(Path("results/inbetween"), metavar="PATH", help="a .bvh, .glb or .gif file, or a folder (default results/inbetween)")
     channels: str = option(
         "default", choices=CHANNEL_CHOICES, help="BVH channels: default (positions on the root and hips) or clip (the start file's layout)"
@@ -468,6 +475,8 @@ class Plan:
     label: str
     key_velocity: Any = None  # (keys, 6, 3) cm/frame with --key-velocities
     models: dict[str, str | None] | None = None  # {"bmm": name or folder, "ik": the learned IK's, None without one}
+    clip_frame: ClipFrame = ClipFrame()  # the clips' units and up axis (everything above is in cm, Y up)
+    warnings: tuple[str, ...] = ()  # about the inputs, for stderr and the summary
 
 
 def _outputs(args: InbetweenOptions) -> tuple[list[dict[str, Path]], Path | None]:
@@ -521,18 +530,30 @@ def plan(args: InbetweenOptions) -> Plan:
     (arg0, text0, path0, start_motion, f0), f1 = keys[0], keys[-1][-1]
     if args.mapping is not None and not Path(args.mapping).is_file():
         raise ValueError(f"--mapping {args.mapping}: no such file")
-    try:
-        recognised = recognise_character(start_motion, args.mapping)
-    except (ValueError, FileNotFoundError) as error:
-        if args.mapping is not None:
-            raise _error("--mapping", args.mapping, error) from None
-        raise _error(arg0, path0, error) from None
+
+    def recognise(motion: BvhMotion) -> RecognisedCharacter:
+        try:
+            return recognise_character(motion, args.mapping)
+        except (ValueError, FileNotFoundError) as error:
+            if args.mapping is not None:
+                raise _error("--mapping", args.mapping, error) from None
+            raise _error(arg0, path0, error) from None
+
+    recognised = recognise(start_motion)
     for argument, text, _, motion, _ in keys[1:]:
         if not same_skeleton(start_motion, motion):
             raise ValueError(
                 f"{argument} {text}: its skeleton ({len(motion.skeleton.names)} joints) differs from the start's "
                 f"({len(start_motion.skeleton.names)} joints, {text0}); every key needs the same joints"
             )
+    # Every clip in cm with Y up from here on (what the models and thresholds are measured in);
+    # the character again from the converted clip, its offsets in cm.
+    clip_frame, frame_warnings = _clip_frame(args, keys, recognised.character)
+    if not clip_frame.is_ours:
+        converted = {id(m): clip_frame.to_ours(m) for _, _, _, m, _ in keys}
+        keys = [(a, t, p, converted[id(m)], f) for a, t, p, m, f in keys]
+        start_motion = keys[0][3]
+        recognised = recognise(start_motion)
     character = recognised.character
     key_poses = tuple(motion_poses(m, character, f) for _, _, _, m, f in keys)
     key_velocity = _clip_key_velocities(character, keys) if args.key_velocities else None
@@ -605,8 +626,48 @@ def plan(args: InbetweenOptions) -> Plan:
     reach = reach_chains(make_rig(character, recognised.rig_spec, rest_quat_local=np.asarray(key_poses[0].quat_local)))
     return Plan(
         recognised, start_motion, key_poses, reference, bmm, ik, ik_fn, ik_params, transfer, handles, records, reach, outputs, folder,
-        label, key_velocity, {"bmm": model_name, "ik": None if ik_model is None else ik_model_name},
+        label, key_velocity, {"bmm": model_name, "ik": None if ik_model is None else ik_model_name}, clip_frame, tuple(frame_warnings),
     )  # fmt: skip
+
+
+def _clip_frame(
+    args: InbetweenOptions, keys: Sequence[tuple[str, str, Path, BvhMotion, int]], character: Character
+) -> tuple[ClipFrame, list[str]]:
+    """The clips' units and up axis (``--units``/``--up`` where given, else told from the
+    clips: :mod:`bezmotion.data.clip_frame`), and warnings.
+
+    The units are told from each clip's skeleton, and must agree. The up axis is told from all
+    the clips' frames together; where even they cannot tell it (a few frames of someone lying
+    down), Y up — the BVH custom — with a warning.
+
+    Raises:
+      ValueError: a clip whose units cannot be told, or two clips whose units differ, naming
+        the key and asking for ``--units``.
+    """
+    hips, head, _, _, left_foot, right_foot = character.characteristic
+    feet = (left_foot, right_foot)
+    clips = {id(m): (f"{argument} {text}", m) for argument, text, _, m, _ in keys}  # each clip read once
+    units = args.units
+    if units == "auto":
+        told = {}
+        for shown, motion in clips.values():
+            try:
+                told[shown] = detect_units(motion, hips, head, feet)
+            except ValueError as error:
+                raise ValueError(f"{shown}: {error} with --units") from None
+        (first, units), *others = told.items()
+        for other, other_units in others:
+            if other_units != units:
+                raise ValueError(f"{other}: its units ({other_units}) differ from {first}'s ({units}); give --units")
+    warnings = []
+    up = args.up
+    if up == "auto":
+        try:
+            up = detect_up([m for _, m in clips.values()], head, feet)
+        except ValueError as error:
+            up = "y"
+            warnings.append(f"{error.args[0].split('; give it')[0]}; taking Y up, the BVH custom (--up says it)")
+    return ClipFrame(units, up), warnings
 
 
 def _read_keys(args: InbetweenOptions) -> tuple[list[tuple[str, str, Path, BvhMotion, int]], str]:
@@ -717,7 +778,7 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
     written = _records_as_handles(p.handle_records)
     conflict = np.asarray(conflicting_handles(written, p.reach))
     warnings = handle_conflicts(p.handle_records, conflict, p.reach)
-    for warning in warnings:
+    for warning in [*p.warnings, *warnings]:
         warn(f"warning: {warning}")
     export = dict(fps=p.start_motion.nominal_fps, channels=None if args.channels == "default" else p.start_motion.channels, template=p.start_motion)
     samples = []
@@ -740,7 +801,7 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
         motion = pose_to_bvh(character, result.pose, **export)
         files = ResultFiles(
             character, motion, curves, p.bmm.config.stride, tuple(p.handle_records), p.reference,
-            f"{p.label}, sample {k}" if n > 1 else p.label, tuple(range(0, frames, p.bmm.config.num_frames - 1)),
+            f"{p.label}, sample {k}" if n > 1 else p.label, tuple(range(0, frames, p.bmm.config.num_frames - 1)), p.clip_frame,
         )  # fmt: skip
         if k == 0 and p.folder is not None:
             p.folder.mkdir(parents=True, exist_ok=True)
@@ -762,7 +823,7 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
             write_result(path, files)
             entry["files"][suffix[1:]] = str(path)
             if suffix == ".bvh":
-                entry["bvh_fk_error_cm"] = bvh_fk_error_cm(path, character, result.pose)
+                entry["bvh_fk_error_cm"] = bvh_fk_error_cm(path, character, result.pose, p.clip_frame)
         misses = handle_misses(p.handle_records, errors, np.asarray(beyond_reach(jnp.asarray(pos), written, p.reach)), conflict.any(axis=-1))
         entry["handle_misses"] = misses
         samples.append(entry)
@@ -788,7 +849,9 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
         "exact": exact_settings(args.exact),
         "seed": args.seed,
         "transfer": p.transfer is not None,
+        "clip_units": {"units": p.clip_frame.units, "up": p.clip_frame.up},  # the BVH's; the rest here is in cm, Y up
         "handles": p.handle_records,
+        "input_warnings": list(p.warnings),
         "handle_warnings": warnings,
         "samples": samples,
         "total_s": time.perf_counter() - started,

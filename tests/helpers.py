@@ -145,6 +145,18 @@ def np_forward_kinematics(
     return rot, pos
 
 
+def turned_about_z(motion, degrees: float):
+    """A BVH motion turned ``degrees`` about the world Z axis (its root's rotation and position):
+    90° lays a Y-up body along −X."""
+    import dataclasses
+
+    turn = np_quat_from_axis_angle(np.array([0.0, 0.0, 1.0]), np.radians(degrees))
+    quat, pos = motion.quat_local.copy(), motion.pos_local.copy()
+    quat[:, 0] = np_quat_mul(turn, quat[:, 0])
+    pos[:, 0] = np_quat_rotate(turn, pos[:, 0])
+    return dataclasses.replace(motion, quat_local=quat, pos_local=pos)
+
+
 def assert_same_rotation(q: np.ndarray, ref: np.ndarray, atol: float) -> None:
     """Assert two quaternion arrays are equal up to the sign of each quaternion."""
     q, ref = np.asarray(q, float), np.asarray(ref, float)

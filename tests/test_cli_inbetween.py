@@ -22,11 +22,12 @@ import shutil
 import numpy as np
 import pytest
 
-from helpers import np_forward_kinematics
+from helpers import np_forward_kinematics, turned_about_z
 
 from bezmotion.assets import DEMO_CLIP
 from bezmotion.cli import main
 from bezmotion.data.bvh import read_bvh, write_bvh
+from bezmotion.data.clip_frame import ClipFrame
 from bezmotion.inbetween_command import HandleRequest, InbetweenOptions, parse_handle, plan, read_handles_file
 from bezmotion.ik.protocol import targets_from_pose
 from bezmotion.options import parse_options
@@ -190,6 +191,55 @@ def renamed_clip(tmp_path):
     path = tmp_path / "custom.bvh"
     path.write_text(text)
     return path
+
+
+def test_a_clip_in_metres_with_z_up_gives_the_same_in_between_written_in_its_own_units(tmp_path):
+    """The bundled clip written in metres with Z up (as Blender exports BVH): its units and up
+    axis are told from it, the in-between is the cm clip's (handles in cm, Y up), and the
+    written BVH is in metres with Z up; --units/--up given skip the telling, same result."""
+    theirs = ClipFrame("m", "z")
+    clip = tmp_path / "blender.bvh"
+    write_bvh(clip, theirs.from_ours(read_bvh(DEMO_CLIP)), precision=10)
+    handle = ["--handle", "right_hand@12=+0,25,0", "left_foot@18=+0,8,5"]
+    runs = {}
+    for name, argv in {"cm": [DEMO_CLIP], "told": [clip], "given": [clip, "--units", "m", "--up", "z"]}.items():
+        out = tmp_path / name
+        code, _, stderr = run_cli(*argv, "--frames", "0", "30", *handle, "--no-preview", "--out", out, *FAST)
+        assert code == 0, stderr
+        runs[name] = json.loads((out / "summary.json").read_text()), read_bvh(out / "inbetween.bvh")
+    assert runs["cm"][0]["clip_units"] == {"units": "cm", "up": "y"}
+    ours = fk_positions(runs["cm"][1])
+    for name in ("told", "given"):
+        summary, written = runs[name]
+        assert summary["clip_units"] == {"units": "m", "up": "z"}
+        np.testing.assert_allclose(written.skeleton.offsets, np.asarray(read_bvh(DEMO_CLIP).skeleton.offsets) / 100, rtol=0, atol=1e-8)  # 8 decimals
+        np.testing.assert_allclose(fk_positions(theirs.to_ours(written)), ours, atol=1e-3)
+        assert summary["handles"] == runs["cm"][0]["handles"] and max(summary["samples"][0]["handle_errors_cm"]) < 1e-3
+        assert summary["samples"][0]["bvh_fk_error_cm"] < 1e-3
+
+
+def test_a_clip_whose_units_or_up_cannot_be_told_asks_for_them(tmp_path):
+    clip = read_bvh(DEMO_CLIP)
+    tiny = tmp_path / "tiny.bvh"  # a person 1.5 mm tall in cm, 1.5 cm in mm
+    write_bvh(tiny, dataclasses.replace(clip, skeleton=dataclasses.replace(clip.skeleton, offsets=np.asarray(clip.skeleton.offsets) * 1e-3), pos_local=clip.pos_local * 1e-3), precision=10)
+    code, _, stderr = run_cli(tiny, "--frames", "0", "30", *FAST)
+    assert code == 2 and f"CLIP {tiny}: cannot tell the clip's units:" in stderr and stderr.rstrip().endswith("with --units"), stderr
+    code, _, stderr = run_cli(tiny, "--frames", "0", "30", "--units", "mm", "--up", "x", *FAST)
+    assert code == 2 and "argument --up: invalid choice: 'x'" in stderr
+
+
+def test_an_up_axis_no_frame_tells_is_taken_as_y_with_a_warning(tmp_path):
+    """A clip lying along X in every frame: Y up is taken (the BVH custom), and said."""
+    lying = tmp_path / "lying.bvh"
+    write_bvh(lying, turned_about_z(read_bvh(DEMO_CLIP), 90.0))
+    out = tmp_path / "out"
+    code, _, stderr = run_cli(lying, "--frames", "0", "30", "--no-preview", "--out", out, *FAST)
+    assert code == 0, stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["clip_units"] == {"units": "cm", "up": "y"}
+    (warning,) = summary["input_warnings"]
+    assert warning.startswith("cannot tell the clip's up axis: of 40 frames, the head stands above the feet along +X in 0, −X in 40")
+    assert warning.endswith("taking Y up, the BVH custom (--up says it)") and f"warning: {warning}" in stderr
 
 
 ROLES = {"hips": "Hips", "head": "Head", "left_hand": "Hand_L", "right_hand": "Hand_R", "left_foot": "Foot_L", "right_foot": "Foot_R"}

@@ -37,6 +37,7 @@ from bezmotion.assets.registry import resolve_folder
 from bezmotion.bmm.sampling import SampledCurves
 from bezmotion.data.bvh import BvhMotion, read_bvh, write_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, SKELETON_MAPS
+from bezmotion.data.clip_frame import CM_PER_UNIT, ClipFrame
 from bezmotion.geometry.skeleton import forward_kinematics
 from bezmotion.ik.protocol import Character, IKFn, Pose, pose_fk, pose_from_motion
 from bezmotion.ik.exact import exact_ik
@@ -355,9 +356,10 @@ def make_ik(
 # ------------------------------------------------------------------------------ output
 
 
-def bvh_fk_error_cm(path: str | os.PathLike, character: Character, pose: Pose) -> float:
-    """Largest joint-position difference (cm) between a written BVH, read back, and ``pose``."""
-    reread = read_bvh(path)
+def bvh_fk_error_cm(path: str | os.PathLike, character: Character, pose: Pose, clip_frame: ClipFrame = ClipFrame()) -> float:
+    """Largest joint-position difference (cm) between a written BVH, read back (in
+    ``clip_frame``'s units and up axis), and ``pose``."""
+    reread = clip_frame.to_ours(read_bvh(path))
     with jax.enable_x64(True):
         _, from_file = forward_kinematics(reread.skeleton.parents, jnp.asarray(reread.quat_local), jnp.asarray(reread.pos_local))
         from_file = np.asarray(from_file)
@@ -378,6 +380,8 @@ class ResultFiles:
       title: the preview's title line.
       key_frames: the frames that are key poses (None: the first and last; a chain's inner
         keys too), for the glTF file.
+      clip_frame: the units and up axis the BVH file is written in (everything here is in
+        cm with Y up; the glTF file in metres with Y up, as glTF wants).
     """
 
     character: Character
@@ -388,6 +392,7 @@ class ResultFiles:
     reference: BvhMotion | None = None
     title: str | None = None
     key_frames: tuple[int, ...] | None = None
+    clip_frame: ClipFrame = ClipFrame()
 
     def curve_arrays(self) -> dict[str, Any]:
         if self.curves is None:
@@ -396,7 +401,9 @@ class ResultFiles:
 
 
 def _write_bvh(path: Path, result: ResultFiles) -> None:
-    write_bvh(path, result.motion)
+    # Six decimals of a cm, as many of a larger unit (8 of a metre): the file as precise in any unit.
+    decimals = 6 + max(0, int(np.ceil(np.log10(CM_PER_UNIT[result.clip_frame.units]))))
+    write_bvh(path, result.clip_frame.from_ours(result.motion), precision=decimals)
 
 
 def _write_glb(path: Path, result: ResultFiles) -> None:

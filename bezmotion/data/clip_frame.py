@@ -1,0 +1,179 @@
+"""A clip's units and up axis, told from the clip, and its motion converted into ours and back.
+
+bezmotion works in centimetres with Y up (the LaFAN1 and Bandai-Namco files' convention, and
+what every threshold of the pipeline is measured in: a planted foot moves slower than
+7.5 cm/s, a handle is missed beyond 1 cm, the exact IK's weights are per cm). BVH files from
+other tools come in metres or millimetres (Blender's exporter writes its scene unit, the
+metre), some with Z up. :class:`ClipFrame` converts such a clip into ours before anything
+reads it, and the result back into the clip's own convention when it is written, so the
+in-between opens in the user's tool where the clip does.
+
+:func:`detect_clip_frame` tells both from the clip:
+
+- **up**: the direction (+Y or +Z) along which the head stands above the feet in many of the
+  clip's frames and below them in (nearly) none (a frame counts where the head-over-feet
+  direction is within ~37° of an axis; lying frames count for both sides of a horizontal
+  axis as the body turns);
+- **units**: the skeleton's size — the bone lengths from the head down to the hips and on to
+  a foot, as the offsets give them (the same in every pose) — is a person's 40–400 cm in
+  centimetres, in metres or in millimetres, and only one of them. Inches (a person ~60 in)
+  read as a small character in centimetres: they need ``units="in"``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from bezmotion.data.bvh import BvhMotion
+from bezmotion.geometry.rotations import quat_mul, quat_rotate
+from bezmotion.geometry.skeleton import forward_kinematics
+
+CM_PER_UNIT = {"cm": 1.0, "m": 100.0, "mm": 0.1, "in": 2.54}
+"""Centimetres per unit of each unit a clip may be in."""
+UP_AXES = ("y", "z")
+DETECTED_UNITS = ("cm", "m", "mm")  # told apart by size alone; inches are not (see the module docstring)
+PERSON_CM = (40.0, 400.0)  # a skeleton's head-to-hips-to-foot length (cm) that counts as a person's, any character's
+_DETECT_FRAMES = 256  # frames of a clip the up axis is told from (evenly spread)
+_UPRIGHT = 0.8  # a frame votes for an axis when its head-over-feet direction is within ~37° of it
+_OPPOSITE = 0.05  # up's opposite may get this fraction of up's votes (a handstand, a cartwheel)
+
+# Z up into Y up: −90° about X, (x, y, z) → (x, z, −y), as a quaternion (w, x, y, z).
+_Z_TO_Y_QUAT = np.array([np.sqrt(0.5), -np.sqrt(0.5), 0.0, 0.0])
+
+
+@dataclasses.dataclass(frozen=True)
+class ClipFrame:
+    """The units and up axis a clip is written in.
+
+    Attributes:
+      units: one of :data:`CM_PER_UNIT` (``"cm"``, ``"m"``, ``"mm"``, ``"in"``).
+      up: ``"y"`` or ``"z"``.
+    """
+
+    units: str = "cm"
+    up: str = "y"
+
+    def __post_init__(self) -> None:
+        if self.units not in CM_PER_UNIT:
+            raise ValueError(f"units must be one of {', '.join(CM_PER_UNIT)}, got {self.units!r}")
+        if self.up not in UP_AXES:
+            raise ValueError(f"up must be one of {', '.join(UP_AXES)}, got {self.up!r}")
+
+    @property
+    def is_ours(self) -> bool:
+        """Centimetres with Y up: nothing to convert."""
+        return self.units == "cm" and self.up == "y"
+
+    def to_ours(self, motion: BvhMotion) -> BvhMotion:
+        """``motion`` in centimetres with Y up: offsets, translations and End Sites scaled to
+        cm; with Z up, the whole motion turned about X (the root's rotation and position:
+        every other joint is in its parent's frame)."""
+        return _convert(motion, CM_PER_UNIT[self.units], _Z_TO_Y_QUAT if self.up == "z" else None)
+
+    def from_ours(self, motion: BvhMotion) -> BvhMotion:
+        """The inverse of :meth:`to_ours`: a motion of ours in this frame's units and up axis."""
+        inverse = _Z_TO_Y_QUAT * np.array([1.0, -1.0, -1.0, -1.0])
+        return _convert(motion, 1.0 / CM_PER_UNIT[self.units], inverse if self.up == "z" else None)
+
+
+def _convert(motion: BvhMotion, scale: float, turn: np.ndarray | None) -> BvhMotion:
+    """``motion`` scaled by ``scale``, then turned by the quaternion ``turn`` (about the world origin)."""
+    if scale == 1.0 and turn is None:
+        return motion
+    offsets = np.asarray(motion.skeleton.offsets, np.float64) * scale
+    pos_local = np.asarray(motion.pos_local, np.float64) * scale
+    quat_local = np.asarray(motion.quat_local, np.float64)
+    if turn is not None:
+        with jax.enable_x64(True):
+            root = np.asarray(quat_mul(jnp.asarray(turn), jnp.asarray(quat_local[:, 0])))
+            root_pos = np.asarray(quat_rotate(jnp.asarray(turn), jnp.asarray(pos_local[:, 0])))
+        pos_local = pos_local.copy()
+        pos_local[:, 0] = root_pos
+        quat_local = quat_local.copy()
+        quat_local[:, 0] = root
+    end_sites = tuple((parent, tuple(float(x) * scale for x in offset)) for parent, offset in motion.end_sites)
+    skeleton = dataclasses.replace(motion.skeleton, offsets=offsets)
+    return dataclasses.replace(motion, skeleton=skeleton, quat_local=quat_local, pos_local=pos_local, end_sites=end_sites)
+
+
+def chain_length(parents, offsets: np.ndarray, a: int, b: int) -> float:
+    """Length of the bones between joints ``a`` and ``b`` along the hierarchy (through their
+    lowest common ancestor), in the offsets' units."""
+    def ancestors(j: int) -> list[int]:
+        path = [j]
+        while parents[path[-1]] >= 0:
+            path.append(parents[path[-1]])
+        return path
+
+    up_a, up_b = ancestors(a), ancestors(b)
+    common = next(j for j in up_a if j in set(up_b))
+    bones = up_a[: up_a.index(common)] + up_b[: up_b.index(common)]  # each joint's offset is its bone to its parent
+    return float(sum(np.linalg.norm(offsets[j]) for j in bones))
+
+
+def detect_units(motion: BvhMotion, hips: int, head: int, feet: tuple[int, int]) -> str:
+    """The length unit of ``motion`` (``"cm"``, ``"m"`` or ``"mm"``) from its skeleton's size:
+    the bones from ``head`` down to ``hips`` and on to the longer of the ``feet``' legs.
+
+    Raises:
+      ValueError: the size is a person's in none of the units (or, impossibly, in two).
+    """
+    parents = motion.skeleton.parents
+    offsets = np.asarray(motion.skeleton.offsets, np.float64)
+    size = chain_length(parents, offsets, head, hips) + max(chain_length(parents, offsets, hips, f) for f in feet)
+    fits = [u for u in DETECTED_UNITS if PERSON_CM[0] <= size * CM_PER_UNIT[u] <= PERSON_CM[1]]
+    if len(fits) != 1:
+        raise ValueError(
+            f"cannot tell the clip's units: its head-to-hips-to-foot bones are {size:.4g} units long, a person's "
+            f"{PERSON_CM[0]:.0f}–{PERSON_CM[1]:.0f} cm in {'more than one' if fits else 'none'} of {', '.join(DETECTED_UNITS)}; "
+            f"give them ({', '.join(CM_PER_UNIT)})"
+        )
+    return fits[0]
+
+
+def detect_up(motions: BvhMotion | Sequence[BvhMotion], head: int, feet: tuple[int, int]) -> str:
+    """The up axis (``"y"`` or ``"z"``) of a clip, or of clips of one skeleton told together:
+    where the ``head`` stands above the ``feet`` (left, right) in many frames and below them
+    in (nearly) none.
+
+    Raises:
+      ValueError: that direction is neither +Y nor +Z, or no direction is; the message
+        gives each direction's count of frames.
+    """
+    above = []  # (frames, 3) head over the feet, of every clip
+    for motion in [motions] if isinstance(motions, BvhMotion) else motions:
+        frames = np.unique(np.linspace(0, motion.num_frames - 1, min(_DETECT_FRAMES, motion.num_frames)).round().astype(int))
+        with jax.enable_x64(True):
+            _, pos = forward_kinematics(motion.skeleton.parents, jnp.asarray(motion.quat_local[frames]), jnp.asarray(motion.pos_local[frames]))
+        pos = np.asarray(pos)
+        above.append(pos[:, head] - 0.5 * (pos[:, feet[0]] + pos[:, feet[1]]))
+    above = np.concatenate(above)
+    # Each frame where the body lies clearly along one axis votes for that direction (±X, ±Y,
+    # ±Z). A person's head is (nearly) never below the feet, so up is a direction voted for
+    # whose opposite (nearly) never is; lying frames (falls, ground work) vote for both sides
+    # of the horizontal axes as the body turns. Of such directions, the most voted is up.
+    along = np.abs(above) > _UPRIGHT * np.linalg.norm(above, axis=-1, keepdims=True)
+    votes = np.array([[np.sum(along[:, a] & (above[:, a] * sign > 0)) for sign in (1, -1)] for a in range(3)])  # (axis, ±)
+    one_sided = (votes > 0) & (votes[:, ::-1] <= _OPPOSITE * votes)
+    axis, negative = np.unravel_index(np.argmax(np.where(one_sided, votes, -1)), votes.shape)
+    if not one_sided[axis, negative] or negative or axis == 0:
+        shown = ", ".join(f"{d}{x} in {votes[a, k]}" for a, x in enumerate("XYZ") for k, d in enumerate("+−"))
+        raise ValueError(
+            f"cannot tell the clip's up axis: of {len(above)} frames, the head stands above the feet along {shown}; "
+            "give it (y or z)"
+        )
+    return "y" if axis == 1 else "z"
+
+
+def detect_clip_frame(motion: BvhMotion, hips: int, head: int, feet: tuple[int, int]) -> ClipFrame:
+    """The units and up axis of ``motion`` (see the module docstring), from its joints'
+    indices ``hips``, ``head`` and ``feet`` (left, right): :func:`detect_units`, :func:`detect_up`."""
+    return ClipFrame(detect_units(motion, hips, head, feet), detect_up(motion, head, feet))
+
+
+__all__ = ["CM_PER_UNIT", "UP_AXES", "ClipFrame", "chain_length", "detect_clip_frame", "detect_units", "detect_up"]
