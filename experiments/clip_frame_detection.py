@@ -11,7 +11,6 @@ right, wrong and refused per corpus and convention, and each file not told right
 
 from __future__ import annotations
 
-import argparse
 import json
 import tarfile
 import zipfile
@@ -23,6 +22,17 @@ from bezmotion.data.clip_frame import ClipFrame, detect_clip_frame
 from bezmotion.data.sources import default_source
 from bezmotion.ik.protocol import Character
 from bezmotion.io import atomic_write_text
+from bezmotion.options import option, options, parse_options
+
+CORPORA = ("lafan1", "bandai_namco")
+
+
+@options
+class Options:
+    every: int = option(10, help="every N-th BVH file of each corpus (default 10)")
+    frames: tuple[str, ...] = option(("cm/y", "m/z", "mm/z"), help="conventions UNITS/UP to write the clips in")
+    corpora: tuple[str, ...] = option(CORPORA, choices=CORPORA, help="the corpora (default: both)")
+    out: Path | None = option(None, help="a JSON file for the counts")
 
 
 def clips(corpus: str, every: int) -> Iterator[tuple[str, BvhMotion]]:
@@ -41,20 +51,16 @@ def clips(corpus: str, every: int) -> Iterator[tuple[str, BvhMotion]]:
 
 
 def main(argv: list[str] | None = None) -> dict:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--every", type=int, default=10, help="every N-th file of each corpus (default 10)")
-    parser.add_argument("--frames", nargs="+", default=["cm/y", "m/z", "mm/z"], help="conventions UNITS/UP to write the clips in")
-    parser.add_argument("--out", type=Path, default=None, help="a JSON file for the counts")
-    args = parser.parse_args(argv)
+    args = parse_options(Options, argv, description=__doc__)
     if args.every < 1:
-        parser.error(f"--every {args.every}: must be at least 1")
+        raise SystemExit(f"clip_frame_detection.py: error: --every {args.every}: must be at least 1")
     try:
         frames = [ClipFrame(*f.split("/")) for f in args.frames]
     except (TypeError, ValueError) as error:
-        parser.error(f"--frames {' '.join(args.frames)}: {error} (write UNITS/UP, e.g. m/z)")
+        raise SystemExit(f"clip_frame_detection.py: error: --frames {' '.join(args.frames)}: {error} (write UNITS/UP, e.g. m/z)") from None
     counts: dict[str, dict[str, dict[str, int]]] = {}
     misses = []
-    for corpus in ("lafan1", "bandai_namco"):
+    for corpus in args.corpora:
         per = counts.setdefault(corpus, {f"{f.units}/{f.up}": {"right": 0, "wrong": 0, "refused": 0} for f in frames})
         for name, motion in clips(corpus, args.every):
             hips, head, _, _, left_foot, right_foot = Character.from_bvh(motion, corpus).characteristic

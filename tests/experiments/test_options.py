@@ -171,7 +171,7 @@ def test_presets_are_the_configs_classmethods_by_name():
 
 # ---------------------------------------------------------------- the real scripts
 
-EXPERIMENTS = ("ablations", "bezier_stride", "bmm_lafan1", "chained_segments", "character_profiles", "cross_skeleton", "delta_anidance",
+EXPERIMENTS = ("ablations", "bezier_stride", "bmm_lafan1", "chained_segments", "character_profiles", "clip_frame_detection", "cross_skeleton", "delta_anidance",
                "delta_lafan1", "ik_subsets", "lafan1_baselines", "motion_features", "table1", "train_ik")  # fmt: skip
 BENCHMARKS = ("bezier_fit", "bmm_inference", "bvh_parse", "delta_inference", "fk", "ik_exact", "inbetween")
 _SIBLINGS = ("_common", "_delta", "_timing")  # the helper modules beside the scripts
@@ -225,6 +225,7 @@ README_COMMANDS = [
     ("experiments", "ik_subsets", ["--out", "results/ik_subsets.json"]),
     ("experiments", "character_profiles", ["--out-dir", "bezmotion/assets/profiles"]),
     ("experiments", "cross_skeleton", ["--model", "lafan1=lafan1_cpu", "--out", "results/cross_skeleton.json"]),
+    ("experiments", "clip_frame_detection", ["--every", "10", "--out", "results/clip_frame_detection.json"]),
     ("benchmarks", "delta_inference", []),
     ("benchmarks", "fk", []),
     ("benchmarks", "bvh_parse", []),
