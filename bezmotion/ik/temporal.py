@@ -35,6 +35,7 @@ FLIP_TURN = 0.75
 KEY_TURN = 0.4
 _SLACK = 1e-4  # rad: a ramped step may measure this much over its limit after rounding; not ramped again
 _SKIP_MARGIN = 1e-5  # rad: limit_turns skips its ramps only where every step is this far within its limit
+_AGREE = 1e-4  # rad: two passes of limit_turns this close count as one where it splits a stretch
 _HORIZONTAL = np.asarray([1.0, 0.0, 1.0], np.float32)  # X and Z; +Y is up
 
 
@@ -158,7 +159,14 @@ def _ramped(q: Array, turns: Array, kept: Array) -> Array:
     before = jax.lax.cummax(jnp.where(kept, index, 0))  # the kept frame at or before t
     after = jax.lax.cummin(jnp.where(kept, index, frames - 1), reverse=True)  # at or after t
     middle = jnp.abs(index - 0.5 * (before + after)) / frames
-    score = quat_angle(forward, backward) + 1e-3 * middle.astype(q.dtype)[:, None]
+    # Passes within _AGREE of each other agree: where both are back on the poses on either side
+    # of a fast stretch, their float rounding must not choose the side (a cm clip and the same in
+    # metres, or the same window compiled otherwise, put a ramp on opposite sides of a stretch
+    # centred in its window: an elbow 25 cm apart). Equal distances from the middle go to the
+    # earlier frame.
+    apart = quat_angle(forward, backward)
+    apart = jnp.where(apart < _AGREE, 0.0, apart)
+    score = apart + (1e-3 * middle + 1e-6 * index / frames).astype(q.dtype)[:, None]
     score = jnp.where(kept[:, None], jnp.inf, score)
     # t lies before its stretch's split when the lowest score so far in the stretch is above
     # the lowest still to come in it (the split is the first lowest; kept frames score ∞, so

@@ -3,6 +3,7 @@ inner IK's poses, the temporal smoothing, planted feet. Synthetic rotations of k
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -131,6 +132,33 @@ def test_limit_turns_spreads_a_step_over_both_sides(before, after):
     assert turns.max() <= limit + 1e-4, np.degrees(turns)
     assert turns.sum() == pytest.approx(np.radians(149.0), abs=1e-4)
     np.testing.assert_array_equal(out[np.asarray([0, -1])], quat[np.asarray([0, -1])])
+
+
+def test_limit_turns_puts_a_centred_ramp_on_the_same_side_whatever_the_rounding():
+    """A joint turning 120° in two steps centred in its window (frames 14 → 16 of 0 … 30): the
+    passes from both kept frames are back on the poses 2 frames either side of the middle, a
+    tie that the passes' float rounding used to break. A rotation of 1e-6 rad on every frame,
+    or compiling the filter, then put the ramp on the other side (the joint 43° apart over
+    three frames; an elbow 25 cm apart between a clip in cm and the same clip in metres).
+    Now every such input gives the noiseless result to rounding, the ramp on the earlier side."""
+    frames, limit = 31, np.radians(43.0)
+    z = jnp.broadcast_to(jnp.asarray([0.0, 0.0, 1.0]), (frames, 3))
+    angle = np.select([np.arange(frames) <= 14, np.arange(frames) == 15], [0.0, 60.0], 120.0).astype(np.float32)
+    # About a joint's own axis, turned from its parent's in general (about z alone the passes
+    # agree bit for bit, and nothing is left to rounding).
+    base = quat_from_axis_angle(jnp.asarray([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8]), jnp.asarray(1.3))
+    quat = quat_mul(base, quat_from_axis_angle(z, jnp.radians(jnp.asarray(angle))))[:, None]
+    want = limit_turns(Pose(jnp.zeros((frames, 3)), quat), limit).quat_local
+    turns = np.asarray(rotation_change_deg(want))[:, 0]  # degrees, per step
+    np.testing.assert_allclose(turns[12:17], [0.0, 34.0, 43.0, 43.0, 0.0], atol=1e-3)  # the earlier side ramps
+    filtered = jax.jit(limit_turns)
+    rng = np.random.default_rng(0)
+    for k in range(12):
+        axis = rng.normal(size=(frames, 3)).astype(np.float32)
+        noise = quat_from_axis_angle(jnp.asarray(axis / np.linalg.norm(axis, axis=-1, keepdims=True)), jnp.full(frames, 1e-6))
+        noisy = Pose(jnp.zeros((frames, 3)), quat_mul(quat, noise[:, None]))
+        for out in (limit_turns(noisy, limit).quat_local, filtered(noisy, limit).quat_local):
+            assert float(jnp.max(quat_angle(out, want))) < 1e-4, (k, np.degrees(np.asarray(quat_angle(out, want))[:, 0]))
 
 
 def test_limit_turns_takes_the_shortest_way_where_the_poses_spin_too_fast():
