@@ -8,8 +8,11 @@
 **Keys.** One file and two frames (``CLIP.bvh --frames F G``), or a file and a frame each
 (``--start A.bvh@F --end B.bvh@G``; without ``@`` the start is frame 0 and the end the
 last frame). The BMM in-betweens a fixed window of ``bmm.config.num_frames`` frames (31:
-the keys are 30 frames apart). With ``--frames`` the keys must be that far apart in the
-clip — the command refuses another distance rather than silently retiming the clip;
+the keys are 30 frames apart at 30 fps, the rate every model here was trained at). With
+``--frames`` the keys must be that far apart in the clip, one second (120 frames at 120
+fps: a clip at another rate is resampled to 30 fps through its keys first,
+:func:`~bezmotion.data.resample.resample_motion`, and the in-between written at 30 fps) —
+the command refuses another distance rather than silently retiming the clip;
 ``--start``/``--end`` take any two poses (also of one file) and put them 30 frames apart.
 More than two ``--frames`` (``CLIP.bvh --frames 0 30 60 90``, each 30 after the one before)
 in-between a chain through every one of them: one window per pair of consecutive keys, all
@@ -17,8 +20,8 @@ sampled in one call and joined C¹ at the shared keys
 (:func:`~bezmotion.pipeline.inbetween_chain`), then one IK over the whole motion.
 ``--key FILE.bvh@FRAME``, repeated, makes such a chain through any poses of any files, in
 the order given, each put 30 frames after the one before.
-Every key file must have the same joints; the output rigs like the first one (its OFFSETs,
-End Sites and frame rate).
+Every key file must have the same joints; the output rigs like the first one (its OFFSETs
+and End Sites).
 
 **Handles** (any number; frames count from the first key, 0, to the last, 30 — or 30·K
 through K + 1 keys; a frame between two keys, not on one):
@@ -80,6 +83,7 @@ from bezmotion.bmm.sampling import BezierMotionModel, Handles, load_model
 from bezmotion.data.bvh import BvhMotion, read_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.data.clip_frame import CM_PER_UNIT, UP_AXES, ClipFrame, detect_units, detect_up
+from bezmotion.data.resample import resample_motion
 from bezmotion.ik.exact import exact_settings
 from bezmotion.ik.protocol import Character, Pose, pose_fk, targets_from_pose
 from bezmotion.ik.protores import load_ik_model
@@ -132,7 +136,8 @@ class InbetweenOptions:
     clip: Path | None = option(None, positional=True, metavar="CLIP.bvh", help="one BVH file holding both key poses (with --frames)")
     frames: tuple[int, ...] | None = option(
         None, metavar="FRAME",
-        help="the key frames in CLIP, 30 frames apart (the BMM's window): START END, or more for a chain through every one (C¹ at the shared keys)",
+        help="the key frames in CLIP, one second apart (the BMM's window: 30 frames at 30 fps, 120 at 120 fps): START END, or more "
+        "for a chain through every one (C¹ at the shared keys)",
     )  # fmt: skip
     start: str | None = option(None, metavar="FILE.bvh@FRAME", help="the start pose (default frame 0)")
     end: str | None = option(None, metavar="FILE.bvh@FRAME", help="the end pose (default the last frame), put 30 frames after the start")
@@ -222,6 +227,9 @@ _HANDLE_SLOTS = 4
 # window is one second at 30 fps, and nobody moves 100 m in it: a handle beyond is a slip of
 # units (mm for cm) or digits, and float32 curves there lose the centimetres they are judged by.
 HANDLE_FARTHEST_CM = 10_000.0
+# Frames per second of the clips the BMMs and learned IKs were trained on (LaFAN1 and Bandai-Namco
+# both): a clip at another rate is resampled to it first (bezmotion.data.resample).
+TRAINED_FPS = 30.0
 _HANDLE = re.compile(r"^\s*(?P<joint>[^@=\s]+)\s*@\s*(?P<frame>[^=]*?)\s*=\s*(?P<plus>\+)?(?P<xyz>.*)$")
 _HANDLE_FORM = "JOINT@FRAME=X,Y,Z (a position, cm) or JOINT@FRAME=+X,Y,Z (an offset from the straight line between the keys)"
 
@@ -477,6 +485,7 @@ class Plan:
     models: dict[str, str | None] | None = None  # {"bmm": name or folder, "ik": the learned IK's, None without one}
     clip_frame: ClipFrame = ClipFrame()  # the clips' units and up axis (everything above is in cm, Y up)
     warnings: tuple[str, ...] = ()  # about the inputs, for stderr and the summary
+    clip_fps: float = TRAINED_FPS  # the start clip's own frame rate (the keys are resampled to TRAINED_FPS)
 
 
 def _outputs(args: InbetweenOptions) -> tuple[list[dict[str, Path]], Path | None]:
@@ -555,8 +564,6 @@ def plan(args: InbetweenOptions) -> Plan:
         start_motion = keys[0][3]
         recognised = recognise(start_motion)
     character = recognised.character
-    key_poses = tuple(motion_poses(m, character, f) for _, _, _, m, f in keys)
-    key_velocity = _clip_key_velocities(character, keys) if args.key_velocities else None
 
     # The handles as written (their joints known now; their frames once the model is).
     requests = [parse_handle(h) for h in args.handle]
@@ -573,17 +580,32 @@ def plan(args: InbetweenOptions) -> Plan:
     except (FileNotFoundError, ValueError, TypeError) as error:
         raise _error("--model", model_name, error) from None
     window = bmm.config.num_frames
-    reference = None
+    clip_fps = start_motion.nominal_fps
     if args.clip is not None:
         shown = " ".join(map(str, args.frames))
+        # The BMM's window is window − 1 frames at TRAINED_FPS: so many seconds of the clip.
+        apart = (window - 1) * clip_fps / TRAINED_FPS
+        if abs(apart - round(apart)) > 1e-6:
+            raise ValueError(
+                f"CLIP {args.clip}: at {clip_fps:g} fps no whole number of frames spans the BMM's window of {window - 1} frames at "
+                f"{TRAINED_FPS:g} fps ({(window - 1) / TRAINED_FPS:g} s); resample the clip to {TRAINED_FPS:g} fps, or give the keys with --start/--end"
+            )
+        apart = round(apart)
+        rate = "" if apart == window - 1 else f" ({(window - 1) / TRAINED_FPS:g} s at the clip's {clip_fps:g} fps)"
         for a, b in zip(args.frames, args.frames[1:]):
-            if b - a != window - 1:
+            if b - a != apart:
                 retime = f", or --start {args.clip}@{a} --end {args.clip}@{b} to put these two poses {window - 1} frames apart" if len(args.frames) == 2 else ""
                 raise ValueError(
-                    f"--frames {shown}: the keys{'' if len(args.frames) == 2 else f' {a} and {b}'} are {b - a} frames apart; the BMM in-betweens {window - 1} "
-                    f"(a {window}-frame window): use --frames {' '.join(str(f0 + i * (window - 1)) for i in range(len(args.frames)))}{retime}"
+                    f"--frames {shown}: the keys{'' if len(args.frames) == 2 else f' {a} and {b}'} are {b - a} frames apart; the BMM in-betweens {apart}{rate} "
+                    f"(a {window}-frame window): use --frames {' '.join(str(f0 + i * apart) for i in range(len(args.frames)))}{retime}"
                 )
-        reference = motion_window(start_motion, f0, f1 - f0 + 1)
+    # Every clip at the BMM's frame rate from here on (its window, thresholds and velocities count those frames).
+    keys, rate_warnings = _at_trained_rate(keys)
+    frame_warnings = [*frame_warnings, *rate_warnings]
+    start_motion, f0, f1 = keys[0][3], keys[0][4], keys[-1][4]
+    reference = motion_window(start_motion, f0, f1 - f0 + 1) if args.clip is not None else None
+    key_poses = tuple(motion_poses(m, character, f) for _, _, _, m, f in keys)
+    key_velocity = _clip_key_velocities(character, keys) if args.key_velocities else None
     trained_on = args.trained_on if args.trained_on is not None else bundled_trained_on
     transfer = None
     if trained_on is not None and trained_on != recognised.preset:
@@ -627,6 +649,7 @@ def plan(args: InbetweenOptions) -> Plan:
     return Plan(
         recognised, start_motion, key_poses, reference, bmm, ik, ik_fn, ik_params, transfer, handles, records, reach, outputs, folder,
         label, key_velocity, {"bmm": model_name, "ik": None if ik_model is None else ik_model_name}, clip_frame, tuple(frame_warnings),
+        clip_fps,
     )  # fmt: skip
 
 
@@ -715,6 +738,35 @@ def _read_keys(args: InbetweenOptions) -> tuple[list[tuple[str, str, Path, BvhMo
         _check_frame(argument, text, m, frame)
         keys.append((argument, text, path, m, frame))
     return keys, " → ".join(text for _, text in named)
+
+
+def _at_trained_rate(
+    keys: Sequence[tuple[str, str, Path, BvhMotion, int]],
+) -> tuple[list[tuple[str, str, Path, BvhMotion, int]], list[str]]:
+    """The keys (as :func:`_read_keys` gives them) with every clip of another frame rate
+    resampled to :data:`TRAINED_FPS` through its key frames (:func:`resample_motion`), each
+    key's frame moved to its sample; and a warning per such file. A clip's keys a whole
+    number of new frames apart share one resampling (CLIP ``--frames``); any other key gets
+    its own, through its frame."""
+    out, warnings, done = [], [], {}
+    for argument, text, path, motion, frame in keys:
+        if abs(motion.nominal_fps - TRAINED_FPS) < 1e-6:
+            out.append((argument, text, path, motion, frame))
+            continue
+        step = motion.nominal_fps / TRAINED_FPS  # clip frames per new frame
+        shared = done.get(id(motion))
+        if shared is not None and abs((frame - shared[1]) / step - round((frame - shared[1]) / step)) < 1e-6:
+            resampled, anchor, at = shared
+            out.append((argument, text, path, resampled, at + round((frame - anchor) / step)))
+            continue
+        resampled, at = resample_motion(motion, TRAINED_FPS, frame)
+        if shared is None:
+            done[id(motion)] = (resampled, frame, at)
+            warnings.append(
+                f"{path}: {motion.nominal_fps:g} fps, resampled to the BMM's {TRAINED_FPS:g} fps; the in-between is written at {TRAINED_FPS:g} fps"
+            )
+        out.append((argument, text, path, resampled, at))
+    return out, warnings
 
 
 def _clip_key_velocities(character: Character, keys: Sequence[tuple[str, str, Path, BvhMotion, int]]) -> Float[Array, "keys 6 3"]:
@@ -842,6 +894,7 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
         "frames": frames,
         "windows": windows,
         "fps": p.start_motion.nominal_fps,
+        "clip_fps": p.clip_fps,
         "ik": p.ik,
         "models": p.models,
         "steps": args.steps,

@@ -28,6 +28,7 @@ from bezmotion.assets import DEMO_CLIP
 from bezmotion.cli import main
 from bezmotion.data.bvh import read_bvh, write_bvh
 from bezmotion.data.clip_frame import ClipFrame
+from bezmotion.data.resample import resample_motion
 from bezmotion.inbetween_command import HandleRequest, InbetweenOptions, parse_handle, plan, read_handles_file
 from bezmotion.ik.protocol import targets_from_pose
 from bezmotion.options import parse_options
@@ -216,6 +217,37 @@ def test_a_clip_in_metres_with_z_up_gives_the_same_in_between_written_in_its_own
         np.testing.assert_allclose(fk_positions(theirs.to_ours(written)), ours, atol=1e-3)
         assert summary["handles"] == runs["cm"][0]["handles"] and max(summary["samples"][0]["handle_errors_cm"]) < 1e-3
         assert summary["samples"][0]["bvh_fk_error_cm"] < 1e-3
+
+
+def test_a_clip_at_120_fps_is_in_betweened_at_the_models_30_over_one_second(tmp_path):
+    """The bundled 30 fps clip upsampled to 120 fps: its keys one second apart are frames 0 and
+    120, the clip is resampled to the BMM's 30 fps (a warning says so), and the in-between is
+    the 30 fps clip's, written at 30 fps. At 120 fps, frames 0 and 30 are a quarter of a second
+    apart: refused, naming the frames that make one second; at 29.97 fps no whole number of
+    frames is one second."""
+    fast, _ = resample_motion(read_bvh(DEMO_CLIP), 120.0)
+    clip = tmp_path / "fast.bvh"
+    write_bvh(clip, fast, precision=10)
+    handle = ["--handle", "right_hand@12=+0,25,0"]
+    runs = {}
+    for name, argv in {"30": [DEMO_CLIP, "--frames", "0", "30"], "120": [clip, "--frames", "0", "120"]}.items():
+        out = tmp_path / name
+        code, _, stderr = run_cli(*argv, *handle, "--no-preview", "--out", out, *FAST)
+        assert code == 0, stderr
+        runs[name] = json.loads((out / "summary.json").read_text()), read_bvh(out / "inbetween.bvh"), stderr
+    summary, written, stderr = runs["120"]
+    assert summary["fps"] == 30.0 and summary["clip_fps"] == 120.0 and written.nominal_fps == 30.0 and written.num_frames == 31
+    (warning,) = summary["input_warnings"]
+    assert warning == f"{clip}: 120 fps, resampled to the BMM's 30 fps; the in-between is written at 30 fps" and f"warning: {warning}" in stderr
+    assert runs["30"][0]["clip_fps"] == 30.0 and not runs["30"][0]["input_warnings"]
+    np.testing.assert_allclose(fk_positions(written), fk_positions(runs["30"][1]), atol=1e-3)
+    code, _, stderr = run_cli(clip, "--frames", "0", "30", *FAST)
+    assert code == 2 and "--frames 0 30: the keys are 30 frames apart; the BMM in-betweens 120 (1 s at the clip's 120 fps)" in stderr, stderr
+    assert "use --frames 0 120" in stderr
+    ntsc = tmp_path / "ntsc.bvh"
+    write_bvh(ntsc, dataclasses.replace(read_bvh(DEMO_CLIP), frame_time=1.0 / 29.97))
+    code, _, stderr = run_cli(ntsc, "--frames", "0", "30", *FAST)
+    assert code == 2 and f"CLIP {ntsc}: at 29.97 fps no whole number of frames spans the BMM's window of 30 frames at 30 fps (1 s)" in stderr, stderr
 
 
 def test_a_clip_whose_units_or_up_cannot_be_told_asks_for_them(tmp_path):
