@@ -83,7 +83,7 @@ from bezmotion.bmm.sampling import BezierMotionModel, Handles, load_model
 from bezmotion.data.bvh import BvhMotion, read_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.data.clip_frame import CM_PER_UNIT, UP_AXES, ClipFrame, detect_units, detect_up
-from bezmotion.data.resample import resample_motion
+from bezmotion.data.resample import TRAINED_FPS, resample_motion
 from bezmotion.ik.exact import exact_settings
 from bezmotion.ik.protocol import Character, Pose, pose_fk, targets_from_pose
 from bezmotion.ik.protores import load_ik_model
@@ -227,9 +227,6 @@ _HANDLE_SLOTS = 4
 # window is one second at 30 fps, and nobody moves 100 m in it: a handle beyond is a slip of
 # units (mm for cm) or digits, and float32 curves there lose the centimetres they are judged by.
 HANDLE_FARTHEST_CM = 10_000.0
-# Frames per second of the clips the BMMs and learned IKs were trained on (LaFAN1 and Bandai-Namco
-# both): a clip at another rate is resampled to it first (bezmotion.data.resample).
-TRAINED_FPS = 30.0
 _HANDLE = re.compile(r"^\s*(?P<joint>[^@=\s]+)\s*@\s*(?P<frame>[^=]*?)\s*=\s*(?P<plus>\+)?(?P<xyz>.*)$")
 _HANDLE_FORM = "JOINT@FRAME=X,Y,Z (a position, cm) or JOINT@FRAME=+X,Y,Z (an offset from the straight line between the keys)"
 

@@ -18,6 +18,7 @@ import numpy as np
 from bezmotion.data.cache import cache_dir
 from bezmotion.data.corpus import Corpus
 from bezmotion.data.curves import CurveDataset
+from bezmotion.data.resample import TRAINED_FPS
 from bezmotion.data.sources import CORPORA, load_corpus
 
 #: ``--corpus`` help shared by the scripts that train on any corpus.
@@ -57,7 +58,8 @@ def open_corpus(name_or_path: str, *, data: str | None = None, characteristic: s
     """A published corpus by name (from ``data`` or its default archive), or a folder of BVH files.
 
     Args:
-      name_or_path: ``lafan1``, ``bandai_namco``, ``anidance`` or a folder path.
+      name_or_path: ``lafan1``, ``bandai_namco``, ``anidance`` or a folder path (its
+        files resampled to :data:`~bezmotion.data.resample.TRAINED_FPS` if at another rate).
       data: the published corpus's archive or folder (names only).
       characteristic: a folder's characteristic joints: a preset name or a JSON file
         mapping each role to a joint name (folders only).
@@ -76,7 +78,8 @@ def open_corpus(name_or_path: str, *, data: str | None = None, characteristic: s
             mapping = json.loads(Path(characteristic).read_text())
         except (OSError, json.JSONDecodeError) as error:
             raise ValueError(f"--characteristic {characteristic}: not a readable JSON map ({error})") from error
-    return load_corpus(name_or_path, progress=progress, characteristic=mapping)
+    # At the rate bezmotion inbetween resamples every clip to: a model trained here fits it.
+    return load_corpus(name_or_path, progress=progress, characteristic=mapping, fps=TRAINED_FPS)
 
 
 def corpus_label(name_or_path: str) -> str:

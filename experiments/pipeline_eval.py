@@ -175,6 +175,7 @@ from bezmotion.baselines import OFF_GRID_REFERENCES
 from bezmotion.bmm.sampling import Handles, load_model, share_boundaries, with_off_grid_prior
 from bezmotion.data.corpus import Corpus, motion_clips
 from bezmotion.data.curves import CurveDataset, curve_dataset
+from bezmotion.data.resample import TRAINED_FPS
 from bezmotion.data.sources import load_corpus
 from bezmotion.ik.exact import exact_ik, exact_settings
 from bezmotion.ik.joint_limits import JointLimits
@@ -323,7 +324,8 @@ def open_windows(args: Options, character: Character | None = None) -> tuple[Cor
         if args.bvh_dir is None:
             corpus = load_corpus(args.corpus, progress=False)
         else:  # every file validates
-            corpus = load_corpus(args.bvh_dir, characteristic=args.corpus, validation_every=1, progress=False)
+            # At the models' rate, as bezmotion inbetween takes a clip (a 120 fps window of 31 frames is a quarter second).
+            corpus = load_corpus(args.bvh_dir, characteristic=args.corpus, validation_every=1, fps=TRAINED_FPS, progress=False)
         if character is not None and (corpus.skeleton.names, corpus.skeleton.parents) != (character.skeleton.names, character.skeleton.parents):
             raise ValueError(f"its skeleton is not the IK model's ({character.name}); use clips of the {args.corpus} skeleton")
         dataset = curve_dataset(corpus, "validation", progress=False)

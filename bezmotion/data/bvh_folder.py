@@ -3,7 +3,8 @@
 Every ``*.bvh`` directly in the folder is one clip, in file-name order. They must share
 one skeleton — the same joint names and parents, the same OFFSETs (within
 :data:`OFFSET_TOLERANCE` cm) on joints without animated position channels — and one
-frame time; the first file that does not raises ``ValueError`` naming it. The parsed
+frame time, unless ``fps`` resamples every file to one; the first file that does not
+raises ``ValueError`` naming it. The parsed
 clips are cached on disk like the published corpora.
 
 Split: the files listed in ``validation_files``, or else every ``validation_every``-th
@@ -22,6 +23,7 @@ from tqdm.auto import tqdm
 
 from bezmotion.data.bvh import BvhMotion, parse_bvh
 from bezmotion.data.cache import cached_arrays, fingerprint
+from bezmotion.data.resample import resample_motion
 from bezmotion.data.corpus import (
     MotionClips,
     check_split,
@@ -114,6 +116,7 @@ def load_bvh_folder(
     validation_every: int | None = VALIDATION_EVERY,
     validation_files: Collection[str] | None = None,
     name: str | None = None,
+    fps: float | None = None,
     use_cache: bool = True,
     progress: bool = True,
 ) -> BvhFolderCorpus:
@@ -127,12 +130,15 @@ def load_bvh_folder(
         (``None``: none); ignored when ``validation_files`` is given.
       validation_files: file names or stems of the validation clips.
       name: the corpus name (default: the folder's name).
+      fps: resample every file to this rate on reading
+        (:func:`~bezmotion.data.resample.resample_motion`, through its first frame), so files
+        of different rates make one corpus; ``None``: as they are (every file at the first's).
       use_cache: ``False`` always parses and never touches the cache.
       progress: show a tqdm bar while parsing.
     Raises:
       FileNotFoundError: ``path`` does not exist.
-      ValueError: not a folder, no ``.bvh`` files, a file whose skeleton or frame time
-        differs from the first file's (named), or a bad split rule.
+      ValueError: not a folder, no ``.bvh`` files, a file whose skeleton or (without
+        ``fps``) frame time differs from the first file's (named), or a bad split rule.
     """
     folder = Path(path)
     if not folder.exists():
@@ -144,8 +150,8 @@ def load_bvh_folder(
         raise ValueError(f"{folder}: no .bvh files found")
     stems = tuple(p.stem for p in files)
     is_validation = _validation_mask(folder, stems, validation_every, validation_files)
-    key = fingerprint(*files, corpus="bvh-folder", version=_FORMAT_VERSION)
-    arrays = cached_arrays("bvh-folder", key, lambda: _parse_folder(files, progress), use_cache=use_cache)
+    key = fingerprint(*files, corpus="bvh-folder", version=_FORMAT_VERSION, **({} if fps is None else {"fps": float(fps)}))
+    arrays = cached_arrays("bvh-folder", key, lambda: _parse_folder(files, progress, fps), use_cache=use_cache)
     return BvhFolderCorpus(
         name=name if name is not None else folder.resolve().name,
         **hierarchy_from_arrays(arrays),
@@ -197,7 +203,7 @@ def _check_same_skeleton(path: Path, motion: BvhMotion, first_path: Path, first:
         raise ValueError(f"{path}: frame time {motion.frame_time} s, {first_path.name} has {first.frame_time} s")
 
 
-def _parse_folder(files: Sequence[Path], progress: bool) -> dict[str, np.ndarray]:
+def _parse_folder(files: Sequence[Path], progress: bool, fps: float | None = None) -> dict[str, np.ndarray]:
     motions: list[BvhMotion] = []
     for path in tqdm(files, desc="parsing BVH folder", unit="file", leave=False, disable=not progress):
         try:
@@ -205,6 +211,8 @@ def _parse_folder(files: Sequence[Path], progress: bool) -> dict[str, np.ndarray
         except UnicodeDecodeError as e:
             raise ValueError(f"{path}: not UTF-8 text ({e})") from None
         motion = parse_bvh(text, str(path))
+        if fps is not None:
+            motion, _ = resample_motion(motion, fps)
         if motions:
             _check_same_skeleton(path, motion, files[0], motions[0])
         motions.append(motion)

@@ -22,6 +22,10 @@ import numpy as np
 from bezmotion.data.bvh import BvhMotion
 from bezmotion.geometry.rotations import slerp
 
+# Frames per second of the corpora every model here was trained on (LaFAN1 and Bandai-Namco both):
+# clips at another rate are resampled to it before they meet a model.
+TRAINED_FPS = 30.0
+
 # A sample within this many source frames of a frame takes that frame as it is (rounding of
 # the sample times must not blend a key pose with its neighbour).
 _ON_FRAME = 1e-6
@@ -65,4 +69,4 @@ def resample_motion(motion: BvhMotion, fps: float, anchor: int = 0) -> tuple[Bvh
     return resampled, before
 
 
-__all__ = ["resample_motion"]
+__all__ = ["TRAINED_FPS", "resample_motion"]

@@ -21,6 +21,7 @@ from bezmotion.data.anidance import AnidanceCorpus
 from bezmotion.data.bandai_namco import load_bandai_namco
 from bezmotion.data.bvh import BvhMotion, read_bvh, write_bvh
 from bezmotion.data.bvh_folder import load_bvh_folder
+from bezmotion.data.resample import resample_motion
 from bezmotion.data.corpus import Corpus, MotionClips, motion_clips
 from bezmotion.data.curves import build_curve_dataset, curve_dataset
 from bezmotion.data.lafan1 import JOINT_NAMES
@@ -130,6 +131,20 @@ def test_bvh_folder_with_other_bone_lengths_or_frame_time_names_the_file(tmp_pat
     write_bvh(slower / "b.bvh", dataclasses.replace(DEMO, frame_time=1 / 60))
     with pytest.raises(ValueError, match=r"b\.bvh: frame time 0\.01666"):
         load_bvh_folder(slower)
+
+
+def test_bvh_folder_at_one_rate_resamples_files_of_others(tmp_path: Path):
+    """``fps=30``: a 60 fps file (DEMO upsampled) joins a 30 fps one, both at 30 fps, the
+    60 fps file's every other frame being DEMO's own; the rate is part of the cache key."""
+    folder = write_folder(tmp_path / "mixed", {"a": slice(0, 40)})
+    fast, _ = resample_motion(DEMO, 60.0)
+    write_bvh(folder / "b.bvh", fast, precision=10)
+    corpus = load_bvh_folder(folder, fps=30.0)
+    assert corpus.fps == pytest.approx(30.0, abs=1e-4) and corpus.starts.tolist() == [0, 40, 80]
+    np.testing.assert_allclose(corpus.quat_local[40:], DEMO.quat_local, atol=1e-9)
+    np.testing.assert_allclose(corpus.pos_local[40:], DEMO.pos_local, atol=1e-8)
+    with pytest.raises(ValueError, match=r"b\.bvh: frame time 0\.01666"):
+        load_bvh_folder(folder)  # cached at 30 fps above; as they are, the rates still differ
 
 
 def test_bvh_folder_bad_input(tmp_path: Path, folder: Path):
