@@ -11,11 +11,13 @@ from bezmotion.data.bvh_folder import BvhFolderCorpus, load_bvh_folder
 from bezmotion.data.corpus import SPLITS, Corpus, MotionClips, motion_clips
 from bezmotion.data.corpus_windows import MotionWindows, motion_windows
 from bezmotion.data.curves import CurveDataset, build_curve_dataset, curve_dataset
+from bezmotion.data.resample import TRAINED_FPS, resample_motion
 from bezmotion.data.sources import CORPORA, data_dir, default_source, load_corpus
 
 __all__ = [
     "CORPORA",
     "SPLITS",
+    "TRAINED_FPS",
     "BvhFolderCorpus",
     "BvhMotion",
     "Corpus",
@@ -33,5 +35,6 @@ __all__ = [
     "motion_windows",
     "parse_bvh",
     "read_bvh",
+    "resample_motion",
     "write_bvh",
 ]
