@@ -745,23 +745,22 @@ def _at_trained_rate(
     key's frame moved to its sample; and a warning per such file. A clip's keys a whole
     number of new frames apart share one resampling (CLIP ``--frames``); any other key gets
     its own, through its frame."""
-    out, warnings, done = [], [], {}
+    out, warnings, done = [], [], {}  # done: id(clip) → (resampled, anchor frame, its sample)
     for argument, text, path, motion, frame in keys:
-        if abs(motion.nominal_fps - TRAINED_FPS) < 1e-6:
-            out.append((argument, text, path, motion, frame))
-            continue
-        step = motion.nominal_fps / TRAINED_FPS  # clip frames per new frame
         shared = done.get(id(motion))
-        if shared is not None and abs((frame - shared[1]) / step - round((frame - shared[1]) / step)) < 1e-6:
+        if shared is not None:
             resampled, anchor, at = shared
-            out.append((argument, text, path, resampled, at + round((frame - anchor) / step)))
-            continue
-        resampled, at = resample_motion(motion, TRAINED_FPS, frame)
+            moved = (frame - anchor) * TRAINED_FPS / motion.nominal_fps  # new frames from the anchor
+            if abs(moved - round(moved)) < 1e-6:
+                out.append((argument, text, path, resampled, at + round(moved)))
+                continue
+        resampled, at = resample_motion(motion, TRAINED_FPS, frame)  # the clip itself at TRAINED_FPS
         if shared is None:
             done[id(motion)] = (resampled, frame, at)
-            warnings.append(
-                f"{path}: {motion.nominal_fps:g} fps, resampled to the BMM's {TRAINED_FPS:g} fps; the in-between is written at {TRAINED_FPS:g} fps"
-            )
+            if resampled is not motion:
+                warnings.append(
+                    f"{path}: {motion.nominal_fps:g} fps, resampled to the BMM's {TRAINED_FPS:g} fps; the in-between is written at {TRAINED_FPS:g} fps"
+                )
         out.append((argument, text, path, resampled, at))
     return out, warnings
 

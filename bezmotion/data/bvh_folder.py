@@ -23,7 +23,6 @@ from tqdm.auto import tqdm
 
 from bezmotion.data.bvh import BvhMotion, parse_bvh
 from bezmotion.data.cache import cached_arrays, fingerprint
-from bezmotion.data.resample import resample_motion
 from bezmotion.data.corpus import (
     MotionClips,
     check_split,
@@ -33,6 +32,7 @@ from bezmotion.data.corpus import (
     hierarchy_from_arrays,
     no_source_key,
 )
+from bezmotion.data.resample import resample_motion
 from bezmotion.geometry.skeleton import Skeleton
 
 VALIDATION_EVERY = 10  # default: the 10th, 20th, … file validates

@@ -64,7 +64,8 @@ def resample_motion(motion: BvhMotion, fps: float, anchor: int = 0) -> tuple[Bvh
     blended = np.asarray(slerp(jnp.asarray(q0), jnp.asarray(q1), jnp.asarray(weight[:, None])), np.float64)
     on_frame = (weight == 0.0)[:, None, None]
     quat = np.where(on_frame, q0, blended)
-    pos = np.where(on_frame, motion.pos_local[lower], (1.0 - weight)[:, None, None] * motion.pos_local[lower] + weight[:, None, None] * motion.pos_local[upper])
+    w = weight[:, None, None]
+    pos = np.where(on_frame, motion.pos_local[lower], (1.0 - w) * motion.pos_local[lower] + w * motion.pos_local[upper])
     resampled = dataclasses.replace(motion, quat_local=quat, pos_local=pos, frame_time=1.0 / fps)
     return resampled, before
 
