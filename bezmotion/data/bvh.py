@@ -13,6 +13,7 @@ atomic. Arrays are NumPy float64: I/O is host-side work; convert with ``jnp.asar
 from __future__ import annotations
 
 import dataclasses
+import decimal
 import functools
 import io
 import os
@@ -43,6 +44,9 @@ class BvhMotion:
       channels: channel names per joint, as written in the file.
       frame_time: seconds per frame.
       end_sites: ``(parent joint index, (x, y, z) offset)`` of every End Site.
+      frame_time_decimals: how many decimals the file wrote ``Frame Time`` to (``0.03333``: 5),
+        which says how far it may be from the rate it stands for; ``None`` when not read from
+        a file.
     """
 
     skeleton: Skeleton
@@ -51,6 +55,7 @@ class BvhMotion:
     channels: tuple[tuple[str, ...], ...]
     frame_time: float
     end_sites: tuple[tuple[int, tuple[float, float, float]], ...] = ()
+    frame_time_decimals: int | None = None
 
     def __post_init__(self) -> None:
         j = self.skeleton.num_joints
@@ -80,11 +85,15 @@ class BvhMotion:
 
     @property
     def nominal_fps(self) -> float:
-        """The whole frame rate a frame time written to 6 or more decimals stands for
-        (``0.0333333`` → ``30.0``, not ``30.00003``); :attr:`fps` when there is none (29.97)."""
+        """The whole frame rate the written frame time stands for, rounded or cut off
+        (``0.0333333`` and ``0.03333`` → ``30.0``, not ``30.00003`` or ``30.003``); :attr:`fps`
+        when there is none (``0.033367``: 29.97)."""
         whole = round(self.fps)
-        # 6 decimals put the written frame time within 1e-6 s of 1/whole, rounded or cut off.
-        return float(whole) if whole >= 1 and abs(self.frame_time - 1.0 / whole) < 1e-6 else self.fps
+        # A frame time rounded or cut off to d decimals lies within 10^-d s of 1/whole. Fewer
+        # than 4 decimals say too little (0.017 fits 59 and 60 fps): the value is taken as it is.
+        decimals = self.frame_time_decimals
+        tolerance = 10.0**-decimals if decimals is not None and 4 <= decimals < 6 else 1e-6
+        return float(whole) if whole >= 1 and abs(self.frame_time - 1.0 / whole) < tolerance else self.fps
 
     @classmethod
     def from_skeleton(
@@ -254,7 +263,8 @@ def _header_value(reader: _Reader, label: str, what: str, convert):
         raise reader.error(expected) from None
 
 
-def _parse_motion_header(reader: _Reader) -> tuple[int, float]:
+def _parse_motion_header(reader: _Reader) -> tuple[int, float, int | None]:
+    """``(frames, frame time in s, the frame time's written decimals)`` of the MOTION header."""
     t = reader.next_tokens()
     if t[0].upper() == "ROOT":
         raise reader.error("more than one ROOT is not supported")
@@ -263,10 +273,27 @@ def _parse_motion_header(reader: _Reader) -> tuple[int, float]:
     frames = _header_value(reader, "Frames", "count", int)
     if frames < 0:
         raise reader.error(f"negative frame count {frames}")
-    frame_time = _header_value(reader, "Frame Time", "seconds", float)
+    written = _header_value(reader, "Frame Time", "seconds", _decimal)
+    frame_time = float(written)
     if not (np.isfinite(frame_time) and frame_time > 0):
         raise reader.error(f"Frame Time must be positive, got {frame_time}")
-    return frames, frame_time
+    exponent = written.as_tuple().exponent  # 0.03333 and 3.333e-02: -5
+    return frames, frame_time, -exponent if isinstance(exponent, int) else None
+
+
+def _decimal(text: str) -> decimal.Decimal:
+    """``text`` as a decimal number, keeping how many decimals it was written with.
+
+    Raises:
+      ValueError: not a number.
+    """
+    try:
+        value = decimal.Decimal(text.strip())
+    except decimal.InvalidOperation:
+        raise ValueError(f"not a number: {text!r}") from None
+    if value.is_snan():  # float() refuses a signalling NaN; a quiet one reads as nan
+        return decimal.Decimal("NaN")
+    return value
 
 
 def _parse_motion_data(reader: _Reader, frames: int, num_channels: int) -> np.ndarray:
@@ -359,7 +386,7 @@ def parse_bvh(text: str, source: str = "<string>", *, fix_continuity: bool = Tru
     """
     reader = _Reader(text.splitlines(), source)
     names, parents, offsets, channels, end_sites = _parse_hierarchy(reader)
-    frames, frame_time = _parse_motion_header(reader)
+    frames, frame_time, frame_time_decimals = _parse_motion_header(reader)
     num_channels = sum(len(c) for c in channels)
     data = _parse_motion_data(reader, frames, num_channels)
 
@@ -396,7 +423,7 @@ def parse_bvh(text: str, source: str = "<string>", *, fix_continuity: bool = Tru
         skeleton = Skeleton(tuple(parents), tuple(names), offsets_np)
     except ValueError as e:
         raise ValueError(f"{source}: {e}") from None
-    return BvhMotion(skeleton, quat_local, pos_local, tuple(channels), frame_time, tuple(end_sites))
+    return BvhMotion(skeleton, quat_local, pos_local, tuple(channels), frame_time, tuple(end_sites), frame_time_decimals)
 
 
 def read_bvh(path: str | os.PathLike, *, fix_continuity: bool = True) -> BvhMotion:

@@ -37,7 +37,7 @@ from bezmotion.geometry.skeleton import Skeleton
 
 VALIDATION_EVERY = 10  # default: the 10th, 20th, … file validates
 OFFSET_TOLERANCE = 1e-3  # cm; OFFSETs of non-translated joints may differ by this much between files
-_FORMAT_VERSION = 1  # bump when the cached arrays change meaning
+_FORMAT_VERSION = 2  # bump when the cached arrays change meaning (2: frame rates read from the written decimals)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -66,7 +66,7 @@ def resample_motion(motion: BvhMotion, fps: float, anchor: int = 0) -> tuple[Bvh
     quat = np.where(on_frame, q0, blended)
     w = weight[:, None, None]
     pos = np.where(on_frame, motion.pos_local[lower], (1.0 - w) * motion.pos_local[lower] + w * motion.pos_local[upper])
-    resampled = dataclasses.replace(motion, quat_local=quat, pos_local=pos, frame_time=1.0 / fps)
+    resampled = dataclasses.replace(motion, quat_local=quat, pos_local=pos, frame_time=1.0 / fps, frame_time_decimals=None)
     return resampled, before
 
 

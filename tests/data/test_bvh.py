@@ -134,6 +134,27 @@ def test_nominal_fps_of_a_rounded_frame_time(fixture_motion: BvhMotion):
         assert dataclasses.replace(fixture_motion, frame_time=frame_time).nominal_fps == fps, frame_time
 
 
+@pytest.mark.parametrize(
+    "written, fps",
+    [
+        ("0.03333", 30.0),  # cut off at 5 decimals: 30.003 fps as written
+        ("3.333e-02", 30.0),  # the same in scientific notation
+        ("0.0333", 30.0),  # 4 decimals: 30.03
+        ("0.0167", 60.0),  # 4 decimals, rounded: 59.88
+        ("0.0083", 120.0),  # 120.48
+        ("0.033367", 1 / 0.033367),  # 29.97 written to 6 decimals stays 29.97
+        ("0.0334", 30.0),  # 29.94 at 4 decimals cannot be told from 30
+        ("0.017", 1 / 0.017),  # 3 decimals fit 59 and 60 fps alike: taken as written
+    ],
+)
+def test_nominal_fps_reads_the_decimals_the_frame_time_was_written_to(written: str, fps: float):
+    """A frame time is 1/fps rounded or cut off to the decimals written, so a short one
+    (0.03333) still stands for 30 fps; a frame time written too short to tell stays as it is."""
+    text = "\n".join(_replace(18, f"Frame Time: {written}")(TEMPLATE)) + "\n"
+    motion = parse_bvh(text, "rate.bvh")
+    assert motion.nominal_fps == fps
+
+
 def test_crlf_reads_like_lf(fixture_motion: BvhMotion, tmp_path: Path):
     crlf = tmp_path / "crlf.bvh"
     crlf.write_bytes(FIXTURE.read_bytes().replace(b"\n", b"\r\n"))
