@@ -561,6 +561,9 @@ def plan(args: InbetweenOptions) -> Plan:
         start_motion = keys[0][3]
         recognised = recognise(start_motion)
     character = recognised.character
+    if recognised.read_off_names is not None:
+        joints = ", ".join(f"{role} {name}" for role, name in recognised.read_off_names.items())
+        frame_warnings = [*frame_warnings, f"{path0}: no known skeleton; its six joints read off their names: {joints} (--mapping MAP.json names others)"]
 
     # The handles as written (their joints known now; their frames once the model is).
     requests = [parse_handle(h) for h in args.handle]

@@ -194,6 +194,34 @@ def renamed_clip(tmp_path):
     return path
 
 
+def numbered_clip(tmp_path):
+    """The bundled clip with its joints named ``j0``, ``j1``, …: names that say nothing."""
+    text = DEMO_CLIP.read_text()
+    for i, name in enumerate(read_bvh(DEMO_CLIP).skeleton.names):
+        text = text.replace(f"ROOT {name}\n", f"ROOT j{i}\n").replace(f"JOINT {name}\n", f"JOINT j{i}\n")
+    path = tmp_path / "numbered.bvh"
+    path.write_text(text)
+    return path
+
+
+def test_a_skeleton_no_preset_knows_has_its_joints_read_off_their_names(tmp_path):
+    """Without ``--mapping``, the ``my_*`` clip's six joints are read off their names: the
+    character and rig of the mapping file naming them, and a warning that lists them."""
+    clip = renamed_clip(tmp_path)
+    mapping = tmp_path / "map.json"
+    mapping.write_text(json.dumps({role: f"my_{name}" for role, name in ROLES.items()}))
+    read_off = plan(parse_options(InbetweenOptions, [str(clip), "--frames", "0", "30", *FAST]))
+    mapped = plan(parse_options(InbetweenOptions, [str(clip), "--frames", "0", "30", "--mapping", str(mapping), *FAST]))
+    assert read_off.recognised.read_off_names == {role: f"my_{name}" for role, name in ROLES.items()}
+    assert mapped.recognised.read_off_names is None
+    assert read_off.recognised.character.characteristic == mapped.recognised.character.characteristic
+    assert read_off.recognised.rig_spec == mapped.recognised.rig_spec
+    assert [w for w in read_off.warnings if "read off their names" in w] == [
+        f"{clip}: no known skeleton; its six joints read off their names: hips my_Hips, head my_Head, left_hand my_Hand_L, "
+        "right_hand my_Hand_R, left_foot my_Foot_L, right_foot my_Foot_R (--mapping MAP.json names others)"
+    ]
+
+
 def test_a_clip_in_metres_with_z_up_gives_the_same_in_between_written_in_its_own_units(tmp_path):
     """The bundled clip written in metres with Z up (as Blender exports BVH): its units and up
     axis are told from it, the in-between is the cm clip's (handles in cm, Y up), and the
@@ -516,7 +544,10 @@ def _cases(tmp):
         "not a BVH file": ([f"{tmp}/notes.bvh", "--frames", "0", "30"], f"CLIP {tmp}/notes.bvh: "),
         "missing clip": ([f"{tmp}/missing.bvh", "--frames", "0", "30"], f"CLIP {tmp}/missing.bvh: no such file"),
         "missing end file": (["--start", f"{clip}@0", "--end", f"{tmp}/nope.bvh@30"], f"--end {tmp}/nope.bvh@30: no such file"),
-        "unknown skeleton": ([f"{tmp}/custom.bvh", "--frames", "0", "30"], f"CLIP {tmp}/custom.bvh: unknown skeleton"),
+        "unknown skeleton": (
+            [f"{tmp}/numbered.bvh", "--frames", "0", "30"],
+            f"CLIP {tmp}/numbered.bvh: unknown skeleton: its joints ['j0', 'j1', ",
+        ),
         "missing mapping": ([f"{tmp}/custom.bvh", "--frames", "0", "30", "--mapping", f"{tmp}/map.json"], f"--mapping {tmp}/map.json: no such file"),
         "missing model": ([*keys, "--model", f"{tmp}/models/bmm"], f"--model {tmp}/models/bmm: not a saved BMM (no such folder)"),
         "missing learned IK": ([*keys, "--ik", "refined", "--ik-model", f"{tmp}/models/ik"], f"--ik-model {tmp}/models/ik: not a saved learned IK"),
@@ -562,7 +593,7 @@ CASES = list(_cases("TMP"))
 @pytest.mark.parametrize("case", CASES)
 def test_a_bad_argument_exits_2_with_one_line_and_writes_nothing(case, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)  # files a run might write by default land here
-    renamed_clip(tmp_path)
+    renamed_clip(tmp_path), numbered_clip(tmp_path)
     before = sorted(os.listdir(tmp_path))
     argv, message = _cases(str(tmp_path))[case]
     (tmp_path / "notes.bvh").write_text("not a BVH file\n")

@@ -7,9 +7,11 @@ from the BMM's training skeleton, and results written by file suffix.
 - :func:`resolve_bmm`, :func:`resolve_ik_model`: ``--model NAME|PATH``, a name from the one
   registry of pretrained models (:mod:`bezmotion.assets.registry`) or a folder;
 - :func:`recognise_character`: a BVH skeleton is LaFAN1 or Bandai-Namco when it has that
-  preset's six characteristic joint names; any other skeleton needs a mapping file
-  (:func:`read_mapping`: the six joints, and optionally the rig's chains — without them the
-  chains are read off the hierarchy, :func:`derive_rig_spec`);
+  preset's six characteristic joint names; any other skeleton has its six joints read off
+  its names (``mixamorig:LeftHand``, ``hand_l``, ``L_Wrist``:
+  :mod:`bezmotion.data.joint_roles`) or given by a mapping file (:func:`read_mapping`: the
+  six joints, and optionally the rig's chains — without them the chains are read off the
+  hierarchy, :func:`derive_rig_spec`);
 - :func:`motion_poses`: frames of a BVH motion as :class:`~bezmotion.ik.protocol.Pose`;
 - :func:`target_profile`, :func:`make_transfer`: driving the clip's skeleton with a BMM
   trained on another (BMM §5.2);
@@ -37,6 +39,7 @@ from bezmotion.assets.registry import resolve_folder
 from bezmotion.bmm.sampling import SampledCurves
 from bezmotion.data.bvh import BvhMotion, read_bvh, write_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, SKELETON_MAPS
+from bezmotion.data.joint_roles import guess_characteristic_joints
 from bezmotion.data.clip_frame import CM_PER_UNIT, ClipFrame
 from bezmotion.geometry.skeleton import forward_kinematics
 from bezmotion.ik.protocol import Character, IKFn, Pose, pose_fk, pose_from_motion
@@ -137,11 +140,15 @@ class RecognisedCharacter:
       character: the clip's skeleton (its own offsets and End Sites) and six joints.
       preset: ``"lafan1"`` or ``"bandai_namco"`` when the joint names are a preset's, else None.
       rig_spec: the chains of the analytic rig.
+      read_off_names: role → joint name when the six joints were read off the joint names
+        (:func:`~bezmotion.data.joint_roles.guess_characteristic_joints`: no preset, no
+        mapping file), for the user to check; else None.
     """
 
     character: Character
     preset: str | None
     rig_spec: RigSpec
+    read_off_names: Mapping[str, str] | None = None
 
 
 def read_structured_file(path: str | os.PathLike) -> Any:
@@ -229,10 +236,13 @@ def recognise_character(motion: BvhMotion, mapping: str | os.PathLike | None = N
 
     Args:
       motion: the clip (its offsets and End Sites are kept).
-      mapping: a mapping file (:func:`read_mapping`), for skeletons that are no preset.
+      mapping: a mapping file (:func:`read_mapping`), for skeletons that are no preset;
+        without one, the six joints of such a skeleton are read off its joint names
+        (:func:`~bezmotion.data.joint_roles.guess_characteristic_joints`).
     Raises:
-      ValueError: no preset matches and no mapping is given (the message lists the joints
-        and how to write a mapping), or the mapping or its rig does not fit the skeleton.
+      ValueError: no preset matches, no mapping is given and the names do not tell the six
+        joints (the message lists the joints, says why and how to write a mapping), or the
+        mapping or its rig does not fit the skeleton.
       FileNotFoundError: the mapping file does not exist.
     """
     names = motion.skeleton.names
@@ -245,11 +255,18 @@ def recognise_character(motion: BvhMotion, mapping: str | os.PathLike | None = N
     for preset, roles in SKELETON_MAPS.items():
         if all(name in names for name in roles.values()):
             return RecognisedCharacter(Character.from_bvh(motion, preset), preset, RigSpec.preset(preset))
-    raise ValueError(
-        f"unknown skeleton: its joints {list(names)} are not those of a known skeleton "
-        f"({', '.join(SKELETON_MAPS)}); give --mapping MAP.json naming its "
-        f"{', '.join(CHARACTERISTIC_JOINTS)} joints"
-    )
+    try:
+        roles = guess_characteristic_joints(names, motion.skeleton.parents)
+        character = Character.from_bvh(motion, roles)
+        spec = derive_rig_spec(character)
+        make_rig(character, spec)
+    except ValueError as why:
+        raise ValueError(
+            f"unknown skeleton: its joints {list(names)} are not those of a known skeleton "
+            f"({', '.join(SKELETON_MAPS)}) and cannot be read off their names ({why}); give --mapping MAP.json naming its "
+            f"{', '.join(CHARACTERISTIC_JOINTS)} joints"
+        ) from None
+    return RecognisedCharacter(character, None, spec, read_off_names=roles)
 
 
 def same_skeleton(a: BvhMotion, b: BvhMotion) -> bool:
