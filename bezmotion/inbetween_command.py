@@ -175,7 +175,7 @@ class InbetweenOptions:
         None, metavar="NAME|PROFILE.json", help="the skeleton --model was trained on: a profile name (bandai_namco, lafan1) or a profile JSON; "
         "default: a named model's own; for a folder, the clips' skeleton (no transfer)",
     )  # fmt: skip
-    mapping: Path | None = option(None, metavar="MAP.json", help="JSON or TOML naming the six characteristic joints (and optionally the rig's chains) of another skeleton")
+    mapping: Path | None = option(None, metavar="MAP.json", help="JSON or TOML naming the six characteristic joints (and optionally the rig's chains) of another skeleton; without it they are read off the joint names (LeftHand, hand_l, L_Wrist, …), with a warning")
     units: str = option(
         "auto", choices=("auto", *CM_PER_UNIT),
         help="the clips' length unit; auto (default): told from the skeleton's size (cm, m or mm; inches need --units in). "
