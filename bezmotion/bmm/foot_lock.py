@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
-from bezmotion.data.characteristic import FEET
+from bezmotion.data.characteristic import FEET, HIPS
 from bezmotion.diffusion.projection import on_control_frame
 
 if TYPE_CHECKING:
@@ -28,6 +28,10 @@ if TYPE_CHECKING:
 HORIZONTAL = np.asarray([True, False, True])
 ANCHORS = ("nearest", "mean")
 """Where a planted run's control points are held (:func:`lock_feet`'s ``anchor``); the first is the default."""
+MAX_STRETCH = 1.1
+"""How much farther from the hips than the curves ever put a foot in the window a held foot may stand
+(:func:`lock_feet`). 10 %: the lock holds a foot back by the few centimetres its curve slides, never
+by a stride."""
 
 
 def lock_anchor(foot_lock: bool | str) -> str | None:
@@ -52,6 +56,7 @@ def lock_feet(
     handles: Conditions | None = None,
     layout: BezierLayout | None = None,
     anchor: str = ANCHORS[0],
+    max_stretch: float | None = MAX_STRETCH,
 ) -> tuple[Float[Array, "*batch controls joints 3"], Float[Array, "*batch controls joints 3"]]:
     """Hold each foot still horizontally over every run of consecutive contact control points.
 
@@ -79,6 +84,13 @@ def lock_feet(
     control points and their tangents back through the handle, sliding the foot. (With
     ``"mean"`` it counts only in a run with no constrained control point.)
 
+    A held foot must stay within reach of the hips: a planted control point whose anchor lies
+    farther from the hips than ``max_stretch`` times the farthest the curves themselves put
+    that foot from the hips in the window (at any control point, keys included) keeps its own
+    position and tangent. A contact predicted for too long (a foot "planted" for a second
+    while the body walks on) would otherwise hold the foot behind, out of the leg's reach,
+    and the IK would drag the body back to it.
+
     Args:
       ctrl_pos, ctrl_tangent: Bézier control points (cm).
       contacts: left/right foot contact probabilities at the control points.
@@ -88,6 +100,8 @@ def lock_feet(
         cm); those on control frames are already in ``constrained`` and are skipped here.
       layout: the curves' layout (needed with ``handles``).
       anchor: ``"nearest"`` or ``"mean"`` (:data:`ANCHORS`), above.
+      max_stretch: the reach limit above, a factor ≥ 1; ``None``: no limit (the rule before
+        2026-12-03).
     Returns:
       ``(ctrl_pos, ctrl_tangent)``.
     """
@@ -95,6 +109,8 @@ def lock_feet(
         raise ValueError(f"threshold must be in (0, 1), got {threshold}")
     if anchor not in ANCHORS:
         raise ValueError(f"anchor must be one of {ANCHORS}, got {anchor!r}")
+    if max_stretch is not None and not max_stretch >= 1.0:
+        raise ValueError(f"max_stretch must be a factor of at least 1 (or None), got {max_stretch!r}")
     feet = jnp.asarray(FEET)
     planted = contacts > threshold  # (..., K, 2)
     fixed = constrained[..., feet]  # (..., K, 2)
@@ -120,7 +136,14 @@ def lock_feet(
     target = total / jnp.maximum(count, 1.0)[..., None]
     move = (planted & ~fixed)[..., None] & HORIZONTAL
     new_pos = jnp.where(move, target, pos)
-    new_tangent = jnp.where(planted[..., None] & HORIZONTAL, 0.0, ctrl_tangent[..., feet, :])
+    tangent = ctrl_tangent[..., feet, :]
+    new_tangent = jnp.where(planted[..., None] & HORIZONTAL, 0.0, tangent)
+    if max_stretch is not None:
+        hips = ctrl_pos[..., HIPS, None, :]  # (..., K, 1, 3)
+        reach = jnp.linalg.norm(pos - hips, axis=-1).max(axis=-2, keepdims=True)  # (..., 1, 2): the curves' own
+        beyond = (planted & ~fixed) & (jnp.linalg.norm(new_pos - hips, axis=-1) > max_stretch * reach)
+        new_pos = jnp.where(beyond[..., None], pos, new_pos)
+        new_tangent = jnp.where(beyond[..., None], tangent, new_tangent)
     return ctrl_pos.at[..., feet, :].set(new_pos), ctrl_tangent.at[..., feet, :].set(new_tangent)
 
 

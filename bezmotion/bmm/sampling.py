@@ -219,6 +219,30 @@ def _shared_keys(chain: _Chain, num_controls: int, num_joints: int) -> Bool[Arra
     return shared_key_mask(chain.size, num_controls, num_joints)[jax.lax.axis_index(chain.axis)]
 
 
+def held_key_tangents(
+    frame: Int[Array, "slots"], joint: Int[Array, "slots"], valid: Bool[Array, "slots"], num_controls: int, num_joints: int, stride: int
+) -> Bool[Array, "controls joints"]:
+    """Which key tangents (``key_tangent``: the first and last control point's) the handle
+    projection keeps as they are: every joint's, except where the joint has a handle between
+    that key and the control frame next to it (frames 1…stride−1 after the start, the same
+    before the end).
+
+    There the tangent is the only variable near the handle besides the next control point,
+    whose weight at frame 1 is 0.07: holding the key's velocity while the handle asks the
+    joint 20 cm off its line in one frame threw the curve 2.5 m out at frame 6. The handle
+    wins: the model chooses that tangent, as without ``key_tangent`` (where the projection
+    moved the key's instead, in the model's normalised space it moved the next control
+    point, cheaper there, and the curve still swung 2.2 m). A key two windows of a chain
+    share keeps its tangent all the same (the sampler adds them back): both windows must
+    leave and reach it alike.
+    """
+    last = (num_controls - 1) * stride
+    near_start = valid & (frame > 0) & (frame < stride)
+    near_end = valid & (frame > last - stride) & (frame < last)
+    released = jnp.zeros((2, num_joints), bool).at[0, joint].max(near_start).at[1, joint].max(near_end)
+    return jnp.zeros((num_controls, num_joints), bool).at[jnp.asarray([0, num_controls - 1])].set(~released)
+
+
 def guided_denoiser(denoiser, conditions: Conditions, guidance: float):
     """``denoise(x_t, t) -> (x̂₀, contact logits)`` for DDIM: ``denoiser(x_t, t, conditions)``,
     with classifier-free guidance at scale ``guidance`` (``1.0``: the conditional pass alone).
@@ -270,7 +294,10 @@ def _sample_one(
     # Shared tangents are set by the coupling, so the handle projection must leave them be.
     shared = None if chain is None else _shared_keys(chain, cfg.num_controls, cfg.num_joints)
     if key_tangent is not None:  # the keys' tangents are conditions: the projection keeps them too
-        at_keys = jnp.zeros((cfg.num_controls, cfg.num_joints), bool).at[ends].set(True)
+        at_keys = held_key_tangents(world.frame, world.joint, world.valid, cfg.num_controls, cfg.num_joints, cfg.stride)
+        # A key two windows of a chain share keeps its tangent whatever the handles: both
+        # windows must leave and reach it alike.
+        at_keys = at_keys if shared is None else at_keys | shared
         shared = at_keys if shared is None else shared | at_keys
     couple = (lambda x: x) if chain is None else functools.partial(_couple, chain=chain)
 
@@ -283,8 +310,9 @@ def _sample_one(
         feats = from_tokens(x0_tokens)
         if key_rot6d is not None:  # the keys' orientations, overwritten like their positions
             feats = feats.at[ends, :, 6:].set((key_rot6d - stats.mean[:, 6:]) / stats.std[:, 6:])
-        if key_tangent is not None:  # and their tangents (velocities), like positions too
-            feats = feats.at[ends, :, 3:6].set((key_tangent - stats.mean[:, 3:6]) / stats.std[:, 3:6])
+        if key_tangent is not None:  # and their tangents (velocities), like positions too, where held
+            keyed = (key_tangent - stats.mean[:, 3:6]) / stats.std[:, 3:6]
+            feats = feats.at[ends, :, 3:6].set(jnp.where(at_keys[ends][..., None], keyed, feats[ends, :, 3:6]))
         pos = jnp.where(mask[..., None], target, feats[..., :3])
         # A chain's shared keys: tangents and orientations averaged with the neighbour's.
         # Every window normalises them by the same affine map (no translation), so the
@@ -303,7 +331,7 @@ def _sample_one(
         # (tiny) world-space correction; shared tangents equal in world units, bit for bit.
         pos = jnp.where(mask[..., None], world_target, pos)
         if key_tangent is not None:  # exactly, not through the normalisation round trip
-            tangent = tangent.at[ends].set(key_tangent)
+            tangent = tangent.at[ends].set(jnp.where(at_keys[ends][..., None], key_tangent, tangent[ends]))
         return project_off_grid(
             layout, pos, couple(tangent), mask, world.joint, world.frame, world.position, world.valid, fixed_tangent=shared
         )
@@ -376,7 +404,8 @@ def sample_curves(
         ``v·stride/3``, :func:`~bezmotion.bezier.tangent_from_velocity`), where the keys'
         motion is known, e.g. from the frames around them in a clip. With ``overwrite``
         they are conditions like ``key_rot6d``: the curves leave and reach each key at its
-        own velocity instead of one the model guesses (ours).
+        own velocity instead of one the model guesses (ours). A joint's handle within a
+        stride of a key takes precedence over that key's tangent (:func:`held_key_tangents`).
     Returns:
       :class:`SampledCurves` in the world frame; constrained control points (and the key
       tangents) equal their targets exactly when ``overwrite``.

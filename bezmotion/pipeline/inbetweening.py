@@ -32,6 +32,7 @@ from bezmotion.bmm.sampling import (
     BezierMotionModel,
     Handles,
     SampledCurves,
+    held_key_tangents,
     sample_chained_curves,
     sample_curves,
     shared_key_mask,
@@ -157,9 +158,12 @@ def _window_in_target(
     curves = curves_to_target(transfer, anchor, curves)
     ends = jnp.asarray([0, cfg.num_controls - 1])
     if key_tangent is not None:  # exactly, undoing the scale round trip's rounding
-        curves = curves._replace(ctrl_tangent=curves.ctrl_tangent.at[ends].set(key_tangent))
-        at_keys = jnp.zeros(curves.ctrl_pos.shape[:2], bool).at[ends].set(True)
-        shared = at_keys if shared is None else shared | at_keys
+        # Where a handle next to a key moved that key's tangent in the sampler, the moved one.
+        held = held_key_tangents(handles.frame, handles.joint, handles.valid, cfg.num_controls, curves.ctrl_pos.shape[1], cfg.stride)
+        held = held if shared is None else held | shared  # a chain's shared key keeps its tangent
+        keyed = curves.ctrl_tangent.at[ends].set(key_tangent)
+        curves = curves._replace(ctrl_tangent=jnp.where(held[..., None], keyed, curves.ctrl_tangent))
+        shared = held if shared is None else shared | held
     # The end control points are the given poses themselves: their positions exactly
     # (undoing the scale round trip's rounding) and their orientations (which, without
     # ``key_orientations``, the BMM never saw).

@@ -126,6 +126,38 @@ def test_a_run_between_two_conditions_steps_once_between_them(rng):
         lock_feet(*args, anchor="median")
 
 
+def test_a_held_foot_stays_within_reach_of_the_hips(rng):
+    """The hips walk 150 cm through a window whose left foot is "planted" throughout, its
+    curve keeping 90 cm below them: the lock holds the foot at the nearer key only where that
+    stays within 1.1 × the curves' own reach (controls 1 and 4, 95 cm from the hips); controls
+    2 and 3 (108 cm away when held) keep their own position and tangent."""
+    from bezmotion.bmm.foot_lock import MAX_STRETCH, lock_feet
+
+    left, right = FEET
+    hips = np.zeros((K, 3))
+    hips[:, 0] = 30.0 * np.arange(K)  # 30 cm a control point
+    pos = np.asarray(rng.normal(scale=5.0, size=(K, J, 3)))
+    pos[:, 0] = hips  # HIPS is joint 0
+    pos[:, left] = hips + [0.0, -90.0, 0.0]
+    tangent = np.asarray(rng.normal(scale=5.0, size=(K, J, 3)))
+    contacts = np.full((K, 2), 0.1, np.float32)
+    contacts[:, 0] = 0.9
+    constrained = np.zeros((K, J), bool)
+    constrained[[0, -1]] = True
+    args = (jnp.asarray(pos, jnp.float32), jnp.asarray(tangent, jnp.float32), jnp.asarray(contacts), jnp.asarray(constrained))
+    p, t = (np.asarray(a) for a in lock_feet(*args))
+    np.testing.assert_allclose(p[[1, 4], left][:, [0, 2]], pos[[0, -1], left][:, [0, 2]], atol=1e-5)  # held at the nearer key
+    np.testing.assert_array_equal(t[[1, 4], left][:, [0, 2]], 0.0)
+    np.testing.assert_allclose(p[[2, 3], left], pos[[2, 3], left], atol=1e-5)  # out of reach held: their own
+    np.testing.assert_allclose(t[[2, 3], left], tangent[[2, 3], left], atol=1e-6)
+    assert np.linalg.norm(p[:, left] - hips, axis=-1).max() <= MAX_STRETCH * 90.0 + 1e-3
+    # Without the limit (the rule before), every point is held at the nearer key.
+    unlimited = np.asarray(lock_feet(*args, max_stretch=None)[0])
+    np.testing.assert_allclose(unlimited[1:5, left][:, [0, 2]], pos[[0, 0, -1, -1], left][:, [0, 2]], atol=1e-5)
+    with pytest.raises(ValueError, match="max_stretch must be a factor of at least 1"):
+        lock_feet(*args, max_stretch=0.5)
+
+
 def test_foot_locked_sampling_keeps_the_constraints_exact(model, motions, sampled):
     locked = sample_curves(model, motions.start, motions.end, motions.handles, key=jax.random.key(21), steps=5, foot_lock=True)
     assert np.all(grid_errors(locked, motions) == 0.0)

@@ -15,7 +15,7 @@ from bmm.common import F, J, K, RESIDUAL, TINY, grid_errors, some_conditions
 from bezmotion.baselines import handle_interpolation
 from bezmotion.bezier import BezierLayout, evaluate, tangent_from_velocity
 from bezmotion.bmm.denoiser import apply_denoiser, init_denoiser
-from bezmotion.bmm.sampling import BezierMotionModel, Handles, load_model, sample_curves, save_model
+from bezmotion.bmm.sampling import BezierMotionModel, Handles, held_key_tangents, load_model, sample_curves, save_model
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.metrics import handles_error
 from bezmotion.xla_options import inference_compiler_options
@@ -161,6 +161,37 @@ def test_key_tangents_are_conditions_hit_exactly_and_steer_the_sample(model, mot
     assert trees_differ(keyed.ctrl_pos[:, 1:-1], sampled.ctrl_pos[:, 1:-1])
     with pytest.raises((ValueError, TypeError), match="key_tangent|shape"):
         sample_curves(model, motions.start, motions.end, motions.handles, key=jax.random.key(0), key_tangent=jnp.asarray(given[:, :, :3]))
+
+
+def test_a_handle_next_to_a_key_takes_precedence_over_that_keys_tangent(model, motions, demo_dataset):
+    """A joint's handle within a stride of a key releases that key's tangent of that joint
+    (:func:`held_key_tangents`): the model chooses it, so that the curve need not swing out
+    at the next control point to reach the handle; every other key tangent stays exact."""
+    frame = jnp.asarray([[1, 29, 0, 6, 24, 3], [5, 25, 30, 1, 2, 28]], jnp.int32)
+    joint = jnp.asarray([[2, 3, 4, 5, 0, 1], [0, 1, 2, 3, 4, 5]], jnp.int32)
+    valid = jnp.asarray([[True, True, True, True, True, False], [True] * 6])
+    held = np.asarray(jax.vmap(lambda f, j, v: held_key_tangents(f, j, v, K, J, TINY.stride))(frame, joint, valid))
+    expected = np.zeros((2, K, J), bool)
+    expected[:, [0, -1]] = True
+    expected[0, 0, 2] = expected[0, -1, 3] = False  # frames 1 and 29; 0, 6, 24 and the padding's 3 hold
+    expected[1, 0, [0, 3, 4]] = expected[1, -1, [1, 5]] = False
+    np.testing.assert_array_equal(held, expected)
+
+    tangent = np.asarray(demo_dataset.ctrl_tangent[[0, 7]], np.float32)
+    given = np.stack([-2.0 * tangent[:, 0], 3.0 * tangent[:, -1]], axis=1)  # (2, 2, J, 3)
+    pos = np.asarray(motions.start)[0, 2] + np.asarray([0.0, 20.0, 0.0], np.float32)
+    near = Handles(
+        joint=jnp.asarray([[2]], jnp.int32), frame=jnp.asarray([[1]], jnp.int32), position=jnp.asarray([[pos]]), valid=jnp.asarray([[True]])
+    )
+    keyed = sample_curves(model, motions.start[:1], motions.end[:1], near, key=jax.random.key(3), steps=3, key_tangent=jnp.asarray(given[:1]))
+    got = np.asarray(keyed.ctrl_tangent)[0][[0, -1]]
+    released = np.zeros((2, J), bool)
+    released[0, 2] = True
+    np.testing.assert_array_equal(got[~released], given[0][~released])
+    assert not np.allclose(got[released], given[0][released])
+    layout = BezierLayout.from_controls(K, TINY.stride)
+    dense = evaluate(layout, keyed.ctrl_pos[0].swapaxes(0, 1), keyed.ctrl_tangent[0].swapaxes(0, 1))  # (J, frames, 3)
+    np.testing.assert_allclose(np.asarray(dense)[2, 1], pos, atol=1e-3)  # the handle, exactly
 
 
 def test_tangent_from_velocity_moves_the_curve_at_that_velocity():
