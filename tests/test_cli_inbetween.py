@@ -512,6 +512,26 @@ def test_a_chain_refuses_a_handle_on_its_inner_key_and_takes_every_keys_velocity
     np.testing.assert_allclose(np.asarray(p.key_velocity), np.stack([pos[1] - pos[0], (pos[32] - pos[30]) / 2, pos[62] - pos[61]]), atol=1e-3)
 
 
+def test_a_handle_one_frame_after_a_shared_key_moves_the_chain_no_faster_than_it_asks(long_clip):
+    """A handle 20 cm off the line one frame after the inner key of ``--frames 0 30 60`` asks
+    the hand to move 20 cm in that frame; the joined chain's curve does that and no more.
+    (Window by window, with the shared tangent held, the next control point alone made it up
+    and the hand's curve ran at 27–30 cm a frame for three frames.)"""
+    import jax
+    import jax.numpy as jnp
+
+    from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
+    from bezmotion.pipeline.inbetweening import inbetween_chain
+
+    p = plan(parse_options(InbetweenOptions, [str(long_clip), "--frames", "0", "30", "60", "--handle", "right_hand@31=+0,20,0", *FAST]))
+    keys = jax.tree.map(lambda *x: jnp.stack(x), *p.keys)
+    r = inbetween_chain(p.bmm, p.ik_fn, p.ik_params, p.recognised.character, keys, p.handles, key=jax.random.key(0), steps=2, transfer=p.transfer)
+    hand = np.asarray(r.positions)[:, CHARACTERISTIC_JOINTS.index("right_hand")]  # (61, 3)
+    np.testing.assert_allclose(hand[31], p.handle_records[0]["position"], atol=1e-3)
+    speed = np.linalg.norm(np.diff(hand, axis=0), axis=-1)
+    assert speed.max() < 22.0 and np.sort(speed)[-2] < 18.0, np.sort(speed)[-3:]
+
+
 def test_keys_from_any_frames_of_any_files_make_a_chain_in_their_order(long_clip):
     """``--key FILE@FRAME`` (repeated): each pose put 30 frames after the one before."""
     clip = str(DEMO_CLIP)

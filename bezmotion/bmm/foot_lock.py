@@ -131,7 +131,9 @@ def lock_feet(
     total, count = jnp.einsum("...klf,...lfd->...kfd", weight, pos), weight.sum(axis=-2)
     if member is not None:
         member = member.astype(pos.dtype)
-        total = total + jnp.einsum("...khf,...hd->...kfd", member, handles.position)
+        # Padding slots hold anything, NaN too, and 0 × NaN is NaN: they enter as zeros.
+        held_at = jnp.where(handles.valid[..., None], handles.position, 0.0)
+        total = total + jnp.einsum("...khf,...hd->...kfd", member, held_at)
         count = count + member.sum(axis=-2)
     target = total / jnp.maximum(count, 1.0)[..., None]
     move = (planted & ~fixed)[..., None] & HORIZONTAL

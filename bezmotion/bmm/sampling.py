@@ -219,6 +219,69 @@ def _shared_keys(chain: _Chain, num_controls: int, num_joints: int) -> Bool[Arra
     return shared_key_mask(chain.size, num_controls, num_joints)[jax.lax.axis_index(chain.axis)]
 
 
+def _project_over_chain(
+    chain: _Chain,
+    layout: BezierLayout,
+    ctrl_pos: Float[Array, "controls joints 3"],
+    ctrl_tangent: Float[Array, "controls joints 3"],
+    fixed: Bool[Array, "controls joints"],
+    joint: Int[Array, "slots"],
+    frame: Int[Array, "slots"],
+    target: Float[Array, "slots 3"],
+    valid: Bool[Array, "slots"],
+    *,
+    pos_mean: Float[ArrayLike, "joints 3"] = 0.0,
+    pos_std: Float[ArrayLike, "joints 3"] = 1.0,
+    tangent_mean: Float[ArrayLike, "joints 3"] = 0.0,
+    tangent_std: Float[ArrayLike, "joints 3"] = 1.0,
+    fixed_tangent: Bool[Array, "controls joints"] | None = None,
+) -> tuple[Float[Array, "controls joints 3"], Float[Array, "controls joints 3"]]:
+    """:func:`~bezmotion.diffusion.projection.project_off_grid` over a whole coupled chain at
+    once, seen from one window (inside ``jax.vmap`` over ``chain.axis``; arguments as there,
+    this window's, ``pos_mean`` its own offset), by the smallest change of the curve
+    (``metric="curve"``).
+
+    The windows' curves are joined into one, a shared key's control point counted once: its
+    position is a key (fixed), its tangent one variable of both windows. So a handle next to a
+    shared key may move that tangent, in both windows alike. Projected window by window with
+    the shared tangent held (the rule before 2026-12-03), a handle one frame from a shared key
+    could move only the next control point, whose weight there is 0.07, and the curve swung
+    out by up to a metre (20 cm asked for). The smallest change of the curve rather than of
+    the model's normalised variables, because there the next control point's position is the
+    cheap variable (its scale is ten times the tangent's), where a window alone has the
+    model's own tangent, chosen with the handle in view, and a chain's shared one is the
+    mean of two windows' that each saw half the handles. ``fixed_tangent``: tangents that
+    stay as they are even so (a key's given velocity).
+    Returns:
+      this window's ``(ctrl_pos, ctrl_tangent)``; its fixed positions bit for bit, a shared
+      tangent the same bits in both windows.
+    """
+    k, j = ctrl_pos.shape[:2]
+    step = k - 1  # a window adds this many control points to the chain
+    fixed_tangent = jnp.zeros_like(fixed) if fixed_tangent is None else fixed_tangent
+    offset, pos_std, tangent_mean, tangent_std = (
+        jnp.broadcast_to(jnp.asarray(a, ctrl_pos.dtype), (j, 3)) for a in (pos_mean, pos_std, tangent_mean, tangent_std)
+    )
+
+    def gather(x):
+        return jax.lax.all_gather(x, chain.axis)
+
+    def join(x):  # (windows, k, ...) → (windows·step + 1, ...): window i's last point is window i + 1's first
+        return jnp.concatenate([x[0], x[1:, 1:].reshape(-1, *x.shape[2:])])
+
+    pos, tangent, held, held_tangent = (join(gather(x)) for x in (ctrl_pos, ctrl_tangent, fixed, fixed_tangent))
+    offsets = join(jnp.broadcast_to(gather(offset)[:, None], (chain.size, k, j, 3)))
+    frames = gather(frame) + (jnp.arange(chain.size) * step * layout.stride)[:, None]  # in the chain's frames
+    pos, tangent = project_off_grid(
+        BezierLayout.from_controls(chain.size * step + 1, layout.stride), pos, tangent, held,
+        gather(joint).reshape(-1), frames.reshape(-1), gather(target).reshape(-1, 3), gather(valid).reshape(-1),
+        pos_mean=offsets, pos_std=pos_std, tangent_mean=tangent_mean, tangent_std=tangent_std, fixed_tangent=held_tangent, metric="curve",
+    )  # fmt: skip
+    mine = functools.partial(jax.lax.dynamic_slice_in_dim, start_index=jax.lax.axis_index(chain.axis) * step, slice_size=k)
+    # A shared key's position comes from the window before in the joined curve (in its frame): this window's own.
+    return jnp.where(fixed[..., None], ctrl_pos, mine(pos)), mine(tangent)
+
+
 def held_key_tangents(
     frame: Int[Array, "slots"], joint: Int[Array, "slots"], valid: Bool[Array, "slots"], num_controls: int, num_joints: int, stride: int
 ) -> Bool[Array, "controls joints"]:
@@ -236,11 +299,19 @@ def held_key_tangents(
     share keeps its tangent all the same (the sampler adds them back): both windows must
     leave and reach it alike.
     """
+    released = handles_next_to_keys(frame, joint, valid, num_controls, num_joints, stride)
+    return jnp.zeros((num_controls, num_joints), bool).at[jnp.asarray([0, num_controls - 1])].set(~released)
+
+
+def handles_next_to_keys(
+    frame: Int[Array, "slots"], joint: Int[Array, "slots"], valid: Bool[Array, "slots"], num_controls: int, num_joints: int, stride: int
+) -> Bool[Array, "2 joints"]:
+    """``(2, joints)``: which joints have a (valid) handle within a stride after the first key
+    (frames 1…stride−1) and before the last (row 1)."""
     last = (num_controls - 1) * stride
     near_start = valid & (frame > 0) & (frame < stride)
     near_end = valid & (frame > last - stride) & (frame < last)
-    released = jnp.zeros((2, num_joints), bool).at[0, joint].max(near_start).at[1, joint].max(near_end)
-    return jnp.zeros((num_controls, num_joints), bool).at[jnp.asarray([0, num_controls - 1])].set(~released)
+    return jnp.zeros((2, num_joints), bool).at[0, joint].max(near_start).at[1, joint].max(near_end)
 
 
 def guided_denoiser(denoiser, conditions: Conditions, guidance: float):
@@ -289,17 +360,20 @@ def _sample_one(
     normalized = normalize_conditions(stats, world, translation)
     mask, target = normalized.to_grid(cfg.num_controls, cfg.num_joints, cfg.stride)
     _, world_target = world.to_grid(cfg.num_controls, cfg.num_joints, cfg.stride)
-    aligned = world.position - translation  # condition positions in the frame x̂₀ lives in (cm)
+    # The conditions where x̂₀'s positions are measured from (cm): the window's own frame; a
+    # chain's windows, each in its own, are met together in the world frame.
+    fix_frame = (world.position - translation, stats.mean[:, :3]) if chain is None else (world.position, stats.mean[:, :3] + translation)
     denoiser = functools.partial(predict_x0, nnx.merge(model.graphdef, model.params), stats)
-    # Shared tangents are set by the coupling, so the handle projection must leave them be.
-    shared = None if chain is None else _shared_keys(chain, cfg.num_controls, cfg.num_joints)
-    if key_tangent is not None:  # the keys' tangents are conditions: the projection keeps them too
-        at_keys = held_key_tangents(world.frame, world.joint, world.valid, cfg.num_controls, cfg.num_joints, cfg.stride)
-        # A key two windows of a chain share keeps its tangent whatever the handles: both
-        # windows must leave and reach it alike.
-        at_keys = at_keys if shared is None else at_keys | shared
-        shared = at_keys if shared is None else shared | at_keys
+    # The keys' tangents are conditions: the projection keeps them too (but a handle next to
+    # a key may release it, held_key_tangents). A key two windows of a chain share keeps its
+    # given tangent whatever the handles: both windows must leave and reach it alike.
+    held = None
+    if key_tangent is not None:
+        held = held_key_tangents(world.frame, world.joint, world.valid, cfg.num_controls, cfg.num_joints, cfg.stride)
+        held = held if chain is None else held | _shared_keys(chain, cfg.num_controls, cfg.num_joints)
     couple = (lambda x: x) if chain is None else functools.partial(_couple, chain=chain)
+    # A chain's handles are met over the whole chain, its shared tangents one variable each.
+    project = functools.partial(project_off_grid, layout) if chain is None else functools.partial(_project_over_chain, chain, layout)
 
     denoise = guided_denoiser(denoiser, normalized, guidance)
 
@@ -312,16 +386,17 @@ def _sample_one(
             feats = feats.at[ends, :, 6:].set((key_rot6d - stats.mean[:, 6:]) / stats.std[:, 6:])
         if key_tangent is not None:  # and their tangents (velocities), like positions too, where held
             keyed = (key_tangent - stats.mean[:, 3:6]) / stats.std[:, 3:6]
-            feats = feats.at[ends, :, 3:6].set(jnp.where(at_keys[ends][..., None], keyed, feats[ends, :, 3:6]))
+            feats = feats.at[ends, :, 3:6].set(jnp.where(held[ends][..., None], keyed, feats[ends, :, 3:6]))
         pos = jnp.where(mask[..., None], target, feats[..., :3])
         # A chain's shared keys: tangents and orientations averaged with the neighbour's.
         # Every window normalises them by the same affine map (no translation), so the
         # mean here is the mean in world units.
         tangent, rot6d = couple(feats[..., 3:6]), couple(feats[..., 6:])
-        pos, tangent = project_off_grid(
-            layout, pos, tangent, mask, world.joint, world.frame, aligned, world.valid,
-            pos_mean=stats.mean[:, :3], pos_std=stats.std[:, :3], tangent_mean=stats.mean[:, 3:6], tangent_std=stats.std[:, 3:6],
-            fixed_tangent=shared,
+        fix_target, pos_mean = fix_frame
+        pos, tangent = project(
+            pos, tangent, mask, world.joint, world.frame, fix_target, world.valid,
+            pos_mean=pos_mean, pos_std=stats.std[:, :3],
+            tangent_mean=stats.mean[:, 3:6], tangent_std=stats.std[:, 3:6], fixed_tangent=held,
         )  # fmt: skip
         return to_tokens(jnp.concatenate([pos, tangent, rot6d], axis=-1))
 
@@ -331,10 +406,8 @@ def _sample_one(
         # (tiny) world-space correction; shared tangents equal in world units, bit for bit.
         pos = jnp.where(mask[..., None], world_target, pos)
         if key_tangent is not None:  # exactly, not through the normalisation round trip
-            tangent = tangent.at[ends].set(jnp.where(at_keys[ends][..., None], key_tangent, tangent[ends]))
-        return project_off_grid(
-            layout, pos, couple(tangent), mask, world.joint, world.frame, world.position, world.valid, fixed_tangent=shared
-        )
+            tangent = tangent.at[ends].set(jnp.where(held[ends][..., None], key_tangent, tangent[ends]))
+        return project(pos, couple(tangent), mask, world.joint, world.frame, world.position, world.valid, fixed_tangent=held)
 
     x_T = jax.random.normal(key, (cfg.num_controls, cfg.frame_features))
     x0, logits = ddim_sample(
@@ -541,7 +614,7 @@ def _sample_chained_curves(model, key_pos, handles, key_rot6d, key_tangent, *, k
     rot6d_pairs, tangent_pairs = window_ends(key_rot6d), window_ends(key_tangent)
     one = functools.partial(
         _sample_one, model, steps=steps, guidance=guidance, overwrite=overwrite, foot_lock=foot_lock,
-        chain=_Chain(CHAIN_AXIS, windows) if coupled else None,
+        chain=_Chain(CHAIN_AXIS, windows) if coupled and windows > 1 else None,  # one window: the window alone
     )  # fmt: skip
 
     def chain(start, end, handles, rot6d_pairs, tangent_pairs, key):

@@ -26,7 +26,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from bezmotion.bezier import BezierLayout, basis
-from bezmotion.linalg import exact_einsum, min_norm_solve
+from bezmotion.linalg import cholesky_solve, exact_einsum, min_norm_solve
 
 
 def on_control_frame(layout: BezierLayout, frame: Int[ArrayLike, "*shape"]) -> tuple[Bool[Array, "*shape"], Int[Array, "*shape"]]:
@@ -66,11 +66,12 @@ def project_off_grid(
     target: Float[Array, "handles 3"],
     valid: Bool[Array, "handles"],
     *,
-    pos_mean: Float[ArrayLike, "joints 3"] = 0.0,
+    pos_mean: Float[ArrayLike, "*controls joints 3"] = 0.0,
     pos_std: Float[ArrayLike, "joints 3"] = 1.0,
     tangent_mean: Float[ArrayLike, "joints 3"] = 0.0,
     tangent_std: Float[ArrayLike, "joints 3"] = 1.0,
     fixed_tangent: Bool[Array, "controls joints"] | None = None,
+    metric: str = "variables",
 ) -> tuple[Float[Array, "controls joints 3"], Float[Array, "controls joints 3"]]:
     """Minimum-norm correction of the curves onto their off-grid point constraints (one motion).
 
@@ -91,20 +92,24 @@ def project_off_grid(
       target: ``(handles, 3)`` where the curve must be, in the curves' units (e.g. cm).
       valid: ``(handles,)`` which handles are real.
       pos_mean, pos_std, tangent_mean, tangent_std: the affine map from variables to
-        curves, broadcastable to ``(joints, 3)``.
+        curves, broadcastable to ``(joints, 3)`` (``pos_mean`` also to ``(controls, joints, 3)``).
       fixed_tangent: ``(controls, joints)`` control tangents that must not change either
         (e.g. a tangent shared with the next window of a chain); default none. A joint whose
         handles then outnumber its free variables in a stride meets them in slot order as
         far as the variables allow (:func:`bezmotion.linalg.min_norm_solve`).
+      metric: which correction is smallest: ``"variables"`` (default; issue 15's), the
+        Euclidean norm of the variables' change (in the model's normalised space when they
+        are normalised); ``"curve"``, the change of the curve itself, summed over every frame
+        (``Σ_f |Δcurve(f)|²``, positions and tangents weighed by what they do to it; the
+        chain's projection, :func:`bezmotion.bmm.sampling._project_over_chain`).
     Returns:
       ``(ctrl_pos, ctrl_tangent)`` corrected, same space as the inputs.
     """
     k, j = ctrl_pos.shape[:2]
     dtype = ctrl_pos.dtype
     shape = (j, 3)
-    pos_mean, pos_std, tangent_mean, tangent_std = (
-        jnp.broadcast_to(jnp.asarray(a, dtype), shape) for a in (pos_mean, pos_std, tangent_mean, tangent_std)
-    )
+    pos_std, tangent_mean, tangent_std = (jnp.broadcast_to(jnp.asarray(a, dtype), shape) for a in (pos_std, tangent_mean, tangent_std))
+    pos_mean = jnp.broadcast_to(jnp.asarray(pos_mean, dtype), (k, j, 3))  # per control point too (a chain's windows)
     on_grid, _ = on_control_frame(layout, frame)
     rows = valid & ~on_grid  # (H,)
     # Padding may hold any frame: evaluate it somewhere harmless (its row is zeroed anyway).
@@ -124,9 +129,27 @@ def project_off_grid(
     a_pos = jnp.where(owns[:, None, :, None] & free[:, None, None, :], w_pos[None, None] * pos_std[:, :, None, None], 0.0)
     a_tan = jnp.where(owns[:, None, :, None] & free_tan[:, None, None, :], w_tan[None, None] * tangent_std[:, :, None, None], 0.0)
     a = jnp.concatenate([a_pos, a_tan], axis=-1)  # (J, 3, H, 2K)
-    # Minimum-norm solve of any rank: identical duplicate handles make A rank-deficient, and
-    # zero rows (no off-grid handle) must give a zero correction, not a division by zero.
-    delta = min_norm_solve(a, jnp.moveaxis(residual, -1, 1))  # (J, 3, 2K)
+    if metric not in ("variables", "curve"):
+        raise ValueError(f"metric must be 'variables' or 'curve', got {metric!r}")
+    if metric == "curve":
+        # The smallest change of the dense curve: min Δᵀ M Δ with M = CᵀC, C the scaled basis at
+        # every frame, is Δ = M⁻¹Aᵀz for any z with (A M⁻¹Aᵀ) z = r. Fixed variables get an
+        # identity block in M and a zero column in A, so their Δ is zero. Plain XLA solves
+        # (bezmotion.linalg), no LAPACK.
+        every_pos, every_tan = (w.astype(dtype)[None, None] for w in basis(layout))  # (1, 1, F, K)
+        c = jnp.concatenate([every_pos * pos_std[:, :, None, None], every_tan * tangent_std[:, :, None, None]], axis=-1)  # (J, 3, F, 2K)
+        free_all = jnp.concatenate([free, free_tan], axis=-1)[:, None, :]  # (J, 1, 2K)
+        keep = free_all[..., :, None] & free_all[..., None, :]
+        gram = jnp.where(keep, exact_einsum("jdfa,jdfb->jdab", c, c), jnp.eye(2 * k, dtype=dtype))
+        n = 2 * k
+        inverse = cholesky_solve(jnp.broadcast_to(gram[:, :, None], (j, 3, n, n, n)), jnp.broadcast_to(jnp.eye(n, dtype=dtype), (j, 3, n, n)))  # rows of M⁻¹
+        spread = exact_einsum("jdha,jdab->jdhb", a, inverse)  # (J, 3, H, 2K): rows of A M⁻¹
+        z = min_norm_solve(exact_einsum("jdha,jdga->jdhg", spread, a), jnp.moveaxis(residual, -1, 1))
+        delta = exact_einsum("jdh,jdha->jda", z, spread)  # (J, 3, 2K)
+    else:
+        # Minimum-norm solve of any rank: identical duplicate handles make A rank-deficient, and
+        # zero rows (no off-grid handle) must give a zero correction, not a division by zero.
+        delta = min_norm_solve(a, jnp.moveaxis(residual, -1, 1))  # (J, 3, 2K)
     delta = jnp.moveaxis(delta, -1, 0)  # (2K, J, 3)
     return (
         jnp.where(fixed[..., None], ctrl_pos, ctrl_pos + delta[:k]),

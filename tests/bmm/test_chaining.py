@@ -13,7 +13,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from helpers import assert_trees_identical
+from helpers import assert_trees_identical, lapack_calls
 from bmm.common import J, K, TINY
 
 from bezmotion.bezier import BezierLayout, evaluate
@@ -154,6 +154,12 @@ def test_batched_chains_compile_once_and_match_single_chains(model, chain):
     assert not np.array_equal(np.asarray(again.ctrl_tangent[0]), np.asarray(again.ctrl_tangent[1]))  # own keys per chain
     first = sample_chained_curves(model, chain.key_pos, chain.handles, key=jax.random.split(jax.random.key(2), 2)[0], steps=2)
     np.testing.assert_allclose(np.asarray(first.ctrl_pos), np.asarray(again.ctrl_pos[0]), atol=1e-3)
+
+
+def test_the_coupled_chain_has_no_lapack_calls(model, chain):
+    """Its handles are met over the whole chain (plain XLA solves, :mod:`bezmotion.linalg`)."""
+    sample = lambda k, h: sample_chained_curves(model, k, h, key=jax.random.key(0), steps=1, foot_lock=True)  # noqa: E731
+    assert lapack_calls(sample, chain.key_pos, chain.handles) == set()
 
 
 def test_two_keys_are_one_window(model, chain):

@@ -93,6 +93,9 @@ def test_a_foot_handle_between_control_frames_plants_its_contact_run(rng):
     # Held at the run's mean of conditions (the earlier rule), the start alone anchors the right run.
     mean_pos = np.asarray(lock_feet(*args, handles=handles, layout=layout, anchor="mean")[0])
     np.testing.assert_array_equal(mean_pos[:, right], plain_pos[:, right])
+    # Padding holds anything, NaN too (0 × NaN would poison its run).
+    nan_padding = handles._replace(position=handles.position.at[4].set(jnp.nan))
+    assert_trees_identical(lock_feet(*args, handles=nan_padding, layout=layout), lock_feet(*args, handles=handles, layout=layout))
     with pytest.raises(ValueError, match="layout"):
         lock_feet(*args, handles=handles)
 

@@ -105,6 +105,42 @@ def test_projection_is_the_minimum_norm_correction(rng):
         np.testing.assert_allclose(np.concatenate([p[:, 3, d], t[:, 3, d]]), expected, atol=2e-4)
 
 
+def test_the_curve_metric_makes_the_smallest_change_of_the_curve(rng):
+    """``metric="curve"`` meets the same handles by the correction whose dense curve moves
+    least (Σ over frames of the squared change): never more than the variables' minimum-norm
+    one, and far less next to a fixed key tangent, where that one moves the next control
+    point. Fixed variables stay bit for bit; no handle, no change; no LAPACK call."""
+    pos, tangent = random_curves(rng)
+    fixed = jnp.zeros((K, J), bool).at[0].set(True).at[-1].set(True)
+    fixed_tangent = fixed
+    joint = jnp.asarray([2, 2, 4, 5, 1], jnp.int32)
+    frame = jnp.asarray([1, 16, 29, 9, 3], jnp.int32)  # next to the keys, and between
+    target = jnp.asarray(rng.normal(size=(5, 3)) * 20.0 + 100.0, jnp.float32)
+    valid = jnp.asarray([True, True, True, True, False])
+    std, t_std = jnp.asarray(rng.uniform(10, 30, (J, 3)), jnp.float32), jnp.asarray(rng.uniform(1, 3, (J, 3)), jnp.float32)
+    run = lambda metric: project_off_grid(  # noqa: E731
+        LAYOUT, pos, tangent, fixed, joint, frame, target, valid, pos_std=std, tangent_std=t_std, fixed_tangent=fixed_tangent, metric=metric
+    )
+    world = lambda p, t: evaluate(LAYOUT, jnp.moveaxis(std * p, -2, -3), jnp.moveaxis(t_std * t, -2, -3))  # noqa: E731
+    before = np.asarray(world(pos, tangent))
+    change = {}
+    for metric in ("variables", "curve"):
+        p, t = run(metric)
+        dense = np.asarray(world(p, t))  # (J, frames, 3)
+        for h in range(4):
+            np.testing.assert_allclose(dense[int(joint[h]), int(frame[h])], target[h], atol=2e-2)
+        np.testing.assert_array_equal(np.asarray(p)[[0, -1]], np.asarray(pos)[[0, -1]])
+        np.testing.assert_array_equal(np.asarray(t)[[0, -1]], np.asarray(tangent)[[0, -1]])
+        change[metric] = ((dense - before) ** 2).sum(axis=(1, 2))  # per joint
+    assert np.all(change["curve"] <= change["variables"] * (1 + 1e-4) + 1e-3), change
+    assert change["curve"][2] < 0.5 * change["variables"][2], change  # frame 1 beside the held key tangent
+    nothing = project_off_grid(LAYOUT, pos, tangent, fixed, joint, frame, target, jnp.zeros(5, bool), pos_std=std, tangent_std=t_std, metric="curve")
+    assert_trees_identical(nothing, (pos, tangent))
+    assert lapack_calls(lambda: run("curve")) == set()
+    with pytest.raises(ValueError, match="metric must be 'variables' or 'curve'"):
+        run("dense")
+
+
 def test_grid_only_and_padding_change_nothing_bit_for_bit(rng):
     pos, tangent = random_curves(rng)
     fixed = jnp.asarray(rng.random((K, J)) < 0.3)
