@@ -238,20 +238,21 @@ def _project_over_chain(
 ) -> tuple[Float[Array, "controls joints 3"], Float[Array, "controls joints 3"]]:
     """:func:`~bezmotion.diffusion.projection.project_off_grid` over a whole coupled chain at
     once, seen from one window (inside ``jax.vmap`` over ``chain.axis``; arguments as there,
-    this window's, ``pos_mean`` its own offset), by the smallest change of the curve
-    (``metric="curve"``).
+    this window's, ``pos_mean`` its own offset).
 
     The windows' curves are joined into one, a shared key's control point counted once: its
-    position is a key (fixed), its tangent one variable of both windows. So a handle next to a
-    shared key may move that tangent, in both windows alike. Projected window by window with
-    the shared tangent held (the rule before 2026-12-03), a handle one frame from a shared key
-    could move only the next control point, whose weight there is 0.07, and the curve swung
-    out by up to a metre (20 cm asked for). The smallest change of the curve rather than of
-    the model's normalised variables, because there the next control point's position is the
-    cheap variable (its scale is ten times the tangent's), where a window alone has the
-    model's own tangent, chosen with the handle in view, and a chain's shared one is the
-    mean of two windows' that each saw half the handles. ``fixed_tangent``: tangents that
-    stay as they are even so (a key's given velocity).
+    position is a key (fixed), its tangent one variable of both windows. A joint with a handle
+    within a stride of a shared key is met over the chain, its shared tangents free (moved in
+    both windows alike), by the smallest change of its curve (``metric="curve"``). Projected
+    window by window with the shared tangent held (the rule before 2026-12-03), a handle one
+    frame from a shared key could move only the next control point, whose weight there is
+    0.07, and the curve swung out by up to a metre (20 cm asked for). The curve's change
+    rather than the model's normalised variables', because in those the next control point's
+    position is the cheap variable (its scale is ten times the tangent's): a window alone has
+    the model's own tangent, chosen with the handle in view, but a chain's shared one is the
+    mean of two windows' that each saw half the handles. Every other joint keeps its shared
+    tangents and the variables' metric (what window by window gives). ``fixed_tangent``:
+    tangents that stay as they are in any case (a key's given velocity).
     Returns:
       this window's ``(ctrl_pos, ctrl_tangent)``; its fixed positions bit for bit, a shared
       tangent the same bits in both windows.
@@ -272,10 +273,18 @@ def _project_over_chain(
     pos, tangent, held, held_tangent = (join(gather(x)) for x in (ctrl_pos, ctrl_tangent, fixed, fixed_tangent))
     offsets = join(jnp.broadcast_to(gather(offset)[:, None], (chain.size, k, j, 3)))
     frames = gather(frame) + (jnp.arange(chain.size) * step * layout.stride)[:, None]  # in the chain's frames
+    # The joints with a handle within a stride of a shared key (either side) are met over the
+    # chain by the curve's smallest change; every other joint's shared tangents stay held, its
+    # handles met window by window, in the model's variables, as before.
+    near = gather(handles_next_to_keys(frame, joint, valid, k, j, layout.stride))  # (windows, 2, J)
+    over_chain = jnp.any(near[:-1, 1] | near[1:, 0], axis=0)  # (J,)
+    shared = jnp.zeros(chain.size * step + 1, bool).at[jnp.arange(1, chain.size) * step].set(True)
+    held_tangent = held_tangent | (shared[:, None] & ~over_chain[None, :])
     pos, tangent = project_off_grid(
         BezierLayout.from_controls(chain.size * step + 1, layout.stride), pos, tangent, held,
         gather(joint).reshape(-1), frames.reshape(-1), gather(target).reshape(-1, 3), gather(valid).reshape(-1),
-        pos_mean=offsets, pos_std=pos_std, tangent_mean=tangent_mean, tangent_std=tangent_std, fixed_tangent=held_tangent, metric="curve",
+        pos_mean=offsets, pos_std=pos_std, tangent_mean=tangent_mean, tangent_std=tangent_std, fixed_tangent=held_tangent,
+        metric=over_chain,
     )  # fmt: skip
     mine = functools.partial(jax.lax.dynamic_slice_in_dim, start_index=jax.lax.axis_index(chain.axis) * step, slice_size=k)
     # A shared key's position comes from the window before in the joined curve (in its frame): this window's own.

@@ -71,7 +71,7 @@ def project_off_grid(
     tangent_mean: Float[ArrayLike, "joints 3"] = 0.0,
     tangent_std: Float[ArrayLike, "joints 3"] = 1.0,
     fixed_tangent: Bool[Array, "controls joints"] | None = None,
-    metric: str = "variables",
+    metric: str | Bool[Array, "joints"] = "variables",
 ) -> tuple[Float[Array, "controls joints 3"], Float[Array, "controls joints 3"]]:
     """Minimum-norm correction of the curves onto their off-grid point constraints (one motion).
 
@@ -100,8 +100,9 @@ def project_off_grid(
       metric: which correction is smallest: ``"variables"`` (default; issue 15's), the
         Euclidean norm of the variables' change (in the model's normalised space when they
         are normalised); ``"curve"``, the change of the curve itself, summed over every frame
-        (``Σ_f |Δcurve(f)|²``, positions and tangents weighed by what they do to it; the
-        chain's projection, :func:`bezmotion.bmm.sampling._project_over_chain`).
+        (``Σ_f |Δcurve(f)|²``, positions and tangents weighed by what they do to it); or a
+        ``(joints,)`` mask, ``"curve"`` for the joints it marks (the chain's projection,
+        :func:`bezmotion.bmm.sampling._project_over_chain`).
     Returns:
       ``(ctrl_pos, ctrl_tangent)`` corrected, same space as the inputs.
     """
@@ -129,32 +130,48 @@ def project_off_grid(
     a_pos = jnp.where(owns[:, None, :, None] & free[:, None, None, :], w_pos[None, None] * pos_std[:, :, None, None], 0.0)
     a_tan = jnp.where(owns[:, None, :, None] & free_tan[:, None, None, :], w_tan[None, None] * tangent_std[:, :, None, None], 0.0)
     a = jnp.concatenate([a_pos, a_tan], axis=-1)  # (J, 3, H, 2K)
-    if metric not in ("variables", "curve"):
-        raise ValueError(f"metric must be 'variables' or 'curve', got {metric!r}")
-    if metric == "curve":
-        # The smallest change of the dense curve: min Δᵀ M Δ with M = CᵀC, C the scaled basis at
-        # every frame, is Δ = M⁻¹Aᵀz for any z with (A M⁻¹Aᵀ) z = r. Fixed variables get an
-        # identity block in M and a zero column in A, so their Δ is zero. Plain XLA solves
-        # (bezmotion.linalg), no LAPACK.
-        every_pos, every_tan = (w.astype(dtype)[None, None] for w in basis(layout))  # (1, 1, F, K)
-        c = jnp.concatenate([every_pos * pos_std[:, :, None, None], every_tan * tangent_std[:, :, None, None]], axis=-1)  # (J, 3, F, 2K)
-        free_all = jnp.concatenate([free, free_tan], axis=-1)[:, None, :]  # (J, 1, 2K)
-        keep = free_all[..., :, None] & free_all[..., None, :]
-        gram = jnp.where(keep, exact_einsum("jdfa,jdfb->jdab", c, c), jnp.eye(2 * k, dtype=dtype))
-        n = 2 * k
-        inverse = cholesky_solve(jnp.broadcast_to(gram[:, :, None], (j, 3, n, n, n)), jnp.broadcast_to(jnp.eye(n, dtype=dtype), (j, 3, n, n)))  # rows of M⁻¹
-        spread = exact_einsum("jdha,jdab->jdhb", a, inverse)  # (J, 3, H, 2K): rows of A M⁻¹
-        z = min_norm_solve(exact_einsum("jdha,jdga->jdhg", spread, a), jnp.moveaxis(residual, -1, 1))
-        delta = exact_einsum("jdh,jdha->jda", z, spread)  # (J, 3, 2K)
-    else:
-        # Minimum-norm solve of any rank: identical duplicate handles make A rank-deficient, and
-        # zero rows (no off-grid handle) must give a zero correction, not a division by zero.
-        delta = min_norm_solve(a, jnp.moveaxis(residual, -1, 1))  # (J, 3, 2K)
-    delta = jnp.moveaxis(delta, -1, 0)  # (2K, J, 3)
+    if isinstance(metric, str) and metric not in ("variables", "curve"):
+        raise ValueError(f"metric must be 'variables' or 'curve' (or a mask of joints), got {metric!r}")
+    residual = jnp.moveaxis(residual, -1, 1)  # (J, 3, H)
+    # Minimum-norm solve of any rank: identical duplicate handles make A rank-deficient, and
+    # zero rows (no off-grid handle) must give a zero correction, not a division by zero.
+    step = None if isinstance(metric, str) and metric == "curve" else min_norm_solve(a, residual)  # (J, 3, 2K)
+    if not isinstance(metric, str) or metric == "curve":
+        curve_free = jnp.concatenate([free, free_tan], axis=-1)  # (J, 2K)
+        smallest_change = _smallest_curve_change(layout, a, residual, curve_free, pos_std, tangent_std)
+        step = smallest_change if step is None else jnp.where(metric[:, None, None], smallest_change, step)
+    delta = jnp.moveaxis(step, -1, 0)  # (2K, J, 3)
     return (
         jnp.where(fixed[..., None], ctrl_pos, ctrl_pos + delta[:k]),
         jnp.where(fixed_tangent[..., None], ctrl_tangent, ctrl_tangent + delta[k:]),
     )
+
+
+def _smallest_curve_change(
+    layout: BezierLayout,
+    a: Float[Array, "joints 3 handles variables"],
+    residual: Float[Array, "joints 3 handles"],
+    free: Bool[Array, "joints variables"],
+    pos_std: Float[Array, "joints 3"],
+    tangent_std: Float[Array, "joints 3"],
+) -> Float[Array, "joints 3 variables"]:
+    """The ``Δ`` with ``A Δ = r`` whose curve changes least over every frame.
+
+    ``min Δᵀ M Δ`` with ``M = CᵀC``, ``C`` the basis at every frame scaled by the variables'
+    map to the curve, is ``Δ = M⁻¹Aᵀz`` for any ``z`` with ``(A M⁻¹Aᵀ) z = r``. A fixed
+    variable gets an identity block in ``M`` and has a zero column in ``A``, so its ``Δ`` is
+    zero. Plain XLA solves (:mod:`bezmotion.linalg`), no LAPACK.
+    """
+    j, n, dtype = a.shape[0], a.shape[-1], a.dtype
+    every_pos, every_tan = (w.astype(dtype)[None, None] for w in basis(layout))  # (1, 1, F, K)
+    c = jnp.concatenate([every_pos * pos_std[:, :, None, None], every_tan * tangent_std[:, :, None, None]], axis=-1)  # (J, 3, F, 2K)
+    keep = (free[:, :, None] & free[:, None, :])[:, None]  # (J, 1, 2K, 2K)
+    gram = jnp.where(keep, exact_einsum("jdfa,jdfb->jdab", c, c), jnp.eye(n, dtype=dtype))
+    # Rows of M⁻¹ (symmetric), one solve per unit vector.
+    inverse = cholesky_solve(jnp.broadcast_to(gram[:, :, None], (j, 3, n, n, n)), jnp.broadcast_to(jnp.eye(n, dtype=dtype), (j, 3, n, n)))
+    spread = exact_einsum("jdha,jdab->jdhb", a, inverse)  # rows of A M⁻¹
+    z = min_norm_solve(exact_einsum("jdha,jdga->jdhg", spread, a), residual)
+    return exact_einsum("jdh,jdha->jda", z, spread)
 
 
 def project_onto_handles(
