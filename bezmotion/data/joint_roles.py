@@ -17,7 +17,9 @@ hands      wrist, else hand       left / right
 feet       ankle, else foot       left / right
 =========  =====================  =====
 
-Exactly, so ``LeftHandIndex1`` or ``HeadTop_End`` never pass for a hand or a head. Where a
+Exactly, so ``LeftHandIndex1`` or ``HeadTop_End`` never pass for a hand or a head. A skeleton
+whose hips no name calls so (``root``, ``body``) gets the joint where the spine and both legs
+branch: the deepest one the head and both feet descend from. Where a
 skeleton has both a wrist and a hand (SMPL's ``L_Hand`` is the knuckles, a child of the
 wrist), the wrist is the joint the rig's two-bone arm ends on; likewise the ankle before a
 ``foot`` that is the toes.
@@ -83,8 +85,12 @@ def guess_characteristic_joints(names: Sequence[str], parents: Sequence[int]) ->
                 key = f"{sides[0]}_{role}" if sided else role
                 found.setdefault(key, []).append((role_words.index(rest[0]), joint))
     mapping = {}
-    for role in CHARACTERISTIC_JOINTS:
+    for role in (*CHARACTERISTIC_JOINTS[1:], CHARACTERISTIC_JOINTS[0]):  # the hips last: they may need the others
         candidates = sorted(found.get(role, []))
+        if not candidates and role == "hips" and all(r in mapping for r in ("head", "left_foot", "right_foot")):
+            # No name says "hips" (a "root" or "body" joint): where the spine and both legs branch.
+            mapping[role] = _branch_point([mapping["head"], mapping["left_foot"], mapping["right_foot"]], parents)
+            continue
         if not candidates:
             raise ValueError(f"no joint's name reads as the {role.replace('_', ' ')}")
         best = [j for preference, j in candidates if preference == candidates[0][0]]
@@ -94,7 +100,23 @@ def guess_characteristic_joints(names: Sequence[str], parents: Sequence[int]) ->
             raise ValueError(f"{[names[j] for j in best]} all read as the {role.replace('_', ' ')}")
         mapping[role] = best[0]
     _check_hierarchy(mapping, names, parents)
-    return {role: names[j] for role, j in mapping.items()}
+    return {role: names[mapping[role]] for role in CHARACTERISTIC_JOINTS}
+
+
+def _ancestors(joint: int, parents: Sequence[int]) -> list[int]:
+    """``joint`` and its ancestors up to the root, in that order."""
+    chain = [joint]
+    while parents[chain[-1]] >= 0:
+        chain.append(parents[chain[-1]])
+    return chain
+
+
+def _branch_point(joints: Sequence[int], parents: Sequence[int]) -> int:
+    """The deepest joint every one of ``joints`` descends from (or is)."""
+    common = set(_ancestors(joints[0], parents))
+    for j in joints[1:]:
+        common &= set(_ancestors(j, parents))
+    return max(common, key=lambda j: len(_ancestors(j, parents)))
 
 
 def _depth(joint: int, parents: Sequence[int]) -> int:

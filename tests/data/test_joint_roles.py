@@ -52,6 +52,13 @@ def test_the_presets_read_as_their_own_maps():
     assert guess_characteristic_joints(demo.names, demo.parents) == SKELETON_MAPS["bandai_namco"]
 
 
+def test_hips_no_name_calls_so_are_where_the_spine_and_legs_branch():
+    names = _CONVENTIONS["mixamo"].replace("mixamorig:Hips", "mixamorig:Body").split()
+    assert guess_characteristic_joints(names, _parents())["hips"] == "mixamorig:Body"
+    unnamed = ["Reference", "root", *_CONVENTIONS["unreal"].split()[2:]]  # Unreal's pelvis called "root", under a "Reference"
+    assert guess_characteristic_joints(unnamed, _parents())["hips"] == "root"
+
+
 def test_a_wrist_and_an_ankle_come_before_a_hand_and_a_foot_below_them():
     """SMPL: ``L_Hand`` is the knuckles, a child of ``L_Wrist``; ``L_Foot`` the toes."""
     names = ["Pelvis", "Spine", "Neck", "Head",
@@ -73,7 +80,7 @@ def test_names_split_into_words():
 def test_names_that_do_not_tell_the_six_joints_raise_naming_why():
     names = _CONVENTIONS["mixamo"].split()
     parents = _parents()
-    with pytest.raises(ValueError, match="no joint's name reads as the hips"):
+    with pytest.raises(ValueError, match="no joint's name reads as the head"):
         guess_characteristic_joints([f"j{i}" for i in range(len(names))], parents)
     with pytest.raises(ValueError, match=r"no joint's name reads as the left hand"):
         guess_characteristic_joints([n.replace("LeftHand", "LeftPaw") for n in names], parents)
