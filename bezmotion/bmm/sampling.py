@@ -381,7 +381,8 @@ def _sample_one(
         held = held_key_tangents(world.frame, world.joint, world.valid, cfg.num_controls, cfg.num_joints, cfg.stride)
         held = held if chain is None else held | _shared_keys(chain, cfg.num_controls, cfg.num_joints)
     couple = (lambda x: x) if chain is None else functools.partial(_couple, chain=chain)
-    # A chain's handles are met over the whole chain, its shared tangents one variable each.
+    # A chain's joints with a handle next to a shared key are met over the whole chain, each
+    # shared tangent one variable (_project_over_chain); the others window by window.
     project = functools.partial(project_off_grid, layout) if chain is None else functools.partial(_project_over_chain, chain, layout)
 
     denoise = guided_denoiser(denoiser, normalized, guidance)
