@@ -97,7 +97,7 @@ def min_norm_solve(
     return solve(matrix, rhs)
 
 
-def _cholesky_solve_one(matrix: Float[Array, "n n"], rhs: Float[Array, " n"]) -> Float[Array, " n"]:
+def _cholesky_factor_one(matrix: Float[Array, "n n"]) -> Float[Array, "n n"]:
     n = matrix.shape[0]
     index = jnp.arange(n)
 
@@ -107,7 +107,11 @@ def _cholesky_solve_one(matrix: Float[Array, "n n"], rhs: Float[Array, " n"]) ->
         pivot = jnp.sqrt(column[k])
         return lower.at[:, k].set(jnp.where(index >= k, column / pivot, 0.0))
 
-    lower = jax.lax.fori_loop(0, n, factor_column, jnp.zeros_like(matrix))
+    return jax.lax.fori_loop(0, n, factor_column, jnp.zeros_like(matrix))
+
+
+def _cholesky_substitute_one(lower: Float[Array, "n n"], rhs: Float[Array, " n"]) -> Float[Array, " n"]:
+    n = lower.shape[0]
 
     def forward(k, y):  # L y = b
         return y.at[k].set((rhs[k] - exact_matmul(lower[k], y)) / lower[k, k])
@@ -120,11 +124,27 @@ def _cholesky_solve_one(matrix: Float[Array, "n n"], rhs: Float[Array, " n"]) ->
     return jax.lax.fori_loop(0, n, backward, jnp.zeros_like(rhs))
 
 
+def _cholesky_solve_one(matrix: Float[Array, "n n"], rhs: Float[Array, " n"]) -> Float[Array, " n"]:
+    return _cholesky_substitute_one(_cholesky_factor_one(matrix), rhs)
+
+
+def _spd_inverse_one(matrix: Float[Array, "n n"]) -> Float[Array, "n n"]:
+    lower = _cholesky_factor_one(matrix)  # once, for every column
+    return jax.vmap(lambda unit: _cholesky_substitute_one(lower, unit))(jnp.eye(matrix.shape[0], dtype=matrix.dtype))
+
+
 def cholesky_solve(matrix: Float[Array, "*batch n n"], rhs: Float[Array, "*batch n"]) -> Float[Array, "*batch n"]:
     """``x`` with ``matrix @ x = rhs`` for a symmetric positive-definite ``matrix``
     (Cholesky, then two triangular solves). Only the lower triangle is read; a matrix that
     is not positive definite gives NaN, as LAPACK's does."""
     return jnp.vectorize(_cholesky_solve_one, signature="(n,n),(n)->(n)")(matrix, rhs)
+
+
+def spd_inverse(matrix: Float[Array, "*batch n n"]) -> Float[Array, "*batch n n"]:
+    """The inverse of a symmetric positive-definite ``matrix``: one Cholesky factorisation,
+    then :func:`cholesky_solve`'s two triangular solves per column (NaN where it is not
+    positive definite)."""
+    return jnp.vectorize(_spd_inverse_one, signature="(n,n)->(n,n)")(matrix)
 
 
 def top_eigenvector(matrix: Float[Array, "*batch n n"], *, squarings: int = 40) -> Float[Array, "*batch n"]:
@@ -157,4 +177,4 @@ def top_eigenvector(matrix: Float[Array, "*batch n n"], *, squarings: int = 40) 
     return jnp.vectorize(one, signature="(n,n)->(n)")(matrix)
 
 
-__all__ = ["cholesky_solve", "min_norm_solve", "top_eigenvector"]
+__all__ = ["cholesky_solve", "min_norm_solve", "spd_inverse", "top_eigenvector"]

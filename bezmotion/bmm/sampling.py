@@ -32,7 +32,7 @@ from bezmotion.training.checkpoint import CheckpointStore, cast_floating, save_m
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.bezier import BezierLayout
 from bezmotion.diffusion.ddim import ddim_sample
-from bezmotion.diffusion.projection import project_off_grid
+from bezmotion.diffusion.projection import curve_metric, project_off_grid
 from bezmotion.bmm.foot_lock import lock_anchor, lock_feet
 from bezmotion.diffusion.schedule import cosine_schedule
 from bezmotion.bmm.denoiser import BMMConfig, Conditions, init_denoiser
@@ -219,50 +219,55 @@ def _shared_keys(chain: _Chain, num_controls: int, num_joints: int) -> Bool[Arra
     return shared_key_mask(chain.size, num_controls, num_joints)[jax.lax.axis_index(chain.axis)]
 
 
-def _project_over_chain(
-    chain: _Chain,
+def _projector(
     layout: BezierLayout,
-    ctrl_pos: Float[Array, "controls joints 3"],
-    ctrl_tangent: Float[Array, "controls joints 3"],
+    conditions: Conditions,
     fixed: Bool[Array, "controls joints"],
-    joint: Int[Array, "slots"],
-    frame: Int[Array, "slots"],
-    target: Float[Array, "slots 3"],
-    valid: Bool[Array, "slots"],
+    fixed_tangent: Bool[Array, "controls joints"] | None,
+    chain: _Chain | None,
     *,
-    pos_mean: Float[ArrayLike, "joints 3"] = 0.0,
     pos_std: Float[ArrayLike, "joints 3"] = 1.0,
-    tangent_mean: Float[ArrayLike, "joints 3"] = 0.0,
     tangent_std: Float[ArrayLike, "joints 3"] = 1.0,
-    fixed_tangent: Bool[Array, "controls joints"] | None = None,
-) -> tuple[Float[Array, "controls joints 3"], Float[Array, "controls joints 3"]]:
-    """:func:`~bezmotion.diffusion.projection.project_off_grid` over a whole coupled chain at
-    once, seen from one window (inside ``jax.vmap`` over ``chain.axis``; arguments as there,
-    this window's, ``pos_mean`` its own offset).
+):
+    """``project(ctrl_pos, ctrl_tangent, target, pos_mean=0, tangent_mean=0)``: one window's
+    curves through ``conditions`` (:func:`~bezmotion.diffusion.projection.project_off_grid`,
+    the variables ``(P − pos_mean) / pos_std`` and ``(T − tangent_mean) / tangent_std``, the
+    targets ``target``), with what stays the same from call to call (the sampler's every DDIM
+    step) worked out once, here.
 
-    The windows' curves are joined into one, a shared key's control point counted once: its
-    position is a key (fixed), its tangent one variable of both windows. A joint with a handle
-    within a stride of a shared key is met over the chain, its shared tangents free (moved in
-    both windows alike), by the smallest change of its curve (``metric="curve"``). Projected
-    window by window with the shared tangent held (the rule before 2026-12-03), a handle one
-    frame from a shared key could move only the next control point, whose weight there is
-    0.07, and the curve swung out by up to a metre (20 cm asked for). The curve's change
-    rather than the model's normalised variables', because in those the next control point's
-    position is the cheap variable (its scale is ten times the tangent's): a window alone has
-    the model's own tangent, chosen with the handle in view, but a chain's shared one is the
-    mean of two windows' that each saw half the handles. Every other joint keeps its shared
-    tangents and the variables' metric (what window by window gives). ``fixed_tangent``:
-    tangents that stay as they are in any case (a key's given velocity).
-    Returns:
-      this window's ``(ctrl_pos, ctrl_tangent)``; its fixed positions bit for bit, a shared
-      tangent the same bits in both windows.
+    In a coupled chain (inside ``jax.vmap`` over ``chain.axis``) the windows' curves are
+    joined into one, a shared key's control point counted once: its position is a key (fixed),
+    its tangent one variable of both windows. A joint with a handle within a stride of a
+    shared key is met over the chain, its shared tangents free (moved in both windows alike),
+    by the smallest change of its curve (:func:`~bezmotion.diffusion.projection.curve_metric`).
+    Projected window by window with the shared tangent held (the rule before 2026-12-03), a
+    handle one frame from a shared key could move only the next control point, whose weight
+    there is 0.07, and the curve swung out by up to a metre (20 cm asked for). The curve's
+    change rather than the model's normalised variables', because in those the next control
+    point's position is the cheap variable (its scale is ten times the tangent's): a window
+    alone has the model's own tangent, chosen with the handle in view, but a chain's shared one
+    is the mean of two windows' that each saw half the handles. Every other joint keeps its
+    shared tangents and the variables' metric (what window by window gives). ``fixed_tangent``:
+    tangents that stay as they are in any case (a key's given velocity). Returned curves: the
+    window's fixed positions bit for bit, a shared tangent the same bits in both windows.
     """
-    k, j = ctrl_pos.shape[:2]
+    k, j = fixed.shape
+
+    def scales(dtype, *values):  # each a (joints, 3) array (the projection's type hints want arrays)
+        return (jnp.broadcast_to(jnp.asarray(v, dtype), (j, 3)) for v in values)
+
+    if chain is None:
+        def project(ctrl_pos, ctrl_tangent, target, pos_mean=0.0, tangent_mean=0.0):
+            p_mean, p_std, t_mean, t_std = scales(ctrl_pos.dtype, pos_mean, pos_std, tangent_mean, tangent_std)
+            return project_off_grid(
+                layout, ctrl_pos, ctrl_tangent, fixed, conditions.joint, conditions.frame, target, conditions.valid,
+                pos_mean=p_mean, pos_std=p_std, tangent_mean=t_mean, tangent_std=t_std, fixed_tangent=fixed_tangent,
+            )  # fmt: skip
+
+        return project
     step = k - 1  # a window adds this many control points to the chain
+    whole = BezierLayout.from_controls(chain.size * step + 1, layout.stride)
     fixed_tangent = jnp.zeros_like(fixed) if fixed_tangent is None else fixed_tangent
-    offset, pos_std, tangent_mean, tangent_std = (
-        jnp.broadcast_to(jnp.asarray(a, ctrl_pos.dtype), (j, 3)) for a in (pos_mean, pos_std, tangent_mean, tangent_std)
-    )
 
     def gather(x):
         return jax.lax.all_gather(x, chain.axis)
@@ -270,25 +275,27 @@ def _project_over_chain(
     def join(x):  # (windows, k, ...) → (windows·step + 1, ...): window i's last point is window i + 1's first
         return jnp.concatenate([x[0], x[1:, 1:].reshape(-1, *x.shape[2:])])
 
-    pos, tangent, held, held_tangent = (join(gather(x)) for x in (ctrl_pos, ctrl_tangent, fixed, fixed_tangent))
-    offsets = join(jnp.broadcast_to(gather(offset)[:, None], (chain.size, k, j, 3)))
-    frames = gather(frame) + (jnp.arange(chain.size) * step * layout.stride)[:, None]  # in the chain's frames
-    # The joints with a handle within a stride of a shared key (either side) are met over the
-    # chain by the curve's smallest change; every other joint's shared tangents stay held, its
-    # handles met window by window, in the model's variables, as before.
-    near = gather(handles_next_to_keys(frame, joint, valid, k, j, layout.stride))  # (windows, 2, J)
+    held, held_tangent = join(gather(fixed)), join(gather(fixed_tangent))
+    joint, valid = gather(conditions.joint).reshape(-1), gather(conditions.valid).reshape(-1)
+    frame = (gather(conditions.frame) + (jnp.arange(chain.size) * step * layout.stride)[:, None]).reshape(-1)  # the chain's frames
+    near = gather(handles_next_to_keys(conditions.frame, conditions.joint, conditions.valid, k, j, layout.stride))  # (windows, 2, J)
     over_chain = jnp.any(near[:-1, 1] | near[1:, 0], axis=0)  # (J,)
-    shared = jnp.zeros(chain.size * step + 1, bool).at[jnp.arange(1, chain.size) * step].set(True)
+    shared = jnp.zeros(whole.num_controls, bool).at[jnp.arange(1, chain.size) * step].set(True)
     held_tangent = held_tangent | (shared[:, None] & ~over_chain[None, :])
-    pos, tangent = project_off_grid(
-        BezierLayout.from_controls(chain.size * step + 1, layout.stride), pos, tangent, held,
-        gather(joint).reshape(-1), frames.reshape(-1), gather(target).reshape(-1, 3), gather(valid).reshape(-1),
-        pos_mean=offsets, pos_std=pos_std, tangent_mean=tangent_mean, tangent_std=tangent_std, fixed_tangent=held_tangent,
-        metric=over_chain,
-    )  # fmt: skip
+    metric = curve_metric(whole, held, *scales(jnp.float32, pos_std, tangent_std), held_tangent, joints=over_chain)
     mine = functools.partial(jax.lax.dynamic_slice_in_dim, start_index=jax.lax.axis_index(chain.axis) * step, slice_size=k)
-    # A shared key's position comes from the window before in the joined curve (in its frame): this window's own.
-    return jnp.where(fixed[..., None], ctrl_pos, mine(pos)), mine(tangent)
+
+    def project(ctrl_pos, ctrl_tangent, target, pos_mean=0.0, tangent_mean=0.0):
+        p_mean, p_std, t_mean, t_std = scales(ctrl_pos.dtype, pos_mean, pos_std, tangent_mean, tangent_std)
+        offsets = join(jnp.broadcast_to(gather(p_mean)[:, None], (chain.size, k, j, 3)))  # each window's own
+        pos, tangent = project_off_grid(
+            whole, join(gather(ctrl_pos)), join(gather(ctrl_tangent)), held, joint, frame, gather(target).reshape(-1, 3), valid,
+            pos_mean=offsets, pos_std=p_std, tangent_mean=t_mean, tangent_std=t_std, fixed_tangent=held_tangent, metric=metric,
+        )  # fmt: skip
+        # A shared key's position comes from the window before in the joined curve (in its frame): this window's own.
+        return jnp.where(fixed[..., None], ctrl_pos, mine(pos)), mine(tangent)
+
+    return project
 
 
 def held_key_tangents(
@@ -371,7 +378,8 @@ def _sample_one(
     _, world_target = world.to_grid(cfg.num_controls, cfg.num_joints, cfg.stride)
     # The conditions where x̂₀'s positions are measured from (cm): the window's own frame; a
     # chain's windows, each in its own, are met together in the world frame.
-    fix_frame = (world.position - translation, stats.mean[:, :3]) if chain is None else (world.position, stats.mean[:, :3] + translation)
+    x0_target = world.position - translation if chain is None else world.position
+    x0_pos_mean = stats.mean[:, :3] if chain is None else stats.mean[:, :3] + translation
     denoiser = functools.partial(predict_x0, nnx.merge(model.graphdef, model.params), stats)
     # The keys' tangents are conditions: the projection keeps them too (but a handle next to
     # a key may release it, held_key_tangents). A key two windows of a chain share keeps its
@@ -382,8 +390,10 @@ def _sample_one(
         held = held if chain is None else held | _shared_keys(chain, cfg.num_controls, cfg.num_joints)
     couple = (lambda x: x) if chain is None else functools.partial(_couple, chain=chain)
     # A chain's joints with a handle next to a shared key are met over the whole chain, each
-    # shared tangent one variable (_project_over_chain); the others window by window.
-    project = functools.partial(project_off_grid, layout) if chain is None else functools.partial(_project_over_chain, chain, layout)
+    # shared tangent one variable (_projector); the others window by window. In x̂₀'s
+    # normalised variables at every step, in world units at the end.
+    project_x0 = _projector(layout, world, mask, held, chain, pos_std=stats.std[:, :3], tangent_std=stats.std[:, 3:6])
+    project_world = _projector(layout, world, mask, held, chain)
 
     denoise = guided_denoiser(denoiser, normalized, guidance)
 
@@ -402,12 +412,7 @@ def _sample_one(
         # Every window normalises them by the same affine map (no translation), so the
         # mean here is the mean in world units.
         tangent, rot6d = couple(feats[..., 3:6]), couple(feats[..., 6:])
-        fix_target, pos_mean = fix_frame
-        pos, tangent = project(
-            pos, tangent, mask, world.joint, world.frame, fix_target, world.valid,
-            pos_mean=pos_mean, pos_std=stats.std[:, :3],
-            tangent_mean=stats.mean[:, 3:6], tangent_std=stats.std[:, 3:6], fixed_tangent=held,
-        )  # fmt: skip
+        pos, tangent = project_x0(pos, tangent, x0_target, pos_mean=x0_pos_mean, tangent_mean=stats.mean[:, 3:6])
         return to_tokens(jnp.concatenate([pos, tangent, rot6d], axis=-1))
 
     def exact(pos, tangent):
@@ -417,7 +422,7 @@ def _sample_one(
         pos = jnp.where(mask[..., None], world_target, pos)
         if key_tangent is not None:  # exactly, not through the normalisation round trip
             tangent = tangent.at[ends].set(jnp.where(held[ends][..., None], key_tangent, tangent[ends]))
-        return project(pos, couple(tangent), mask, world.joint, world.frame, world.position, world.valid, fixed_tangent=held)
+        return project_world(pos, couple(tangent), world.position)
 
     x_T = jax.random.normal(key, (cfg.num_controls, cfg.frame_features))
     x0, logits = ddim_sample(

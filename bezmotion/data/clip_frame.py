@@ -31,7 +31,7 @@ import numpy as np
 
 from bezmotion.data.bvh import BvhMotion
 from bezmotion.geometry.rotations import quat_mul, quat_rotate
-from bezmotion.geometry.skeleton import forward_kinematics
+from bezmotion.geometry.skeleton import ancestors, forward_kinematics
 
 CM_PER_UNIT = {"cm": 1.0, "m": 100.0, "mm": 0.1, "in": 2.54}
 """Centimetres per unit of each unit a clip may be in."""
@@ -104,13 +104,7 @@ def _convert(motion: BvhMotion, scale: float, turn: np.ndarray | None) -> BvhMot
 def chain_length(parents, offsets: np.ndarray, a: int, b: int) -> float:
     """Length of the bones between joints ``a`` and ``b`` along the hierarchy (through their
     lowest common ancestor), in the offsets' units."""
-    def ancestors(j: int) -> list[int]:
-        path = [j]
-        while parents[path[-1]] >= 0:
-            path.append(parents[path[-1]])
-        return path
-
-    up_a, up_b = ancestors(a), ancestors(b)
+    up_a, up_b = ancestors(parents, a), ancestors(parents, b)
     common = next(j for j in up_a if j in set(up_b))
     bones = up_a[: up_a.index(common)] + up_b[: up_b.index(common)]  # each joint's offset is its bone to its parent
     return float(sum(np.linalg.norm(offsets[j]) for j in bones))

@@ -31,6 +31,7 @@ import re
 from collections.abc import Mapping, Sequence
 
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
+from bezmotion.geometry.skeleton import ancestors
 
 # Role words by preference (first found wins), and whether the role has a side.
 _ROLE_WORDS: Mapping[str, tuple[tuple[str, ...], bool]] = {
@@ -103,46 +104,28 @@ def guess_characteristic_joints(names: Sequence[str], parents: Sequence[int]) ->
     return {role: names[mapping[role]] for role in CHARACTERISTIC_JOINTS}
 
 
-def _ancestors(joint: int, parents: Sequence[int]) -> list[int]:
-    """``joint`` and its ancestors up to the root, in that order."""
-    chain = [joint]
-    while parents[chain[-1]] >= 0:
-        chain.append(parents[chain[-1]])
-    return chain
-
-
 def _branch_point(joints: Sequence[int], parents: Sequence[int]) -> int:
     """The deepest joint every one of ``joints`` descends from (or is)."""
-    common = set(_ancestors(joints[0], parents))
+    common = set(ancestors(parents, joints[0]))
     for j in joints[1:]:
-        common &= set(_ancestors(j, parents))
-    return max(common, key=lambda j: len(_ancestors(j, parents)))
-
-
-def _depth(joint: int, parents: Sequence[int]) -> int:
-    depth = 0
-    while parents[joint] >= 0:
-        joint, depth = parents[joint], depth + 1
-    return depth
+        common &= set(ancestors(parents, j))
+    return max(common, key=lambda j: len(ancestors(parents, j)))
 
 
 def _nearest_root(joints: Sequence[int], parents: Sequence[int]) -> list[int]:
     """The joints of ``joints`` fewest steps below the root: of two hips, the body's (Daz's
     ``hip`` under a ``figure`` root before a ``hip`` helper below it)."""
-    depths = [_depth(j, parents) for j in joints]
+    depths = [len(ancestors(parents, j)) for j in joints]
     return [j for j, d in zip(joints, depths) if d == min(depths)]
 
 
 def _check_hierarchy(mapping: Mapping[str, int], names: Sequence[str], parents: Sequence[int]) -> None:
     """Refuse a guess the rig could not use: the head must descend from the hips, and each hand
     and foot needs two ancestors (its limb's upper and lower bone)."""
-    joint = parents[mapping["head"]]
-    while joint >= 0 and joint != mapping["hips"]:
-        joint = parents[joint]
-    if joint != mapping["hips"]:
+    if mapping["hips"] not in ancestors(parents, mapping["head"])[1:]:
         raise ValueError(f"the head {names[mapping['head']]!r} does not descend from the hips {names[mapping['hips']]!r}")
     for role in ("left_hand", "right_hand", "left_foot", "right_foot"):
-        if _depth(mapping[role], parents) < 2:
+        if len(ancestors(parents, mapping[role])) < 3:  # itself and two above
             raise ValueError(f"the {role.replace('_', ' ')} {names[mapping[role]]!r} has no two ancestors for a limb")
 
 

@@ -22,11 +22,13 @@ padding handles is the same computation); ``jax.vmap`` it over a batch.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from bezmotion.bezier import BezierLayout, basis
-from bezmotion.linalg import cholesky_solve, exact_einsum, min_norm_solve
+from bezmotion.linalg import exact_einsum, min_norm_solve, spd_inverse
 
 
 def on_control_frame(layout: BezierLayout, frame: Int[ArrayLike, "*shape"]) -> tuple[Bool[Array, "*shape"], Int[Array, "*shape"]]:
@@ -71,7 +73,7 @@ def project_off_grid(
     tangent_mean: Float[ArrayLike, "joints 3"] = 0.0,
     tangent_std: Float[ArrayLike, "joints 3"] = 1.0,
     fixed_tangent: Bool[Array, "controls joints"] | None = None,
-    metric: str | Bool[Array, "joints"] = "variables",
+    metric: str | CurveMetric = "variables",
 ) -> tuple[Float[Array, "controls joints 3"], Float[Array, "controls joints 3"]]:
     """Minimum-norm correction of the curves onto their off-grid point constraints (one motion).
 
@@ -101,8 +103,9 @@ def project_off_grid(
         Euclidean norm of the variables' change (in the model's normalised space when they
         are normalised); ``"curve"``, the change of the curve itself, summed over every frame
         (``Σ_f |Δcurve(f)|²``, positions and tangents weighed by what they do to it); or a
-        ``(joints,)`` mask, ``"curve"`` for the joints it marks (the chain's projection,
-        :func:`bezmotion.bmm.sampling._project_over_chain`).
+        :class:`CurveMetric` made beforehand (:func:`curve_metric`, for the same layout, fixed
+        variables and scales), which may leave some joints to the variables' norm (the
+        chain's projection, :func:`bezmotion.bmm.sampling._project_over_chain`).
     Returns:
       ``(ctrl_pos, ctrl_tangent)`` corrected, same space as the inputs.
     """
@@ -131,15 +134,22 @@ def project_off_grid(
     a_tan = jnp.where(owns[:, None, :, None] & free_tan[:, None, None, :], w_tan[None, None] * tangent_std[:, :, None, None], 0.0)
     a = jnp.concatenate([a_pos, a_tan], axis=-1)  # (J, 3, H, 2K)
     if isinstance(metric, str) and metric not in ("variables", "curve"):
-        raise ValueError(f"metric must be 'variables' or 'curve' (or a mask of joints), got {metric!r}")
+        raise ValueError(f"metric must be 'variables' or 'curve' (or a CurveMetric), got {metric!r}")
     residual = jnp.moveaxis(residual, -1, 1)  # (J, 3, H)
-    # Minimum-norm solve of any rank: identical duplicate handles make A rank-deficient, and
-    # zero rows (no off-grid handle) must give a zero correction, not a division by zero.
-    step = None if isinstance(metric, str) and metric == "curve" else min_norm_solve(a, residual)  # (J, 3, 2K)
-    if not isinstance(metric, str) or metric == "curve":
-        curve_free = jnp.concatenate([free, free_tan], axis=-1)  # (J, 2K)
-        smallest_change = _smallest_curve_change(layout, a, residual, curve_free, pos_std, tangent_std)
-        step = smallest_change if step is None else jnp.where(metric[:, None, None], smallest_change, step)
+    if isinstance(metric, str) and metric == "curve":
+        metric = curve_metric(layout, fixed, pos_std, tangent_std, fixed_tangent)
+    if isinstance(metric, str):
+        # Minimum-norm solve of any rank: identical duplicate handles make A rank-deficient, and
+        # zero rows (no off-grid handle) must give a zero correction, not a division by zero.
+        step = min_norm_solve(a, residual)  # (J, 3, 2K)
+    else:
+        # min Δᵀ M Δ with A Δ = r is Δ = M⁻¹Aᵀz for any z with (A M⁻¹Aᵀ) z = r. A fixed variable
+        # has an identity block in M and a zero column in A, so its Δ is zero.
+        spread = exact_einsum("jdha,jdab->jdhb", a, metric.inverse)  # rows of A M⁻¹
+        z = min_norm_solve(exact_einsum("jdha,jdga->jdhg", spread, a), residual)
+        step = exact_einsum("jdh,jdha->jda", z, spread)
+        if not metric.every_joint:
+            step = jnp.where(metric.joints[:, None, None], step, min_norm_solve(a, residual))
     delta = jnp.moveaxis(step, -1, 0)  # (2K, J, 3)
     return (
         jnp.where(fixed[..., None], ctrl_pos, ctrl_pos + delta[:k]),
@@ -147,31 +157,46 @@ def project_off_grid(
     )
 
 
-def _smallest_curve_change(
+class CurveMetric(NamedTuple):
+    """``metric="curve"`` of :func:`project_off_grid`, made once for curves whose layout,
+    fixed variables and scales stay (a sampler's every DDIM step): the inverse of the Gram
+    matrix ``M = CᵀC`` of the basis at every frame, ``C`` scaled by the variables' map to the
+    curve, so that ``Δᵀ M Δ = Σ_f |Δcurve(f)|²``.
+
+    Attributes:
+      inverse: ``(joints, 3, 2K, 2K)`` ``M⁻¹`` per joint and coordinate (variables: the K
+        control positions, then the K tangents); a fixed variable has an identity block.
+      joints: ``(joints,)`` the joints whose correction is measured so; the others take the
+        variables' minimum norm.
+      every_joint: whether ``joints`` is every joint (known when tracing: one solve, not two).
+    """
+
+    inverse: Float[Array, "joints 3 variables variables"]
+    joints: Bool[Array, "joints"]
+    every_joint: bool
+
+
+def curve_metric(
     layout: BezierLayout,
-    a: Float[Array, "joints 3 handles variables"],
-    residual: Float[Array, "joints 3 handles"],
-    free: Bool[Array, "joints variables"],
+    fixed: Bool[Array, "controls joints"],
     pos_std: Float[Array, "joints 3"],
     tangent_std: Float[Array, "joints 3"],
-) -> Float[Array, "joints 3 variables"]:
-    """The ``Δ`` with ``A Δ = r`` whose curve changes least over every frame.
-
-    ``min Δᵀ M Δ`` with ``M = CᵀC``, ``C`` the basis at every frame scaled by the variables'
-    map to the curve, is ``Δ = M⁻¹Aᵀz`` for any ``z`` with ``(A M⁻¹Aᵀ) z = r``. A fixed
-    variable gets an identity block in ``M`` and has a zero column in ``A``, so its ``Δ`` is
-    zero. Plain XLA solves (:mod:`bezmotion.linalg`), no LAPACK.
-    """
-    j, n, dtype = a.shape[0], a.shape[-1], a.dtype
+    fixed_tangent: Bool[Array, "controls joints"] | None = None,
+    *,
+    joints: Bool[Array, "joints"] | None = None,
+) -> CurveMetric:
+    """The smallest change of the curve over every frame as :func:`project_off_grid`'s
+    ``metric``, for the joints ``joints`` (default every one). Plain XLA solves
+    (:mod:`bezmotion.linalg`), no LAPACK."""
+    k, dtype = fixed.shape[0], pos_std.dtype
+    fixed_tangent = jnp.zeros_like(fixed) if fixed_tangent is None else fixed_tangent
     every_pos, every_tan = (w.astype(dtype)[None, None] for w in basis(layout))  # (1, 1, F, K)
     c = jnp.concatenate([every_pos * pos_std[:, :, None, None], every_tan * tangent_std[:, :, None, None]], axis=-1)  # (J, 3, F, 2K)
+    free = jnp.concatenate([~fixed.T, ~fixed_tangent.T], axis=-1)  # (J, 2K)
     keep = (free[:, :, None] & free[:, None, :])[:, None]  # (J, 1, 2K, 2K)
-    gram = jnp.where(keep, exact_einsum("jdfa,jdfb->jdab", c, c), jnp.eye(n, dtype=dtype))
-    # Rows of M⁻¹ (symmetric), one solve per unit vector.
-    inverse = cholesky_solve(jnp.broadcast_to(gram[:, :, None], (j, 3, n, n, n)), jnp.broadcast_to(jnp.eye(n, dtype=dtype), (j, 3, n, n)))
-    spread = exact_einsum("jdha,jdab->jdhb", a, inverse)  # rows of A M⁻¹
-    z = min_norm_solve(exact_einsum("jdha,jdga->jdhg", spread, a), residual)
-    return exact_einsum("jdh,jdha->jda", z, spread)
+    gram = jnp.where(keep, exact_einsum("jdfa,jdfb->jdab", c, c), jnp.eye(2 * k, dtype=dtype))
+    every = joints is None
+    return CurveMetric(spd_inverse(gram), jnp.ones(fixed.shape[1], bool) if every else joints, every)
 
 
 def project_onto_handles(
@@ -205,4 +230,4 @@ def project_onto_handles(
     return project_off_grid(layout, ctrl_pos, ctrl_tangent, mask, joint, frame, position, valid, fixed_tangent=fixed_tangent)
 
 
-__all__ = ["grid_conditions", "on_control_frame", "project_off_grid", "project_onto_handles"]
+__all__ = ["CurveMetric", "curve_metric", "grid_conditions", "on_control_frame", "project_off_grid", "project_onto_handles"]

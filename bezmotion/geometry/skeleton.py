@@ -18,6 +18,14 @@ from jaxtyping import Array, Float
 from bezmotion.geometry.rotations import quat_conjugate, quat_mul, quat_rotate
 
 
+def ancestors(parents: Sequence[int], joint: int) -> list[int]:
+    """``joint`` and its ancestors up to the root, in that order."""
+    chain = [joint]
+    while parents[chain[-1]] >= 0:
+        chain.append(parents[chain[-1]])
+    return chain
+
+
 def check_parents(parents: Sequence[int], names: Sequence[str] | None = None) -> None:
     """Raise ``ValueError`` unless ``parents`` lists the root first (parent -1) and every other
     joint after its parent: the order forward kinematics places them in. ``names`` (optional)
