@@ -3,14 +3,16 @@
 Times what a user calls, :func:`bezmotion.pipeline.inbetween` for one window and
 :func:`bezmotion.pipeline.inbetween_chain` for K windows through K + 1 keys, on the bundled
 Bandai-Namco models (10 DDIM steps, foot lock on as in ``bezmotion inbetween``, a right-hand
-handle 25 cm above the straight line in every window), against K calls of the one-window
+handle 25 cm above the straight line in every window, at its frame 15 or ``--handle-frame``), against K calls of the one-window
 in-between, the independent alternative. Compile time and steady-state milliseconds are
 reported separately, with the machine and library versions.
 
     python benchmarks/inbetween.py --windows 1 2 4 --ik learned exact --out inbetween.json
 
 The keys are frames 0, 30, 60, … of the bundled clip played forward and back (it has 40
-frames); the time does not depend on the motion.
+frames); the time does not depend on the motion. A handle within a stride (6 frames) of a
+shared key (``--handle-frame 2``) makes a chain meet that joint over the whole chain
+(:func:`bezmotion.bmm.sampling._projector`), the costlier projection.
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ class Options:
     windows: tuple[int, ...] = option((1, 2, 4), help="chain lengths K (windows; K + 1 keys) to time")
     ik: tuple[str, ...] = option(("learned", "exact"), choices=("learned", "exact"), help="the IKs to time")
     steps: int = option(10, help="DDIM steps (default 10)")
+    handle_frame: int = option(15, help="the frame (1…29) of each window's right-hand handle (default 15)")
     repeats: int = option(10, help="timed repeats; the median is reported")
     out: str | None = option(None, help="write the result as JSON to this file (atomically)")
 
@@ -76,7 +79,7 @@ def main(argv: list[str] | None = None) -> dict:
         for k in args.windows:
             keys = chain_keys(character, k, span)
             above = np.asarray(targets_from_pose(character, keys).position[:, 3]) + [0.0, 25.0, 0.0]  # the right hand, raised
-            per_window = [Handles.from_frames(["right_hand"], [15], (0.5 * (above[i] + above[i + 1]))[None], config=bmm.config) for i in range(k)]
+            per_window = [Handles.from_frames(["right_hand"], [args.handle_frame], (0.5 * (above[i] + above[i + 1]))[None], config=bmm.config) for i in range(k)]
             handles = jax.tree.map(lambda *x: jnp.stack(x), *per_window)
             if single is None:  # one window, the independent alternative's unit: timed once per IK
                 first = (jax.tree.map(lambda x: x[0], keys), jax.tree.map(lambda x: x[1], keys), per_window[0])
@@ -92,7 +95,7 @@ def main(argv: list[str] | None = None) -> dict:
                 "chain": chained, "window": single,
             }  # fmt: skip
             print(f"{label}: chain {rows[label]['chain_ms']:.1f} ms, {k} independent windows {rows[label]['independent_ms']:.1f} ms", flush=True)
-    result = {"benchmark": "inbetween", "steps": args.steps, "foot_lock": True, "rows": rows, "machine": machine_info()}
+    result = {"benchmark": "inbetween", "steps": args.steps, "handle_frame": args.handle_frame, "foot_lock": True, "rows": rows, "machine": machine_info()}
     summary = {k: {m: v for m, v in r.items() if m not in ("chain", "window")} for k, r in rows.items()}
     return report(result, summary, args.out)
 

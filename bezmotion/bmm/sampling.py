@@ -32,7 +32,7 @@ from bezmotion.training.checkpoint import CheckpointStore, cast_floating, save_m
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.bezier import BezierLayout
 from bezmotion.diffusion.ddim import ddim_sample
-from bezmotion.diffusion.projection import curve_metric, project_off_grid
+from bezmotion.diffusion.projection import CurveMetric, curve_metric, project_off_grid
 from bezmotion.bmm.foot_lock import lock_anchor, lock_feet
 from bezmotion.diffusion.schedule import cosine_schedule
 from bezmotion.bmm.denoiser import BMMConfig, Conditions, init_denoiser
@@ -226,8 +226,8 @@ def _projector(
     fixed_tangent: Bool[Array, "controls joints"] | None,
     chain: _Chain | None,
     *,
-    pos_std: Float[ArrayLike, "joints 3"] = 1.0,
-    tangent_std: Float[ArrayLike, "joints 3"] = 1.0,
+    pos_std: Float[ArrayLike, "joints 3"] | float = 1.0,
+    tangent_std: Float[ArrayLike, "joints 3"] | float = 1.0,
 ):
     """``project(ctrl_pos, ctrl_tangent, target, pos_mean=0, tangent_mean=0)``: one window's
     curves through ``conditions`` (:func:`~bezmotion.diffusion.projection.project_off_grid`,
@@ -282,18 +282,34 @@ def _projector(
     over_chain = jnp.any(near[:-1, 1] | near[1:, 0], axis=0)  # (J,)
     shared = jnp.zeros(whole.num_controls, bool).at[jnp.arange(1, chain.size) * step].set(True)
     held_tangent = held_tangent | (shared[:, None] & ~over_chain[None, :])
-    metric = curve_metric(whole, held, *scales(jnp.float32, pos_std, tangent_std), held_tangent, joints=over_chain)
+    # Where no joint is met over the chain (most chains: no handle next to a shared key), the
+    # joined problem falls apart into the windows' own, each with its shared tangents held:
+    # each window solves its own (the same result to rounding) instead of every window
+    # solving the whole chain, which made a chain of 4 slower than 4 separate windows.
+    # `over_chain` comes from `all_gather`, one value for the whole chain, so the branch is
+    # a real `lax.cond`, not a select (only under a further `vmap`, a batch of chains,
+    # do both run).
+    anywhere = jnp.any(over_chain)
+    alone = _projector(layout, conditions, fixed, fixed_tangent | _shared_keys(chain, k, j), None, pos_std=pos_std, tangent_std=tangent_std)
+    def make_metric():
+        return curve_metric(whole, held, *scales(jnp.float32, pos_std, tangent_std), held_tangent, joints=over_chain).inverse
+
+    inverse = jax.lax.cond(anywhere, make_metric, lambda: jnp.zeros(jax.eval_shape(make_metric).shape, jnp.float32))
+    metric = CurveMetric(inverse, over_chain, every_joint=False)
     mine = functools.partial(jax.lax.dynamic_slice_in_dim, start_index=jax.lax.axis_index(chain.axis) * step, slice_size=k)
 
     def project(ctrl_pos, ctrl_tangent, target, pos_mean=0.0, tangent_mean=0.0):
-        p_mean, p_std, t_mean, t_std = scales(ctrl_pos.dtype, pos_mean, pos_std, tangent_mean, tangent_std)
-        offsets = join(jnp.broadcast_to(gather(p_mean)[:, None], (chain.size, k, j, 3)))  # each window's own
-        pos, tangent = project_off_grid(
-            whole, join(gather(ctrl_pos)), join(gather(ctrl_tangent)), held, joint, frame, gather(target).reshape(-1, 3), valid,
-            pos_mean=offsets, pos_std=p_std, tangent_mean=t_mean, tangent_std=t_std, fixed_tangent=held_tangent, metric=metric,
-        )  # fmt: skip
-        # A shared key's position comes from the window before in the joined curve (in its frame): this window's own.
-        return jnp.where(fixed[..., None], ctrl_pos, mine(pos)), mine(tangent)
+        def over_the_chain():
+            p_mean, p_std, t_mean, t_std = scales(ctrl_pos.dtype, pos_mean, pos_std, tangent_mean, tangent_std)
+            offsets = join(jnp.broadcast_to(gather(p_mean)[:, None], (chain.size, k, j, 3)))  # each window's own
+            pos, tangent = project_off_grid(
+                whole, join(gather(ctrl_pos)), join(gather(ctrl_tangent)), held, joint, frame, gather(target).reshape(-1, 3), valid,
+                pos_mean=offsets, pos_std=p_std, tangent_mean=t_mean, tangent_std=t_std, fixed_tangent=held_tangent, metric=metric,
+            )  # fmt: skip
+            # A shared key's position comes from the window before in the joined curve (in its frame): this window's own.
+            return jnp.where(fixed[..., None], ctrl_pos, mine(pos)), mine(tangent)
+
+        return jax.lax.cond(anywhere, over_the_chain, lambda: alone(ctrl_pos, ctrl_tangent, target, pos_mean, tangent_mean))
 
     return project
 
@@ -531,9 +547,13 @@ def _sample_curves(model, start, end, handles, key_rot6d, key_tangent, *, key, s
 def over_batch(fn, batch: tuple[int, ...], key: Array, *args):
     """``fn(*args, key)`` vmapped over the leading ``batch`` axes of every argument, each
     entry with its own key (``key`` itself when unbatched)."""
+    if not batch:
+        # Not a vmap of one: under it every `lax.cond` inside (a chain's projection) would
+        # become a select that runs both branches.
+        return fn(*args, key)
     n = int(np.prod(batch, dtype=int))
     flat = lambda x: x.reshape(n, *x.shape[len(batch) :])  # noqa: E731
-    keys = jax.random.split(key, n) if batch else key[None]
+    keys = jax.random.split(key, n)
     out = jax.vmap(fn)(*(jax.tree.map(flat, a) for a in args), keys)  # None (no key_rot6d, …) has no leaves
     return jax.tree.map(lambda x: x.reshape(*batch, *x.shape[1:]), out)
 

@@ -100,6 +100,17 @@ def test_coupled_chain_hits_every_handle_even_next_to_a_shared_key(coupled, chai
     assert np.isfinite(np.asarray(coupled.ctrl_pos)).all()
 
 
+def test_a_chain_with_no_handle_next_to_a_shared_key_is_joined_too(model, chain):
+    """The projection's other branch: every window meets its handles alone, its shared
+    tangents held (nothing to meet over the chain); still C¹ and through every handle."""
+    away = chain.handles._replace(frame=jnp.asarray([[15, 12, 17], [9, 6, 22], [14, 24, 9]], jnp.int32))
+    curves = sample_chained_curves(model, chain.key_pos, away, key=jax.random.key(5), steps=STEPS)
+    tangent = np.asarray(curves.ctrl_tangent)
+    np.testing.assert_array_equal(tangent[:-1, -1], tangent[1:, 0])
+    np.testing.assert_array_equal(np.asarray(curves.ctrl_pos)[:, 0], chain.key_pos[:-1])
+    assert max(handle_residuals(curves, away)) < 1e-4
+
+
 def test_independent_windows_are_sample_curves_and_break_at_the_keys(model, coupled, independent, chain):
     # coupled=False is D.1: each window sampled alone, from the same noise.
     alone = sample_curves(model, chain.key_pos[:-1], chain.key_pos[1:], chain.handles, key=jax.random.key(5), steps=STEPS)

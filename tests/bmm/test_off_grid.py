@@ -141,6 +141,32 @@ def test_the_curve_metric_makes_the_smallest_change_of_the_curve(rng):
         run("dense")
 
 
+def test_a_chain_with_its_shared_tangents_held_falls_apart_into_its_windows(rng):
+    """Why a chain without a handle next to a shared key projects window by window (the
+    sampler's ``lax.cond``): joined over two windows with the shared key's position and tangent
+    held, the minimum-norm correction is each window's own, to float rounding."""
+    (pos_a, tan_a), (pos_b, tan_b) = random_curves(rng), random_curves(rng)
+    pos_b, tan_b = pos_b.at[0].set(pos_a[-1]), tan_b.at[0].set(tan_a[-1])  # one shared key
+    keys = jnp.zeros((K, J), bool).at[0].set(True).at[-1].set(True)
+    joint, frame = jnp.asarray([2, 4, 0], jnp.int32), jnp.asarray([9, 16, 23], jnp.int32)  # none within a stride of a key
+    valid = jnp.ones(3, bool)
+    target_a, target_b = (jnp.asarray(rng.normal(size=(3, 3)) * 20.0, jnp.float32) for _ in range(2))
+    std, t_std = jnp.asarray(rng.uniform(10, 30, (J, 3)), jnp.float32), jnp.asarray(rng.uniform(1, 3, (J, 3)), jnp.float32)
+    scales = dict(pos_std=std, tangent_std=t_std)
+    alone_a = project_off_grid(LAYOUT, pos_a, tan_a, keys, joint, frame, target_a, valid, fixed_tangent=keys, **scales)
+    alone_b = project_off_grid(LAYOUT, pos_b, tan_b, keys, joint, frame, target_b, valid, fixed_tangent=keys, **scales)
+    whole = BezierLayout.from_controls(2 * K - 1, LAYOUT.stride)
+    held = jnp.zeros((2 * K - 1, J), bool).at[jnp.asarray([0, K - 1, 2 * K - 2])].set(True)
+    joined = project_off_grid(
+        whole, jnp.concatenate([pos_a, pos_b[1:]]), jnp.concatenate([tan_a, tan_b[1:]]), held,
+        jnp.concatenate([joint, joint]), jnp.concatenate([frame, frame + LAYOUT.num_frames - 1]),
+        jnp.concatenate([target_a, target_b]), jnp.ones(6, bool), fixed_tangent=held, **scales,
+    )  # fmt: skip
+    apart = tuple(jnp.concatenate([a, b[1:]]) for a, b in zip(alone_a, alone_b))
+    assert np.abs(np.asarray(alone_a[0]) - np.asarray(pos_a)).max() > 1.0  # the handles moved the curves
+    assert_trees_close(joined, apart, tol=1e-4)
+
+
 def test_grid_only_and_padding_change_nothing_bit_for_bit(rng):
     pos, tangent = random_curves(rng)
     fixed = jnp.asarray(rng.random((K, J)) < 0.3)
