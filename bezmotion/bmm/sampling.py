@@ -295,7 +295,9 @@ def _projector(
         return curve_metric(whole, held, *scales(jnp.float32, pos_std, tangent_std), held_tangent, joints=over_chain).inverse
 
     inverse = jax.lax.cond(anywhere, make_metric, lambda: jnp.zeros(jax.eval_shape(make_metric).shape, jnp.float32))
-    metric = CurveMetric(inverse, over_chain, every_joint=False)
+    # Every joint measured by the curve here: those not met over the chain take the window's
+    # own solve (`alone`, a chain's handles are many rows for min_norm_solve's loop).
+    metric = CurveMetric(inverse, jnp.ones_like(over_chain), every_joint=True)
     mine = functools.partial(jax.lax.dynamic_slice_in_dim, start_index=jax.lax.axis_index(chain.axis) * step, slice_size=k)
 
     def project(ctrl_pos, ctrl_tangent, target, pos_mean=0.0, tangent_mean=0.0):
@@ -307,7 +309,9 @@ def _projector(
                 pos_mean=offsets, pos_std=p_std, tangent_mean=t_mean, tangent_std=t_std, fixed_tangent=held_tangent, metric=metric,
             )  # fmt: skip
             # A shared key's position comes from the window before in the joined curve (in its frame): this window's own.
-            return jnp.where(fixed[..., None], ctrl_pos, mine(pos)), mine(tangent)
+            pos, tangent = jnp.where(fixed[..., None], ctrl_pos, mine(pos)), mine(tangent)
+            own_pos, own_tangent = alone(ctrl_pos, ctrl_tangent, target, pos_mean, tangent_mean)
+            return jnp.where(over_chain[:, None], pos, own_pos), jnp.where(over_chain[:, None], tangent, own_tangent)
 
         return jax.lax.cond(anywhere, over_the_chain, lambda: alone(ctrl_pos, ctrl_tangent, target, pos_mean, tangent_mean))
 
