@@ -11,7 +11,8 @@ last frame). The BMM in-betweens a fixed window of ``bmm.config.num_frames`` fra
 the keys are 30 frames apart at 30 fps, the rate every model here was trained at). With
 ``--frames`` the keys must be that far apart in the clip, one second (120 frames at 120
 fps: a clip at another rate is resampled to 30 fps through its keys first,
-:func:`~bezmotion.data.resample.resample_motion`, and the in-between written at 30 fps) —
+:func:`~bezmotion.data.resample.resample_motion`, and the in-between's BVH file written at
+the clip's rate where that is a whole multiple of 30 fps, ``--bvh-fps``) —
 the command refuses another distance rather than silently retiming the clip;
 ``--start``/``--end`` take any two poses (also of one file) and put them 30 frames apart.
 More than two ``--frames`` (``CLIP.bvh --frames 0 30 60 90``, each 30 after the one before)
@@ -185,6 +186,13 @@ class InbetweenOptions:
     out: Path = option(Path("results/inbetween"), metavar="PATH", help="a .bvh, .glb or .gif file, or a folder (default results/inbetween)")
     channels: str = option(
         "default", choices=CHANNEL_CHOICES, help="BVH channels: default (positions on the root and hips) or clip (the start file's layout)"
+    )  # fmt: skip
+    bvh_fps: str = option(
+        "clip",
+        choices=("clip", "30"),
+        help="the BVH file's frame rate: clip (default) the start clip's own where it is a whole multiple of 30 fps (60, 120: "
+        "every in-between frame kept, the frames between slerped), else 30; or 30, the BMM's (the glTF file and the preview "
+        "are at 30 fps either way, timed in seconds)",
     )  # fmt: skip
     key_positions_only: bool = option(
         False, help="condition the BMM on the key poses' joint positions alone (the paper); default: their orientations too"
@@ -483,6 +491,7 @@ class Plan:
     clip_frame: ClipFrame = ClipFrame()  # the clips' units and up axis (everything above is in cm, Y up)
     warnings: tuple[str, ...] = ()  # about the inputs, for stderr and the summary
     clip_fps: float = TRAINED_FPS  # the start clip's own frame rate (the keys are resampled to TRAINED_FPS)
+    bvh_fps: float = TRAINED_FPS  # the BVH file's rate (bvh_frame_rate): TRAINED_FPS or a whole multiple of it
 
 
 def _outputs(args: InbetweenOptions) -> tuple[list[dict[str, Path]], Path | None]:
@@ -600,7 +609,8 @@ def plan(args: InbetweenOptions) -> Plan:
                     f"(a {window}-frame window): use --frames {' '.join(str(f0 + i * apart) for i in range(len(args.frames)))}{retime}"
                 )
     # Every clip at the BMM's frame rate from here on (its window, thresholds and velocities count those frames).
-    keys, rate_warnings = _at_trained_rate(keys)
+    bvh_fps = bvh_frame_rate(args.bvh_fps, clip_fps)
+    keys, rate_warnings = _at_trained_rate(keys, bvh_fps)
     frame_warnings = [*frame_warnings, *rate_warnings]
     start_motion, f0, f1 = keys[0][3], keys[0][4], keys[-1][4]
     reference = motion_window(start_motion, f0, f1 - f0 + 1) if args.clip is not None else None
@@ -649,8 +659,20 @@ def plan(args: InbetweenOptions) -> Plan:
     return Plan(
         recognised, start_motion, key_poses, reference, bmm, ik, ik_fn, ik_params, transfer, handles, records, reach, outputs, folder,
         label, key_velocity, {"bmm": model_name, "ik": None if ik_model is None else ik_model_name}, clip_frame, tuple(frame_warnings),
-        clip_fps,
+        clip_fps, bvh_fps,
     )  # fmt: skip
+
+
+def bvh_frame_rate(choice: str, clip_fps: float) -> float:
+    """The rate ``--bvh-fps choice`` writes the BVH file at: ``"30"``, :data:`TRAINED_FPS`;
+    ``"clip"``, ``clip_fps`` where it is a whole multiple of it (60, 120 fps: every frame of the
+    in-between is a frame of the file, keys and handles included), else :data:`TRAINED_FPS`
+    (at 24 or 25 fps most of its frames would fall between the file's, handles too)."""
+    if choice not in ("clip", "30"):
+        raise ValueError(f"--bvh-fps must be clip or 30, got {choice!r}")
+    ratio = clip_fps / TRAINED_FPS
+    whole = ratio > 1.0 and abs(ratio - round(ratio)) < 1e-6
+    return float(round(ratio) * TRAINED_FPS) if choice == "clip" and whole else TRAINED_FPS
 
 
 def _clip_frame(
@@ -741,13 +763,17 @@ def _read_keys(args: InbetweenOptions) -> tuple[list[tuple[str, str, Path, BvhMo
 
 
 def _at_trained_rate(
-    keys: Sequence[tuple[str, str, Path, BvhMotion, int]],
+    keys: Sequence[tuple[str, str, Path, BvhMotion, int]], bvh_fps: float = TRAINED_FPS
 ) -> tuple[list[tuple[str, str, Path, BvhMotion, int]], list[str]]:
     """The keys (as :func:`_read_keys` gives them) with every clip of another frame rate
     resampled to :data:`TRAINED_FPS` through its key frames (:func:`resample_motion`), each
-    key's frame moved to its sample; and a warning per such file. A clip's keys a whole
-    number of new frames apart share one resampling (CLIP ``--frames``); any other key gets
-    its own, through its frame."""
+    key's frame moved to its sample; and a warning per such file, saying that the BVH file
+    is written at ``bvh_fps``. A clip's keys a whole number of new frames apart share one
+    resampling (CLIP ``--frames``); any other key gets its own, through its frame."""
+    written = (
+        f"the in-between is written at {TRAINED_FPS:g} fps" if bvh_fps == TRAINED_FPS
+        else f"the in-between is made at {TRAINED_FPS:g} fps and its BVH file written at {bvh_fps:g} (--bvh-fps)"
+    )  # fmt: skip
     out, warnings, done = [], [], {}  # done: id(clip) → (resampled, anchor frame, its sample)
     for argument, text, path, motion, frame in keys:
         shared = done.get(id(motion))
@@ -761,9 +787,7 @@ def _at_trained_rate(
         if shared is None:
             done[id(motion)] = (resampled, frame, at)
             if resampled is not motion:
-                warnings.append(
-                    f"{path}: {motion.nominal_fps:g} fps, resampled to the BMM's {TRAINED_FPS:g} fps; the in-between is written at {TRAINED_FPS:g} fps"
-                )
+                warnings.append(f"{path}: {motion.nominal_fps:g} fps, resampled to the BMM's {TRAINED_FPS:g} fps; {written}")
         out.append((argument, text, path, resampled, at))
     return out, warnings
 
@@ -853,6 +877,7 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
         files = ResultFiles(
             character, motion, curves, p.bmm.config.stride, tuple(p.handle_records), p.reference,
             f"{p.label}, sample {k}" if n > 1 else p.label, tuple(range(0, frames, p.bmm.config.num_frames - 1)), p.clip_frame,
+            bvh_fps=p.bvh_fps,
         )  # fmt: skip
         if k == 0 and p.folder is not None:
             p.folder.mkdir(parents=True, exist_ok=True)
@@ -874,7 +899,7 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
             write_result(path, files)
             entry["files"][suffix[1:]] = str(path)
             if suffix == ".bvh":
-                entry["bvh_fk_error_cm"] = bvh_fk_error_cm(path, character, result.pose, p.clip_frame)
+                entry["bvh_fk_error_cm"] = bvh_fk_error_cm(path, character, result.pose, p.clip_frame, every=round(p.bvh_fps / TRAINED_FPS))
         misses = handle_misses(p.handle_records, errors, np.asarray(beyond_reach(jnp.asarray(pos), written, p.reach)), conflict.any(axis=-1))
         entry["handle_misses"] = misses
         samples.append(entry)
@@ -894,6 +919,7 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
         "windows": windows,
         "fps": p.start_motion.nominal_fps,
         "clip_fps": p.clip_fps,
+        "bvh_fps": p.bvh_fps,
         "ik": p.ik,
         "models": p.models,
         "steps": args.steps,

@@ -29,7 +29,7 @@ from bezmotion.cli import main
 from bezmotion.data.bvh import read_bvh, write_bvh
 from bezmotion.data.clip_frame import ClipFrame
 from bezmotion.data.resample import resample_motion
-from bezmotion.inbetween_command import HandleRequest, InbetweenOptions, parse_handle, plan, read_handles_file
+from bezmotion.inbetween_command import HandleRequest, InbetweenOptions, bvh_frame_rate, parse_handle, plan, read_handles_file
 from bezmotion.ik.protocol import targets_from_pose
 from bezmotion.options import parse_options
 from bezmotion.pipeline.authoring import RigSpec, derive_rig_spec, read_mapping, recognise_character
@@ -250,25 +250,43 @@ def test_a_clip_in_metres_with_z_up_gives_the_same_in_between_written_in_its_own
 def test_a_clip_at_120_fps_is_in_betweened_at_the_models_30_over_one_second(tmp_path):
     """The bundled 30 fps clip upsampled to 120 fps: its keys one second apart are frames 0 and
     120, the clip is resampled to the BMM's 30 fps (a warning says so), and the in-between is
-    the 30 fps clip's, written at 30 fps. At 120 fps, frames 0 and 30 are a quarter of a second
-    apart: refused, naming the frames that make one second; at 29.97 fps no whole number of
-    frames is one second."""
+    the 30 fps clip's, its BVH written at the clip's 120 fps (every 4th frame the 30 fps
+    in-between's, keys and handle included, those between slerped) or with ``--bvh-fps 30`` at
+    30. At 120 fps, frames 0 and 30 are a quarter of a second apart: refused, naming the
+    frames that make one second; at 29.97 fps no whole number of frames is one second."""
     fast, _ = resample_motion(read_bvh(DEMO_CLIP), 120.0)
     clip = tmp_path / "fast.bvh"
     write_bvh(clip, fast, precision=10)
     handle = ["--handle", "right_hand@12=+0,25,0"]
     runs = {}
-    for name, argv in {"30": [DEMO_CLIP, "--frames", "0", "30"], "120": [clip, "--frames", "0", "120"]}.items():
-        out = tmp_path / name
+    cases = {
+        "30": [DEMO_CLIP, "--frames", "0", "30"], "120": [clip, "--frames", "0", "120"],
+        "120 to 30": [clip, "--frames", "0", "120", "--bvh-fps", "30"],
+    }  # fmt: skip
+    for name, argv in cases.items():
+        out = tmp_path / name.replace(" ", "_")
         code, _, stderr = run_cli(*argv, *handle, "--no-preview", "--out", out, *FAST)
         assert code == 0, stderr
         runs[name] = json.loads((out / "summary.json").read_text()), read_bvh(out / "inbetween.bvh"), stderr
+    at_30 = fk_positions(runs["30"][1])
     summary, written, stderr = runs["120"]
-    assert summary["fps"] == 30.0 and summary["clip_fps"] == 120.0 and written.nominal_fps == 30.0 and written.num_frames == 31
+    assert summary["fps"] == 30.0 and summary["clip_fps"] == 120.0 and summary["bvh_fps"] == 120.0
+    assert written.nominal_fps == 120.0 and written.num_frames == 121
     (warning,) = summary["input_warnings"]
-    assert warning == f"{clip}: 120 fps, resampled to the BMM's 30 fps; the in-between is written at 30 fps" and f"warning: {warning}" in stderr
-    assert runs["30"][0]["clip_fps"] == 30.0 and not runs["30"][0]["input_warnings"]
-    np.testing.assert_allclose(fk_positions(written), fk_positions(runs["30"][1]), atol=1e-3)
+    assert warning == (
+        f"{clip}: 120 fps, resampled to the BMM's 30 fps; the in-between is made at 30 fps and its BVH file written at 120 (--bvh-fps)"
+    ) and f"warning: {warning}" in stderr
+    at_120 = fk_positions(written)
+    np.testing.assert_allclose(at_120[::4], at_30, atol=1e-3)  # the in-between's own frames, keys and handle too
+    assert summary["samples"][0]["bvh_fk_error_cm"] < 1e-3 and max(summary["samples"][0]["handle_errors_cm"]) < 1e-3
+    # Between them a quarter of a 30 fps frame's step at a time, not a hold and a jump.
+    step = lambda pos: np.linalg.norm(np.diff(pos, axis=0), axis=-1).max()  # noqa: E731
+    assert step(at_120) < 0.35 * step(at_30)
+    summary, written, stderr = runs["120 to 30"]
+    assert summary["bvh_fps"] == 30.0 and written.nominal_fps == 30.0 and written.num_frames == 31
+    assert summary["input_warnings"] == [f"{clip}: 120 fps, resampled to the BMM's 30 fps; the in-between is written at 30 fps"]
+    np.testing.assert_allclose(fk_positions(written), at_30, atol=1e-3)
+    assert runs["30"][0]["clip_fps"] == 30.0 and runs["30"][0]["bvh_fps"] == 30.0 and not runs["30"][0]["input_warnings"]
     code, _, stderr = run_cli(clip, "--frames", "0", "30", *FAST)
     assert code == 2 and "--frames 0 30: the keys are 30 frames apart; the BMM in-betweens 120 (1 s at the clip's 120 fps)" in stderr, stderr
     assert "use --frames 0 120" in stderr
@@ -671,3 +689,10 @@ def test_exact_settings_reach_the_exact_ik(tmp_path):
     assert p.ik == "exact" and p.ik_params.plant_weight == 10.0 and p.ik_params.iterations == 3
     default = plan(parse_options(InbetweenOptions, argv)).ik_params
     assert default.plant_weight == 4.0 and default.iterations == 6
+
+
+def test_the_bvh_rate_is_the_clips_where_every_in_between_frame_is_one_of_its_frames():
+    assert [bvh_frame_rate("clip", fps) for fps in (30.0, 60.0, 120.0, 90.0, 24.0, 25.0, 29.97, 50.0)] == [30.0, 60.0, 120.0, 90.0, 30.0, 30.0, 30.0, 30.0]
+    assert bvh_frame_rate("30", 120.0) == 30.0
+    with pytest.raises(ValueError, match="--bvh-fps must be clip or 30, got '60'"):
+        bvh_frame_rate("60", 60.0)

@@ -41,6 +41,7 @@ from bezmotion.data.bvh import BvhMotion, read_bvh, write_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, SKELETON_MAPS
 from bezmotion.data.joint_roles import guess_characteristic_joints
 from bezmotion.data.clip_frame import CM_PER_UNIT, ClipFrame
+from bezmotion.data.resample import resample_motion
 from bezmotion.geometry.skeleton import forward_kinematics
 from bezmotion.ik.protocol import Character, IKFn, Pose, pose_fk, pose_from_motion
 from bezmotion.ik.exact import exact_ik
@@ -373,10 +374,12 @@ def make_ik(
 # ------------------------------------------------------------------------------ output
 
 
-def bvh_fk_error_cm(path: str | os.PathLike, character: Character, pose: Pose, clip_frame: ClipFrame = ClipFrame()) -> float:
+def bvh_fk_error_cm(path: str | os.PathLike, character: Character, pose: Pose, clip_frame: ClipFrame = ClipFrame(), *, every: int = 1) -> float:
     """Largest joint-position difference (cm) between a written BVH, read back (in
-    ``clip_frame``'s units and up axis), and ``pose``."""
+    ``clip_frame``'s units and up axis), and ``pose``: ``pose``'s frame ``f`` against the
+    file's ``every · f`` (a file written at ``every`` times the pose's rate, ``ResultFiles.bvh_fps``)."""
     reread = clip_frame.to_ours(read_bvh(path))
+    reread = dataclasses.replace(reread, quat_local=reread.quat_local[::every], pos_local=reread.pos_local[::every])
     with jax.enable_x64(True):
         _, from_file = forward_kinematics(reread.skeleton.parents, jnp.asarray(reread.quat_local), jnp.asarray(reread.pos_local))
         from_file = np.asarray(from_file)
@@ -399,6 +402,10 @@ class ResultFiles:
         keys too), for the glTF file.
       clip_frame: the units and up axis the BVH file is written in (everything here is in
         cm with Y up; the glTF file in metres with Y up, as glTF wants).
+      bvh_fps: the BVH file's frame rate: None, the motion's own; else a whole multiple of it,
+        the motion resampled (:func:`~bezmotion.data.resample.resample_motion`: its every
+        frame kept, those between slerped). The glTF file and the preview keep the motion's
+        frames (glTF times them in seconds).
     """
 
     character: Character
@@ -410,6 +417,7 @@ class ResultFiles:
     title: str | None = None
     key_frames: tuple[int, ...] | None = None
     clip_frame: ClipFrame = ClipFrame()
+    bvh_fps: float | None = None
 
     def curve_arrays(self) -> dict[str, Any]:
         if self.curves is None:
@@ -420,7 +428,10 @@ class ResultFiles:
 def _write_bvh(path: Path, result: ResultFiles) -> None:
     # Six decimals of a cm, as many of a larger unit (8 of a metre): the file as precise in any unit.
     decimals = 6 + max(0, int(np.ceil(np.log10(CM_PER_UNIT[result.clip_frame.units]))))
-    write_bvh(path, result.clip_frame.from_ours(result.motion), precision=decimals)
+    motion = result.motion
+    if result.bvh_fps is not None:
+        motion, _ = resample_motion(motion, result.bvh_fps)
+    write_bvh(path, result.clip_frame.from_ours(motion), precision=decimals)
 
 
 def _write_glb(path: Path, result: ResultFiles) -> None:
