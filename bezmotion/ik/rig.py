@@ -108,6 +108,10 @@ class RigSpec:
       left_arm, right_arm: ``(upper arm, forearm, hand)``; the joints between the spine
         and the upper arm (shoulders / clavicles) stay at rest.
       left_leg, right_leg: ``(upper leg, lower leg, foot)`` — the foot is the ankle joint.
+
+    Each limb joint descends from the one before, directly or through joints that the rig
+    holds at their rest rotations (twist or roll joints inside the chain, e.g. Daz Genesis'
+    ``lShldrBend → lShldrTwist → lForearmBend → lForearmTwist → lHand``).
     """
 
     # Plain ``tuple[str, ...]`` so that a wrong length reaches the ValueError below.
@@ -195,6 +199,9 @@ class Rig:
       spine: joint indices from the hips to the head.
       limbs: ``(root, middle, end)`` joint indices of the left arm, right arm, left leg,
         right leg.
+      limb_between: per limb, ``(root → middle, middle → end)``: the joints strictly between
+        them (parent → child; twist joints), which keep their ``rest_quat_local``; empty
+        where the middle is the root's child and the end the middle's.
       limb_bases: per limb, ``(k, path)``: the limb hangs off ``spine[k]`` through the
         joints ``path`` (the clavicle, …, the limb root); all but the limb root keep
         their ``rest_quat_local``.
@@ -210,6 +217,9 @@ class Rig:
     limb_bases: tuple[tuple[int, tuple[int, ...]], ...] = dataclasses.field(metadata=dict(static=True))
     toes: tuple[int, int] = dataclasses.field(metadata=dict(static=True))
     spine_iterations: int = dataclasses.field(default=8, metadata=dict(static=True))
+    limb_between: tuple[tuple[tuple[int, ...], tuple[int, ...]], ...] = dataclasses.field(
+        default=(((), ()),) * 4, metadata=dict(static=True)
+    )
 
     @property
     def num_joints(self) -> int:
@@ -231,6 +241,30 @@ def _check_chain(skeleton: Skeleton, chain: Sequence[int], where: str) -> None:
                 f"RigSpec.{where}: joint {skeleton.names[child]!r} is a child of {actual_name!r}, "
                 f"not of {skeleton.names[parent]!r}; a chain lists parent → child joints"
             )
+
+
+def _descent(skeleton: Skeleton, chain: Sequence[int], where: str) -> tuple[tuple[int, ...], ...]:
+    """Per consecutive pair of ``chain``, the joints strictly between them (parent → child):
+    each joint must descend from the one before.
+
+    Raises:
+      ValueError: a joint that does not descend from the one before, naming both.
+    """
+    between = []
+    for parent, child in itertools.pairwise(chain):
+        path, j = [], skeleton.parents[child]
+        while j >= 0 and j != parent:
+            path.append(j)
+            j = skeleton.parents[j]
+        if j != parent:
+            actual = skeleton.parents[child]
+            actual_name = skeleton.names[actual] if actual >= 0 else None
+            raise ValueError(
+                f"RigSpec.{where}: joint {skeleton.names[child]!r} (a child of {actual_name!r}) does not descend from "
+                f"{skeleton.names[parent]!r}; a chain lists parent → child joints (a limb's may skip twist joints between)"
+            )
+        between.append(tuple(reversed(path)))
+    return tuple(between)
 
 
 def make_rig(
@@ -262,7 +296,7 @@ def make_rig(
         reach (each costs two passes over the spine).
     Raises:
       ValueError: an unknown joint name (the message names it), a chain that is not
-        parent → child, chain ends that are not the character's characteristic joints,
+        parent → child (a limb's joints: descendants), chain ends that are not the character's characteristic joints,
         a limb that does not hang off the spine, or a bad ``rest_quat_local``.
     """
     if isinstance(spec, str):
@@ -275,8 +309,7 @@ def make_rig(
     spine = tuple(_joint(skeleton, n, "spine") for n in spec.spine)
     _check_chain(skeleton, spine, "spine")
     limbs = tuple(tuple(_joint(skeleton, n, field) for n in getattr(spec, field)) for field in _LIMBS)
-    for field, limb in zip(_LIMBS, limbs):
-        _check_chain(skeleton, limb, field)
+    limb_between = tuple(_descent(skeleton, limb, field) for field, limb in zip(_LIMBS, limbs))
 
     def expect(joint: int, role: str, where: str, end: str = "ends") -> None:
         wanted = character.characteristic[CHARACTERISTIC_JOINTS.index(role)]
@@ -326,7 +359,7 @@ def make_rig(
                 f"rest_quat_local must be identity above the hips; joints {[skeleton.names[j] for j in above]} are not"
             )
         rest = jnp.asarray(rest / norms[:, None], offsets.dtype)
-    return Rig(skeleton, rest, spine, limbs, tuple(limb_bases), toes, spine_iterations)  # type: ignore[arg-type]
+    return Rig(skeleton, rest, spine, limbs, tuple(limb_bases), toes, spine_iterations, limb_between)  # type: ignore[arg-type]
 
 
 def with_rest_pose(params: Any, quat_local: Float[Array, "joints 4"]) -> Any:
@@ -535,6 +568,31 @@ def _two_bone(
     return rot_upper, rot_lower
 
 
+def _limb_bones(
+    rig: Rig, offsets: Float[Array, "joints 3"], rot_local: Float[Array, "joints 3 3"]
+) -> tuple[Float[Array, "limbs 2 3"], Float[Array, "limbs 2 3 3"]]:
+    """Per limb, its two bones through the joints between (``Rig.limb_between``), posed by
+    ``rot_local`` (local rotation matrices of every joint):
+
+    - ``(limb, 2, 3)`` the middle joint's offset in the root's frame and the end's in the
+      middle's (the offsets themselves where nothing is between);
+    - ``(limb, 2, 3, 3)`` the rotation of the joints between, composed (identity where none):
+      a joint's global rotation is its limb parent's, times that, times its own local one.
+    """
+    dtype = offsets.dtype
+    bones, turns = [], []
+    for (_, middle, end), between in zip(rig.limbs, rig.limb_between):
+        for child, path in zip((middle, end), between):
+            turn, bone = jnp.eye(3, dtype=dtype), jnp.zeros(3, dtype)
+            for j in path:
+                bone = bone + turn @ offsets[j]
+                turn = turn @ rot_local[j]
+            bones.append(bone + turn @ offsets[child])
+            turns.append(turn)
+    n = len(rig.limbs)
+    return jnp.stack(bones).reshape(n, 2, 3), jnp.stack(turns).reshape(n, 2, 3, 3)
+
+
 def _rest_lateral(rig: Rig, offsets: Float[Array, "joints 3"]) -> Float[Array, "3"]:
     """The legs' lateral axis (right hip to left hip) at zero rotation: every joint frame is
     then the world frame, so the hips' rest positions are sums of offsets and their
@@ -544,7 +602,7 @@ def _rest_lateral(rig: Rig, offsets: Float[Array, "joints 3"]) -> Float[Array, "
 
 
 def _bind_knee_bends(
-    rig: Rig, offsets: Float[Array, "joints 3"], rest_rot: Float[Array, "joints 3 3"], lateral: Float[Array, "3"]
+    rig: Rig, bones: Float[Array, "limbs 2 3"], turns: Float[Array, "limbs 2 3 3"], rest_rot: Float[Array, "joints 3 3"], lateral: Float[Array, "3"]
 ) -> tuple[Array, Array]:
     """``(sense (2, 1), bent (2, 1))`` per leg: which way the bind pose's knee bends about the
     foot's ``lateral`` axis (its frame's, as at zero rotation), the sign of ``(thigh × shin) ·
@@ -552,9 +610,10 @@ def _bind_knee_bends(
     the zero rotation's, says nothing). Unlike where the knee lies, the sense does not change
     as the knee bends further or the ankle flexes."""
     _, knee, ankle = np.asarray(rig.limbs[2:]).T
-    knee_turn = rest_rot[knee]
-    thigh, shin = normalize(offsets[knee]), normalize(_apply(knee_turn, offsets[ankle]))  # in the thigh's frame
-    bend = jnp.sum(_cross(thigh, shin) * _apply(knee_turn @ rest_rot[ankle], lateral), axis=-1, keepdims=True)
+    bones, turns = bones[2:], turns[2:]  # the legs' (_limb_bones at the rest pose)
+    knee_turn = turns[:, 0] @ rest_rot[knee]
+    thigh, shin = normalize(bones[:, 0]), normalize(_apply(knee_turn, bones[:, 1]))  # in the thigh's frame
+    bend = jnp.sum(_cross(thigh, shin) * _apply(knee_turn @ turns[:, 1] @ rest_rot[ankle], lateral), axis=-1, keepdims=True)
     return jnp.where(bend < 0.0, -1.0, 1.0), jnp.abs(bend) > _BIND_KNEE_MIN
 
 
@@ -636,7 +695,8 @@ def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
     # +across bends with (thigh × shin) · lateral < 0 (that product is −|thigh × shin| there).
     # Toes and pelvis can point along the leg (lying, a pointed foot), where the rough hint's
     # side flips between frames and the leg turns half a turn.
-    bind_sense, bind_bent = _bind_knee_bends(rig, offsets, rest_rot, rest_lateral)
+    bones, turns = _limb_bones(rig, offsets, rest_rot)  # through any twist joints, at rest
+    bind_sense, bind_bent = _bind_knee_bends(rig, bones, turns, rest_rot, rest_lateral)
     side = jnp.where(bind_bent, -bind_sense, side)
     knees = jnp.where(safe_norm(across, keepdims=True) > _KNEE_PLANE_MIN, side * across, toward)
 
@@ -644,13 +704,14 @@ def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
     ends = np.asarray(_LIMB_TARGET)
     rot_end = rot_target[ends]
     upper, lower = _two_bone(
-        roots, offsets[limbs[:, 1]], offsets[limbs[:, 2]], pos_target[ends], rot_end, jnp.concatenate([elbows, knees]),
-        rest_rot[limbs[:, 1]], rest_rot[limbs[:, 2]],
+        roots, bones[:, 0], bones[:, 1], pos_target[ends], rot_end, jnp.concatenate([elbows, knees]),
+        turns[:, 0] @ rest_rot[limbs[:, 1]], turns[:, 1] @ rest_rot[limbs[:, 2]],
     )  # fmt: skip
 
-    # Local rotations: parentᵀ · child, converted to quaternions in one batch.
+    # Local rotations: parentᵀ · child, converted to quaternions in one batch (a twist joint
+    # between two limb joints stays at rest: the child's parent frame is past it).
     spine_local = jnp.swapaxes(rot_spine[:-1], -1, -2) @ rot_spine[1:]
-    limb_parents = jnp.stack([root_parents, upper, lower], axis=1)  # (limb, joint in limb, 3, 3)
+    limb_parents = jnp.stack([root_parents, upper @ turns[:, 0], lower @ turns[:, 1]], axis=1)  # (limb, joint in limb, 3, 3)
     limb_local = jnp.swapaxes(limb_parents, -1, -2) @ jnp.stack([upper, lower, rot_end], axis=1)
     solved = quat_from_matrix(jnp.concatenate([rot_hips[None], spine_local, limb_local.reshape(-1, 3, 3)]))
     solved_joints = [spine[0], *spine[1:], *limbs.reshape(-1).tolist()]
@@ -679,13 +740,15 @@ def refine_limbs(rig: Rig, pose: Pose, targets: IKTargets) -> Pose:
     ends = np.asarray(_LIMB_TARGET)
     rot_end = matrix_from_rot6d(targets.rot6d[ends])
     roots = pos_global[limbs[:, 0]]
-    own = matrix_from_quat(pose.quat_local[limbs[:, 1:]])  # (limb, mid / end, 3, 3): the pose's own twists
+    own_local = matrix_from_quat(pose.quat_local)
+    bones, turns = _limb_bones(rig, offsets, own_local)  # through the pose's own twist joints, which stay
+    own = turns @ own_local[limbs[:, 1:]]  # (limb, mid / end, 3, 3): the pose's own twists
     upper, lower = _two_bone(
-        roots, offsets[limbs[:, 1]], offsets[limbs[:, 2]], targets.position[ends], rot_end, pos_global[limbs[:, 1]] - roots,
+        roots, bones[:, 0], bones[:, 1], targets.position[ends], rot_end, pos_global[limbs[:, 1]] - roots,
         own[:, 0], own[:, 1],
     )  # fmt: skip
     root_parents = matrix_from_quat(quat_global[np.asarray([rig.skeleton.parents[r] for r in limbs[:, 0]])])
-    limb_parents = jnp.stack([root_parents, upper, lower], axis=1)
+    limb_parents = jnp.stack([root_parents, upper @ turns[:, 0], lower @ turns[:, 1]], axis=1)
     limb_local = jnp.swapaxes(limb_parents, -1, -2) @ jnp.stack([upper, lower, rot_end], axis=1)
     quat_local = pose.quat_local.at[limbs.reshape(-1)].set(quat_from_matrix(limb_local.reshape(-1, 3, 3)).astype(pose.quat_local.dtype))
     return Pose(pose.root_pos, quat_local)

@@ -39,7 +39,7 @@ from bezmotion.assets.registry import resolve_folder
 from bezmotion.bmm.sampling import SampledCurves
 from bezmotion.data.bvh import BvhMotion, read_bvh, write_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, SKELETON_MAPS
-from bezmotion.data.joint_roles import guess_characteristic_joints
+from bezmotion.data.joint_roles import guess_characteristic_joints, name_words
 from bezmotion.data.clip_frame import CM_PER_UNIT, ClipFrame
 from bezmotion.data.resample import resample_motion
 from bezmotion.geometry.skeleton import forward_kinematics
@@ -199,12 +199,21 @@ def read_mapping(path: str | os.PathLike) -> tuple[dict[str, str], RigSpec | Non
     return dict(roles), (RigSpec.from_dict(rig) if rig is not None else None)
 
 
+# Joints inside a limb that only turn it about its bone (Daz Genesis' lForearmTwist, Unreal's
+# upperarm_twist_01_l when in the chain, "ForeArmRoll"): no elbow or knee.
+_TWIST_WORDS = frozenset({"twist", "roll"})
+
+
 def derive_rig_spec(character: Character) -> RigSpec:
     """The rig's chains read off the hierarchy: the spine is the path from the hips to the
-    head, each limb the hand's (ankle's) grandparent, parent and itself.
+    head, each limb the hand (ankle) and its two nearest ancestors that bend it — skipping
+    twist and roll joints (by name) and joints at their parent's place (no bone), which the
+    rig holds at rest (``lShldrBend → lShldrTwist → lForearmBend → lForearmTwist → lHand``
+    is the arm ``(lShldrBend, lForearmBend, lHand)``).
 
     Raises:
-      ValueError: the head does not descend from the hips.
+      ValueError: the head does not descend from the hips, or a hand or foot has fewer than
+        two such ancestors below the spine.
     """
     names, parents = character.skeleton.names, character.skeleton.parents
     role = dict(zip(CHARACTERISTIC_JOINTS, character.characteristic))
@@ -219,10 +228,23 @@ def derive_rig_spec(character: Character) -> RigSpec:
         )
     spine.append(j)
 
+    offsets = np.asarray(character.skeleton.offsets, np.float64)
+    on_spine = set(spine)
+
+    def bends(j: int) -> bool:
+        return not (_TWIST_WORDS & set(name_words(names[j]))) and float(np.linalg.norm(offsets[j])) > 1e-6
+
     def limb(end: int) -> tuple[str, ...]:
-        chain = [end, parents[end], parents[parents[end]] if parents[end] >= 0 else -1]
-        if min(chain) < 0:
-            raise ValueError(f"{names[end]!r} needs two ancestors for a two-bone limb; name the chains in the mapping file ('rig')")
+        chain, j = [end], parents[end]
+        while len(chain) < 3 and j >= 0 and j not in on_spine:
+            if bends(j):
+                chain.append(j)
+            j = parents[j]
+        if len(chain) < 3:
+            raise ValueError(
+                f"{names[end]!r} needs two ancestors below the spine that bend it for a two-bone limb; "
+                "name the chains in the mapping file ('rig')"
+            )
         return tuple(names[i] for i in reversed(chain))
 
     return RigSpec(

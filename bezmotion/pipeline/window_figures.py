@@ -81,8 +81,8 @@ def reach_chains(rig: Rig) -> ReachChains:
     root = np.full(len(CHARACTERISTIC_JOINTS), -1, np.int64)
     length = np.zeros(len(CHARACTERISTIC_JOINTS))
     chains = {CHARACTERISTIC_JOINTS.index("head"): rig.spine}
-    for role, limb in zip(("left_hand", "right_hand", "left_foot", "right_foot"), rig.limbs):
-        chains[CHARACTERISTIC_JOINTS.index(role)] = limb
+    for role, (root_joint, middle, end), (before, after) in zip(("left_hand", "right_hand", "left_foot", "right_foot"), rig.limbs, rig.limb_between):
+        chains[CHARACTERISTIC_JOINTS.index(role)] = (root_joint, *before, middle, *after, end)  # twist joints' bones too
     for role, chain in chains.items():
         root[role], length[role] = chain[0], bone[list(chain[1:])].sum()
     ends = [rig.spine[0]] + [chains[role][-1] for role in range(1, len(CHARACTERISTIC_JOINTS))]

@@ -20,6 +20,7 @@ from bezmotion.data.bvh import read_bvh
 from bezmotion.geometry.rotations import quat_conjugate, quat_from_axis_angle, quat_from_rot6d, quat_identity, quat_mul, quat_rotate
 from bezmotion.ik.exact import exact_ik
 from bezmotion.ik.protocol import Character, IKTargets, Pose, pose_fk, pose_from_motion, targets_from_pose
+from bezmotion.geometry.skeleton import Skeleton
 from bezmotion.ik.rig import RIG_PRESETS, Rig, RigSpec, _rest_lateral, make_rig, refine_limbs, rig_ik, with_rest_pose
 
 LAFAN1_ZIP = SHARED_DATA / "lafan1" / "lafan1-subset.zip"
@@ -289,7 +290,7 @@ def _spec(**changes) -> dict:
     [
         (_spec(left_arm=("UpperArm_L", "Forearm_L", "Hand_L")), r"unknown joint 'Forearm_L' in RigSpec.left_arm"),
         (_spec(spine=("Hips", "Spine", "Torso", "Neck", "Head")), r"unknown joint 'Torso' in RigSpec.spine"),
-        (_spec(left_leg=("UpperLeg_L", "Foot_L", "LowerLeg_L")), r"'Foot_L' is a child of 'LowerLeg_L', not of 'UpperLeg_L'"),
+        (_spec(left_leg=("UpperLeg_L", "Foot_L", "LowerLeg_L")), r"joint 'LowerLeg_L' \(a child of 'UpperLeg_L'\) does not descend from 'Foot_L'"),
         (_spec(spine=("Hips", "Spine", "Chest", "Neck")), r"RigSpec.spine ends at 'Neck' but the character's head is 'Head'"),
         (_spec(spine=("Spine", "Chest", "Neck", "Head")), r"RigSpec.spine starts at 'Spine' but the character's hips is 'Hips'"),
         (_spec(right_arm=("Shoulder_R", "UpperArm_R", "LowerArm_R")), r"right_arm ends at 'LowerArm_R'"),
@@ -464,3 +465,60 @@ def test_elbows_turn_with_the_hand_all_around_the_shoulder(bandai):
     bend /= np.linalg.norm(bend, axis=-1, keepdims=True)
     turns = np.degrees(np.arccos(np.clip(np.sum(bend * np.roll(bend, -1, axis=0), axis=-1), -1.0, 1.0)))
     assert turns.max() < 30.0, turns.max()  # measured 22.5° (the old hint: 50.6°)
+
+
+def _with_twist_joints(case: Case) -> tuple[Character, np.ndarray, dict[str, str]]:
+    """The case's skeleton with a twist joint halfway along every upper arm, forearm and thigh
+    (as Daz Genesis has them: ``UpperArm_L → UpperArmTwist_L → LowerArm_L``); returns the
+    character, each new joint's source joint (-1 for a twist joint) and the twist → limb
+    joint names."""
+    skeleton = case.character.skeleton
+    offsets = np.asarray(skeleton.offsets, np.float64)
+    split = {"LowerArm_L": "UpperArmTwist_L", "LowerArm_R": "UpperArmTwist_R", "Hand_L": "LowerArmTwist_L", "Hand_R": "LowerArmTwist_R"}
+    split |= {"LowerLeg_L": "UpperLegTwist_L", "LowerLeg_R": "UpperLegTwist_R"}
+    names, parents, new_offsets, source, index = [], [], [], [], {}
+    for j, name in enumerate(skeleton.names):
+        parent = index.get(skeleton.parents[j], -1)
+        if name in split:  # the twist joint halfway along the bone, then the joint itself
+            names.append(split[name]), parents.append(parent), new_offsets.append(offsets[j] / 2), source.append(-1)
+            parent, offset = len(names) - 1, offsets[j] / 2
+        else:
+            offset = offsets[j]
+        index[j] = len(names)
+        names.append(name), parents.append(parent), new_offsets.append(offset), source.append(j)
+    twisted = Skeleton(tuple(parents), tuple(names), np.asarray(new_offsets, np.float32))
+    return Character.from_skeleton(twisted, "bandai_namco"), np.asarray(source), split
+
+
+def test_twist_joints_inside_a_limb_are_held_at_rest_and_change_nothing(bandai):
+    """A limb whose joints descend through twist joints (``RigSpec`` names the same three):
+    the rig and ``refine_limbs`` hold the twist joints at rest and pose every other joint as on
+    the skeleton without them; ``derive_rig_spec`` skips them by name."""
+    from bezmotion.pipeline.authoring import derive_rig_spec
+
+    character, source, split = _with_twist_joints(bandai)
+    kept = np.flatnonzero(source >= 0)
+    twists = np.flatnonzero(source < 0)
+    rig = make_rig(character, "bandai_namco")
+    assert all(len(a) == 1 and len(b) == 1 for a, b in rig.limb_between[:2]) and [len(b) for b in rig.limb_between[2]] == [1, 0]
+    assert derive_rig_spec(character) == RIG_PRESETS["bandai_namco"]
+    posed = solve(rig, bandai.targets)
+    np.testing.assert_allclose(np.abs(np.asarray(posed.quat_local)[:, twists, 0]), 1.0, atol=1e-6)  # at rest
+    _, pos = fk(character, posed)
+    _, plain = fk(bandai.character, bandai.pose)
+    np.testing.assert_allclose(np.asarray(pos)[:, kept], np.asarray(plain), atol=2e-3)
+    # refine_limbs from a pose whose twist joints are turned 34° about their bones: it keeps
+    # them and still lands.
+    offsets = np.asarray(character.skeleton.offsets)
+    child = [character.skeleton.parents.index(t) for t in twists]
+    axis = offsets[child] / np.linalg.norm(offsets[child], axis=-1, keepdims=True)
+    turn = jnp.asarray(np.concatenate([np.full((len(twists), 1), np.cos(0.3)), np.sin(0.3) * axis], axis=-1), jnp.float32)
+    quat = jnp.asarray(np.asarray(bandai.truth.quat_local)[:, np.maximum(source, 0)]).at[:, twists].set(turn)
+    start = Pose(bandai.truth.root_pos, quat)
+    refined = jax.jit(jax.vmap(refine_limbs, in_axes=(None, 0, 0)))(rig, start, bandai.targets)
+    np.testing.assert_array_equal(np.asarray(refined.quat_local[:, twists]), np.asarray(start.quat_local[:, twists]))
+    _, pos = fk(character, refined)
+    ends = np.asarray(character.characteristic[2:])
+    assert np.linalg.norm(np.asarray(pos[:, ends] - bandai.targets.position[:, 2:]), axis=-1).max() < 10 * END_TOL_CM
+    with pytest.raises(ValueError, match=r"joint 'UpperArmTwist_L' \(a child of 'UpperArm_L'\) does not descend from 'LowerArm_L'"):
+        make_rig(character, _spec(left_arm=("UpperArm_L", "LowerArm_L", "UpperArmTwist_L")))
