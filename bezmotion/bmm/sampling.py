@@ -291,12 +291,14 @@ def _projector(
     # do both run).
     anywhere = jnp.any(over_chain)
     alone = _projector(layout, conditions, fixed, fixed_tangent | _shared_keys(chain, k, j), None, pos_std=pos_std, tangent_std=tangent_std)
-    def make_metric():
-        return curve_metric(whole, held, *scales(jnp.float32, pos_std, tangent_std), held_tangent, joints=over_chain).inverse
+
+    def make_metric():  # loop-invariant: made once per sample, and only where some joint needs it
+        return curve_metric(whole, held, *scales(jnp.float32, pos_std, tangent_std), held_tangent).inverse
 
     inverse = jax.lax.cond(anywhere, make_metric, lambda: jnp.zeros(jax.eval_shape(make_metric).shape, jnp.float32))
-    # Every joint measured by the curve here: those not met over the chain take the window's
-    # own solve (`alone`, a chain's handles are many rows for min_norm_solve's loop).
+    # The chain's solve measures every joint by the curve (one solve, not one per metric);
+    # the joints not met over the chain then take their window's own solve (`alone`), which
+    # also spares min_norm_solve's loop over the whole chain's handles for them.
     metric = CurveMetric(inverse, jnp.ones_like(over_chain), every_joint=True)
     mine = functools.partial(jax.lax.dynamic_slice_in_dim, start_index=jax.lax.axis_index(chain.axis) * step, slice_size=k)
 
