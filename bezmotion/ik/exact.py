@@ -86,8 +86,9 @@ from bezmotion.geometry.rotations import (
     skew,
 )
 from bezmotion.ik.joint_limits import JointLimits
-from bezmotion.ik.key_blend import blend_to_chain_keys, distances_to_keys
+from bezmotion.ik.key_blend import blend_to_chain_keys, distances_to_keys, key_chain
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, pose_fk
+from bezmotion.ik.rig import Rig, elbows_from_keys
 from bezmotion.ik.temporal import FLIP_TURN, KEY_TURN, limit_turns, planted_feet, remove_flips, smooth, turn_out_of_keys
 from bezmotion.linalg import cholesky_solve, inverse_3x3
 
@@ -622,8 +623,12 @@ class ExactIKFn:
         After the last pass no joint turns more than ``finish_turn`` in a frame (``key_turn``
         on the steps out of a joined key: :func:`~bezmotion.ik.temporal.turn_out_of_keys`), the
         keys' and handles' frames kept (:func:`~bezmotion.ik.temporal.limit_turns`).
+        With keys and the rig as the inner IK (``exact_rig``), the rig's arms first bend their
+        elbows the way the keys around each frame do (:func:`~bezmotion.ik.rig.elbows_from_keys`).
         """
         pose = jax.vmap(self.inner, in_axes=(None, 0))(params.inner, targets)
+        if keys is not None and isinstance(params.inner, Rig):  # the rig's elbows bend as the keys' do
+            pose = elbows_from_keys(params.inner, pose, targets, key_chain(keys))
         frames = pose.root_pos.shape[0]
         hold = jnp.zeros(frames, pose.root_pos.dtype)
         at_key = jnp.zeros(frames, bool)

@@ -93,6 +93,11 @@ _ARM_REFERENCE_ELBOW = (-1.0, -1.0, 1.0)
 
 # Below this (cm, or cm² for squared lengths) a length counts as zero.
 _EPS = 1e-6
+# A key's elbow this close (cm) to its shoulder-to-hand line tells no side (elbows_from_keys).
+_STRAIGHT_CM = 1.0
+# Which limbs take their side from the keys: the arms (a raised knee's side is the rig's own,
+# from the foot's orientation; from the keys it changed nothing on the case that showed the arms').
+LIMBS_FROM_KEYS = np.asarray([True, True, False, False])
 
 
 # --------------------------------------------------------------------------------- spec
@@ -721,14 +726,53 @@ def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
     return Pose(pos_target[0], quat_local)
 
 
-def refine_limbs(rig: Rig, pose: Pose, targets: IKTargets) -> Pose:
+def elbows_from_keys(rig: Rig, pose: Pose, targets: IKTargets, keys: Pose) -> Pose:
+    """``pose`` ``(K·(W − 1) + 1, …)`` (the rig's, a chain of ``K`` windows of ``W`` frames
+    between ``keys`` batched ``(K + 1, …)``) with each arm re-solved (:func:`refine_limbs`)
+    to bend its elbow the way the keys around the frame bend theirs: the elbow's offset
+    across the shoulder-to-hand line, in the hips' frame, blended from the window's start
+    key to its end key along the window, turned by the frame's own hips.
+
+    The rig's fixed reference arm chooses an elbow side that may lie half a turn round that
+    line from the key's (a dance's raised arms: 100–170°), and joining the key to it swings
+    the hand through that arc, far off its curve (85 cm on LaFAN1's ``dance1_subject1``).
+    The legs keep their knees."""
+    limbs = np.asarray(rig.limbs)
+    character = Character(rig.skeleton, (rig.spine[0], rig.spine[-1], *limbs[:, 2].tolist()))
+    frames, num_keys = pose.root_pos.shape[0], keys.root_pos.shape[0]
+    span = (frames - 1) // (num_keys - 1)
+
+    def across(p: Pose) -> Float[Array, "4 3"]:  # the elbows' and knees' offsets across the reach, in the hips' frame
+        quat, pos = pose_fk(character, p)
+        reach = _where_normalize(pos[limbs[:, 2]] - pos[limbs[:, 0]], jnp.asarray([0.0, 1.0, 0.0], pos.dtype))
+        off = _perpendicular(pos[limbs[:, 1]] - pos[limbs[:, 0]], reach)
+        return _apply(jnp.swapaxes(matrix_from_quat(quat[rig.spine[0]]), -1, -2), off)
+
+    at_keys = jax.vmap(across)(keys)  # (K + 1, 2, 3)
+    f = np.arange(frames)
+    window = np.minimum(f // span, num_keys - 2)
+    t = jnp.asarray((f - window * span) / span, pose.root_pos.dtype)[:, None, None]
+    wanted = (1.0 - t) * at_keys[window] + t * at_keys[window + 1]  # (frames, 4, 3), hips' frame
+
+    def one(p: Pose, target: IKTargets, w: Array) -> Pose:
+        quat, pos = pose_fk(character, p)
+        own = pos[limbs[:, 1]] - pos[limbs[:, 0]]  # where the rig bends each limb
+        # Keys with straight arms say nothing: the rig's own side there.
+        hint = jnp.where(safe_norm(w, keepdims=True) > _STRAIGHT_CM, _apply(matrix_from_quat(quat[rig.spine[0]]), w), own)
+        return refine_limbs(rig, p, target, jnp.where(LIMBS_FROM_KEYS[:, None], hint, own))
+
+    return jax.vmap(one)(pose, targets, wanted)
+
+
+def refine_limbs(rig: Rig, pose: Pose, targets: IKTargets, hint: Float[Array, "limbs 3"] | None = None) -> Pose:
     """Re-solve the arms and legs of one frame's ``pose`` (e.g. a learned IK's) with the
     rig's two-bone IK, so hands and feet reach their targets exactly when they can and take
     their target orientations.
 
     The limb roots stay where ``pose`` puts them and each elbow and knee keeps the side
     ``pose`` bends it to and the twist its rotations give it about the limb's bones; the
-    hips, spine, head and every other joint are unchanged.
+    hips, spine, head and every other joint are unchanged. ``hint``: world directions
+    ``(4, 3)`` (arms, then legs) to bend each elbow and knee towards instead of ``pose``'s.
     Satisfies nothing by itself: compose it after an ``ik_fn``
     (:func:`bezmotion.ik.protores.protores_refined_ik_fn`).
     """
@@ -743,10 +787,8 @@ def refine_limbs(rig: Rig, pose: Pose, targets: IKTargets) -> Pose:
     own_local = matrix_from_quat(pose.quat_local)
     bones, turns = _limb_bones(rig, offsets, own_local)  # through the pose's own twist joints, which stay
     own = turns @ own_local[limbs[:, 1:]]  # (limb, mid / end, 3, 3): the pose's own twists
-    upper, lower = _two_bone(
-        roots, bones[:, 0], bones[:, 1], targets.position[ends], rot_end, pos_global[limbs[:, 1]] - roots,
-        own[:, 0], own[:, 1],
-    )  # fmt: skip
+    hint = pos_global[limbs[:, 1]] - roots if hint is None else hint
+    upper, lower = _two_bone(roots, bones[:, 0], bones[:, 1], targets.position[ends], rot_end, hint, own[:, 0], own[:, 1])
     root_parents = matrix_from_quat(quat_global[np.asarray([rig.skeleton.parents[r] for r in limbs[:, 0]])])
     limb_parents = jnp.stack([root_parents, upper @ turns[:, 0], lower @ turns[:, 1]], axis=1)
     limb_local = jnp.swapaxes(limb_parents, -1, -2) @ jnp.stack([upper, lower, rot_end], axis=1)
