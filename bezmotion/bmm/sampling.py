@@ -295,11 +295,9 @@ def _projector(
     def make_metric():  # loop-invariant: made once per sample, and only where some joint needs it
         return curve_metric(whole, held, *scales(jnp.float32, pos_std, tangent_std), held_tangent).inverse
 
-    inverse = jax.lax.cond(anywhere, make_metric, lambda: jnp.zeros(jax.eval_shape(make_metric).shape, jnp.float32))
-    # The chain's solve measures every joint by the curve (one solve, not one per metric);
-    # the joints not met over the chain then take their window's own solve (`alone`), which
-    # also spares min_norm_solve's loop over the whole chain's handles for them.
-    metric = CurveMetric(inverse, jnp.ones_like(over_chain), every_joint=True)
+    # The chain's solve measures every joint by the curve; the joints not met over the chain
+    # then take their window's own solve (`alone`), the variables' metric.
+    metric = CurveMetric(jax.lax.cond(anywhere, make_metric, lambda: jnp.zeros(jax.eval_shape(make_metric).shape, jnp.float32)))
     mine = functools.partial(jax.lax.dynamic_slice_in_dim, start_index=jax.lax.axis_index(chain.axis) * step, slice_size=k)
 
     def project(ctrl_pos, ctrl_tangent, target, pos_mean=0.0, tangent_mean=0.0):

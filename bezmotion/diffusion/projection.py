@@ -104,8 +104,7 @@ def project_off_grid(
         are normalised); ``"curve"``, the change of the curve itself, summed over every frame
         (``Σ_f |Δcurve(f)|²``, positions and tangents weighed by what they do to it); or a
         :class:`CurveMetric` made beforehand (:func:`curve_metric`, for the same layout, fixed
-        variables and scales), which may leave some joints to the variables' norm (the
-        chain's projection, :func:`bezmotion.bmm.sampling._project_over_chain`).
+        variables and scales; the chain's projection, :func:`bezmotion.bmm.sampling._projector`).
     Returns:
       ``(ctrl_pos, ctrl_tangent)`` corrected, same space as the inputs.
     """
@@ -148,8 +147,6 @@ def project_off_grid(
         spread = exact_einsum("jdha,jdab->jdhb", a, metric.inverse)  # rows of A M⁻¹
         z = min_norm_solve(exact_einsum("jdha,jdga->jdhg", spread, a), residual)
         step = exact_einsum("jdh,jdha->jda", z, spread)
-        if not metric.every_joint:
-            step = jnp.where(metric.joints[:, None, None], step, min_norm_solve(a, residual))
     delta = jnp.moveaxis(step, -1, 0)  # (2K, J, 3)
     return (
         jnp.where(fixed[..., None], ctrl_pos, ctrl_pos + delta[:k]),
@@ -166,14 +163,9 @@ class CurveMetric(NamedTuple):
     Attributes:
       inverse: ``(joints, 3, 2K, 2K)`` ``M⁻¹`` per joint and coordinate (variables: the K
         control positions, then the K tangents); a fixed variable has an identity block.
-      joints: ``(joints,)`` the joints whose correction is measured so; the others take the
-        variables' minimum norm.
-      every_joint: whether ``joints`` is every joint (known when tracing: one solve, not two).
     """
 
     inverse: Float[Array, "joints 3 variables variables"]
-    joints: Bool[Array, "joints"]
-    every_joint: bool
 
 
 def curve_metric(
@@ -182,12 +174,9 @@ def curve_metric(
     pos_std: Float[Array, "joints 3"],
     tangent_std: Float[Array, "joints 3"],
     fixed_tangent: Bool[Array, "controls joints"] | None = None,
-    *,
-    joints: Bool[Array, "joints"] | None = None,
 ) -> CurveMetric:
     """The smallest change of the curve over every frame as :func:`project_off_grid`'s
-    ``metric``, for the joints ``joints`` (default every one). Plain XLA solves
-    (:mod:`bezmotion.linalg`), no LAPACK."""
+    ``metric``. Plain XLA solves (:mod:`bezmotion.linalg`), no LAPACK."""
     k, dtype = fixed.shape[0], pos_std.dtype
     fixed_tangent = jnp.zeros_like(fixed) if fixed_tangent is None else fixed_tangent
     every_pos, every_tan = (w.astype(dtype)[None, None] for w in basis(layout))  # (1, 1, F, K)
@@ -195,8 +184,7 @@ def curve_metric(
     free = jnp.concatenate([~fixed.T, ~fixed_tangent.T], axis=-1)  # (J, 2K)
     keep = (free[:, :, None] & free[:, None, :])[:, None]  # (J, 1, 2K, 2K)
     gram = jnp.where(keep, exact_einsum("jdfa,jdfb->jdab", c, c), jnp.eye(2 * k, dtype=dtype))
-    every = joints is None
-    return CurveMetric(spd_inverse(gram), jnp.ones(fixed.shape[1], bool) if every else joints, every)
+    return CurveMetric(spd_inverse(gram))
 
 
 def project_onto_handles(

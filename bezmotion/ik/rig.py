@@ -37,6 +37,7 @@ at full extension, at zero target distance and at collinear pole hints.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import itertools
 from collections.abc import Mapping, Sequence
 from typing import Any
@@ -58,7 +59,7 @@ from bezmotion.geometry.rotations import (
     safe_norm,
     slerp,
 )
-from bezmotion.geometry.skeleton import Skeleton
+from bezmotion.geometry.skeleton import Skeleton, ancestors
 from bezmotion.ik.protocol import Character, IKTargets, Pose, pose_fk
 
 _HEAD, _LEFT_HAND, _RIGHT_HAND, _LEFT_FOOT, _RIGHT_FOOT = (
@@ -97,7 +98,7 @@ _EPS = 1e-6
 _STRAIGHT_CM = 1.0
 # Which limbs take their side from the keys: the arms (a raised knee's side is the rig's own,
 # from the foot's orientation; from the keys it changed nothing on the case that showed the arms').
-LIMBS_FROM_KEYS = np.asarray([True, True, False, False])
+_LIMBS_FROM_KEYS = np.asarray([True, True, False, False])
 
 
 # --------------------------------------------------------------------------------- spec
@@ -257,18 +258,15 @@ def _descent(skeleton: Skeleton, chain: Sequence[int], where: str) -> tuple[tupl
     """
     between = []
     for parent, child in itertools.pairwise(chain):
-        path, j = [], skeleton.parents[child]
-        while j >= 0 and j != parent:
-            path.append(j)
-            j = skeleton.parents[j]
-        if j != parent:
+        above = ancestors(skeleton.parents, child)[1:]
+        if parent not in above:
             actual = skeleton.parents[child]
             actual_name = skeleton.names[actual] if actual >= 0 else None
             raise ValueError(
                 f"RigSpec.{where}: joint {skeleton.names[child]!r} (a child of {actual_name!r}) does not descend from "
                 f"{skeleton.names[parent]!r}; a chain lists parent → child joints (a limb's may skip twist joints between)"
             )
-        between.append(tuple(reversed(path)))
+        between.append(tuple(reversed(above[: above.index(parent)])))
     return tuple(between)
 
 
@@ -726,6 +724,11 @@ def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
     return Pose(pos_target[0], quat_local)
 
 
+def _rig_character(rig: Rig) -> Character:
+    """The character whose characteristic joints are the rig's chain ends (for FK of its poses)."""
+    return Character(rig.skeleton, (rig.spine[0], rig.spine[-1], *(limb[2] for limb in rig.limbs)))
+
+
 def elbows_from_keys(rig: Rig, pose: Pose, targets: IKTargets, keys: Pose) -> Pose:
     """``pose`` ``(K·(W − 1) + 1, …)`` (the rig's, a chain of ``K`` windows of ``W`` frames
     between ``keys`` batched ``(K + 1, …)``) with each arm re-solved (:func:`refine_limbs`)
@@ -738,7 +741,7 @@ def elbows_from_keys(rig: Rig, pose: Pose, targets: IKTargets, keys: Pose) -> Po
     the hand through that arc, far off its curve (85 cm on LaFAN1's ``dance1_subject1``).
     The legs keep their knees."""
     limbs = np.asarray(rig.limbs)
-    character = Character(rig.skeleton, (rig.spine[0], rig.spine[-1], *limbs[:, 2].tolist()))
+    character = _rig_character(rig)
     frames, num_keys = pose.root_pos.shape[0], keys.root_pos.shape[0]
     span = (frames - 1) // (num_keys - 1)
 
@@ -748,20 +751,16 @@ def elbows_from_keys(rig: Rig, pose: Pose, targets: IKTargets, keys: Pose) -> Po
         off = _perpendicular(pos[limbs[:, 1]] - pos[limbs[:, 0]], reach)
         return _apply(jnp.swapaxes(matrix_from_quat(quat[rig.spine[0]]), -1, -2), off)
 
-    at_keys = jax.vmap(across)(keys)  # (K + 1, 2, 3)
+    at_keys = jax.vmap(across)(keys)  # (K + 1, 4, 3)
     f = np.arange(frames)
     window = np.minimum(f // span, num_keys - 2)
     t = jnp.asarray((f - window * span) / span, pose.root_pos.dtype)[:, None, None]
     wanted = (1.0 - t) * at_keys[window] + t * at_keys[window + 1]  # (frames, 4, 3), hips' frame
-
-    def one(p: Pose, target: IKTargets, w: Array) -> Pose:
-        quat, pos = pose_fk(character, p)
-        own = pos[limbs[:, 1]] - pos[limbs[:, 0]]  # where the rig bends each limb
-        # Keys with straight arms say nothing: the rig's own side there.
-        hint = jnp.where(safe_norm(w, keepdims=True) > _STRAIGHT_CM, _apply(matrix_from_quat(quat[rig.spine[0]]), w), own)
-        return refine_limbs(rig, p, target, jnp.where(LIMBS_FROM_KEYS[:, None], hint, own))
-
-    return jax.vmap(one)(pose, targets, wanted)
+    # Keys with straight arms say nothing, nor do they for the legs: zero, the rig's own side there.
+    wanted = jnp.where((safe_norm(wanted, keepdims=True) > _STRAIGHT_CM) & _LIMBS_FROM_KEYS[:, None], wanted, 0.0)
+    # The hips' global rotation is their local one (a Pose holds the joints above them at identity).
+    hips = matrix_from_quat(pose.quat_local[:, rig.spine[0]])[:, None]
+    return jax.vmap(functools.partial(refine_limbs, rig))(pose, targets, _apply(hips, wanted))
 
 
 def refine_limbs(rig: Rig, pose: Pose, targets: IKTargets, hint: Float[Array, "limbs 3"] | None = None) -> Pose:
@@ -772,14 +771,14 @@ def refine_limbs(rig: Rig, pose: Pose, targets: IKTargets, hint: Float[Array, "l
     The limb roots stay where ``pose`` puts them and each elbow and knee keeps the side
     ``pose`` bends it to and the twist its rotations give it about the limb's bones; the
     hips, spine, head and every other joint are unchanged. ``hint``: world directions
-    ``(4, 3)`` (arms, then legs) to bend each elbow and knee towards instead of ``pose``'s.
+    ``(4, 3)`` (arms, then legs) to bend each elbow and knee towards instead of ``pose``'s
+    (a zero row: ``pose``'s).
     Satisfies nothing by itself: compose it after an ``ik_fn``
     (:func:`bezmotion.ik.protores.protores_refined_ik_fn`).
     """
     dtype = targets.position.dtype
     limbs = np.asarray(rig.limbs)
-    character = Character(rig.skeleton, (rig.spine[0], rig.spine[-1], *limbs[:, 2].tolist()))
-    quat_global, pos_global = pose_fk(character, pose)
+    quat_global, pos_global = pose_fk(_rig_character(rig), pose)
     offsets = jnp.asarray(rig.skeleton.offsets, dtype)
     ends = np.asarray(_LIMB_TARGET)
     rot_end = matrix_from_rot6d(targets.rot6d[ends])
@@ -787,7 +786,8 @@ def refine_limbs(rig: Rig, pose: Pose, targets: IKTargets, hint: Float[Array, "l
     own_local = matrix_from_quat(pose.quat_local)
     bones, turns = _limb_bones(rig, offsets, own_local)  # through the pose's own twist joints, which stay
     own = turns @ own_local[limbs[:, 1:]]  # (limb, mid / end, 3, 3): the pose's own twists
-    hint = pos_global[limbs[:, 1]] - roots if hint is None else hint
+    own_side = pos_global[limbs[:, 1]] - roots
+    hint = own_side if hint is None else jnp.where(jnp.any(hint != 0.0, axis=-1, keepdims=True), hint, own_side)
     upper, lower = _two_bone(roots, bones[:, 0], bones[:, 1], targets.position[ends], rot_end, hint, own[:, 0], own[:, 1])
     root_parents = matrix_from_quat(quat_global[np.asarray([rig.skeleton.parents[r] for r in limbs[:, 0]])])
     limb_parents = jnp.stack([root_parents, upper @ turns[:, 0], lower @ turns[:, 1]], axis=1)
