@@ -83,7 +83,7 @@ from bezmotion.assets.registry import trained_for
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, load_model
 from bezmotion.data.bvh import BvhMotion, read_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
-from bezmotion.data.clip_frame import CM_PER_UNIT, UP_AXES, ClipFrame, detect_units, detect_up
+from bezmotion.data.clip_frame import CM_PER_UNIT, TYPICAL_PERSON_CM, UP_AXES, ClipFrame, cm_per_unit, detect_units, detect_up, skeleton_size
 from bezmotion.data.resample import TRAINED_FPS, resample_motion
 from bezmotion.ik.exact import exact_settings
 from bezmotion.ik.protocol import Character, Pose, pose_fk, targets_from_pose
@@ -178,8 +178,9 @@ class InbetweenOptions:
     )  # fmt: skip
     mapping: Path | None = option(None, metavar="MAP.json", help="JSON or TOML naming the six characteristic joints (and optionally the rig's chains) of another skeleton; without it they are read off the joint names (LeftHand, hand_l, L_Wrist, …), with a warning")
     units: str = option(
-        "auto", choices=("auto", *CM_PER_UNIT),
-        help="the clips' length unit; auto (default): told from the skeleton's size (cm, m or mm; inches need --units in). "
+        "auto", metavar="auto|cm|m|mm|in|CM",
+        help="the clips' length unit, or centimetres per unit (a number); auto (default): told from the skeleton's size (cm, m or mm "
+        "where one gives a person's size, else the unit that gives a typical adult's, with a warning; inches need --units in). "
         "The in-between is written in it; handles, reports and the .glb are in cm (.glb: m), Y up",
     )  # fmt: skip
     up: str = option("auto", choices=("auto", *UP_AXES), help="the clips' up axis; auto (default): where the head stands above the feet")
@@ -652,7 +653,8 @@ def plan(args: InbetweenOptions) -> Plan:
         )
     except ValueError as error:  # the settings were checked above: what is left is the IK against the skeleton
         fit = f"the learned IK {ik_model_name} does not fit this skeleton: " if ik in LEARNED_IK_CHOICES else ""
-        raise ValueError(f"--ik {ik}: {fit}{error}") from None
+        chosen = f"--ik {ik}" if args.ik != "auto" else f"{path0}: the IK chosen for this skeleton ({ik})"
+        raise ValueError(f"{chosen}: {fit}{error}") from None
 
     handles, records = resolve_handles(requests, recognised, key_poses, bmm)
     reach = reach_chains(make_rig(character, recognised.rig_spec, rest_quat_local=np.asarray(key_poses[0].quat_local)))
@@ -693,18 +695,29 @@ def _clip_frame(
     feet = (left_foot, right_foot)
     clips = {id(m): (f"{argument} {text}", m) for argument, text, _, m, _ in keys}  # each clip read once
     units = args.units
-    if units == "auto":
+    warnings = []
+    if units != "auto":
+        try:
+            cm_per_unit(units)
+        except ValueError as error:
+            raise _error("--units", units, error) from None
+    else:
         told = {}
         for shown, motion in clips.values():
             try:
                 told[shown] = detect_units(motion, hips, head, feet)
             except ValueError as error:
-                raise ValueError(f"{shown}: {error} with --units") from None
+                raise ValueError(f"{shown}: {error}") from None
         (first, units), *others = told.items()
         for other, other_units in others:
             if other_units != units:
-                raise ValueError(f"{other}: its units ({other_units}) differ from {first}'s ({units}); give --units")
-    warnings = []
+                raise ValueError(f"{other}: its units ({other_units}) differ from {first}'s ({units}); the keys' files must share one unit")
+        if units not in CM_PER_UNIT:
+            size = skeleton_size(keys[0][3], hips, head, feet)
+            warnings.append(
+                f"{first}: its skeleton is a person's size in none of cm, m or mm (head to hips to foot {size:.4g} units); "
+                f"taking a typical adult's {TYPICAL_PERSON_CM:g} cm, 1 unit = {float(units):.4g} cm (--units sets it)"
+            )
     up = args.up
     if up == "auto":
         try:

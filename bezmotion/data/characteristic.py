@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
+from bezmotion.data import lafan1
 from bezmotion.data.windows import foot_contacts
 from bezmotion.geometry.rotations import rot6d_from_quat
 from bezmotion.geometry.skeleton import forward_kinematics
@@ -40,6 +41,35 @@ SKELETON_MAPS: Mapping[str, Mapping[str, str]] = {
 }  # fmt: skip
 """Role → joint name for the bundled skeletons. Feet are the ankles (the BVH ``*Foot``
 joints); pass your own dict to :func:`characteristic_indices` for other skeletons."""
+
+_BANDAI_NAMCO_NAMES = (
+    "joint_Root", "Hips", "Spine", "Chest", "Neck", "Head", "Shoulder_L", "UpperArm_L", "LowerArm_L", "Hand_L",
+    "Shoulder_R", "UpperArm_R", "LowerArm_R", "Hand_R", "UpperLeg_L", "LowerLeg_L", "Foot_L", "Toes_L",
+    "UpperLeg_R", "LowerLeg_R", "Foot_R", "Toes_R",
+)  # fmt: skip
+_BANDAI_NAMCO_PARENTS = (-1, 0, 1, 2, 3, 4, 3, 6, 7, 8, 3, 10, 11, 12, 1, 14, 15, 16, 1, 18, 19, 20)
+
+
+def _hierarchy(names: Sequence[str], parents: Sequence[int]) -> dict[str, str | None]:
+    return {name: (names[p] if p >= 0 else None) for name, p in zip(names, parents)}
+
+
+PRESET_HIERARCHIES: Mapping[str, Mapping[str, str | None]] = {
+    "lafan1": _hierarchy(lafan1.JOINT_NAMES, lafan1.PARENTS),
+    "bandai_namco": _hierarchy(_BANDAI_NAMCO_NAMES, _BANDAI_NAMCO_PARENTS),
+}
+"""Each bundled skeleton's whole hierarchy, joint → parent (None for the root). A file is
+taken for a preset only when its hierarchy is exactly this (:func:`preset_of`): six joint
+names in common (a CMU or MotionBuilder file's ``Hips``, ``LeftHand`` …) say nothing about
+the joints between them that the preset's models pose."""
+
+
+def preset_of(joint_names: Sequence[str], parents: Sequence[int]) -> str | None:
+    """The preset of :data:`PRESET_HIERARCHIES` whose whole hierarchy a skeleton has (the
+    same joints, each under the same parent, in any order), else None."""
+    hierarchy = _hierarchy(joint_names, parents)
+    return next((preset for preset, theirs in PRESET_HIERARCHIES.items() if hierarchy == dict(theirs)), None)
+
 
 CONTACT_SPEED = 0.002**0.5 * 100.0 * 20.0
 """Foot-contact speed threshold in cm/s (≈ 89.4): HumanML3D's rule (BMM cites Zhang et

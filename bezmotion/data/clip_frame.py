@@ -17,7 +17,13 @@ in-between opens in the user's tool where the clip does.
 - **units**: the skeleton's size — the bone lengths from the head down to the hips and on to
   a foot, as the offsets give them (the same in every pose) — is a person's 40–400 cm in
   centimetres, in metres or in millimetres, and only one of them. Inches (a person ~60 in)
-  read as a small character in centimetres: they need ``units="in"``.
+  read as a small character in centimetres: they need ``units="in"``. A skeleton that is a
+  person's size in none of them (raw CMU files, in a unit of about 5.6 cm) is taken to be
+  a typical adult's size, :data:`TYPICAL_PERSON_CM`, and its unit is that many centimetres
+  over its size: any unit works, to within a person's build, and the caller says so.
+
+A unit is a name of :data:`CM_PER_UNIT` or a number of centimetres per file unit, written
+as text (``"5.6"``).
 """
 
 from __future__ import annotations
@@ -38,6 +44,7 @@ CM_PER_UNIT = {"cm": 1.0, "m": 100.0, "mm": 0.1, "in": 2.54}
 UP_AXES = ("y", "z")
 DETECTED_UNITS = ("cm", "m", "mm")  # told apart by size alone; inches are not (see the module docstring)
 PERSON_CM = (40.0, 400.0)  # a skeleton's head-to-hips-to-foot length (cm) that counts as a person's, any character's
+TYPICAL_PERSON_CM = 150.0  # an adult's head-to-hips-to-foot length (cm): LaFAN1's actors 166, Bandai-Namco's 134
 _DETECT_FRAMES = 256  # frames of a clip the up axis is told from (evenly spread)
 _UPRIGHT = 0.8  # a frame votes for an axis when its head-over-feet direction is within ~37° of it
 _OPPOSITE = 0.05  # up's opposite may get this fraction of up's votes (a handstand, a cartwheel)
@@ -59,26 +66,47 @@ class ClipFrame:
     up: str = "y"
 
     def __post_init__(self) -> None:
-        if self.units not in CM_PER_UNIT:
-            raise ValueError(f"units must be one of {', '.join(CM_PER_UNIT)}, got {self.units!r}")
+        cm_per_unit(self.units)  # a name or a positive number
         if self.up not in UP_AXES:
             raise ValueError(f"up must be one of {', '.join(UP_AXES)}, got {self.up!r}")
 
     @property
+    def cm_per_unit(self) -> float:
+        """Centimetres per unit of the file."""
+        return cm_per_unit(self.units)
+
+    @property
     def is_ours(self) -> bool:
         """Centimetres with Y up: nothing to convert."""
-        return self.units == "cm" and self.up == "y"
+        return self.cm_per_unit == 1.0 and self.up == "y"
 
     def to_ours(self, motion: BvhMotion) -> BvhMotion:
         """``motion`` in centimetres with Y up: offsets, translations and End Sites scaled to
         cm; with Z up, the whole motion turned about X (the root's rotation and position:
         every other joint is in its parent's frame)."""
-        return _convert(motion, CM_PER_UNIT[self.units], _Z_TO_Y_QUAT if self.up == "z" else None)
+        return _convert(motion, self.cm_per_unit, _Z_TO_Y_QUAT if self.up == "z" else None)
 
     def from_ours(self, motion: BvhMotion) -> BvhMotion:
         """The inverse of :meth:`to_ours`: a motion of ours in this frame's units and up axis."""
         inverse = _Z_TO_Y_QUAT * np.array([1.0, -1.0, -1.0, -1.0])
-        return _convert(motion, 1.0 / CM_PER_UNIT[self.units], inverse if self.up == "z" else None)
+        return _convert(motion, 1.0 / self.cm_per_unit, inverse if self.up == "z" else None)
+
+
+def cm_per_unit(units: str) -> float:
+    """Centimetres per unit of ``units``: a name of :data:`CM_PER_UNIT` or a positive number as text.
+
+    Raises:
+      ValueError: neither (the message gives the value).
+    """
+    if units in CM_PER_UNIT:
+        return CM_PER_UNIT[units]
+    try:
+        value = float(units)
+    except (TypeError, ValueError):
+        value = float("nan")
+    if not (np.isfinite(value) and 1e-6 <= value <= 1e6):
+        raise ValueError(f"units must be one of {', '.join(CM_PER_UNIT)} or centimetres per unit (a number), got {units!r}")
+    return value
 
 
 def _convert(motion: BvhMotion, scale: float, turn: np.ndarray | None) -> BvhMotion:
@@ -111,23 +139,29 @@ def chain_length(parents, offsets: np.ndarray, a: int, b: int) -> float:
 
 
 def detect_units(motion: BvhMotion, hips: int, head: int, feet: tuple[int, int]) -> str:
-    """The length unit of ``motion`` (``"cm"``, ``"m"`` or ``"mm"``) from its skeleton's size:
-    the bones from ``head`` down to ``hips`` and on to the longer of the ``feet``' legs.
+    """The length unit of ``motion`` from its skeleton's size: the bones from ``head`` down to
+    ``hips`` and on to the longer of the ``feet``' legs. ``"cm"``, ``"m"`` or ``"mm"`` where
+    the size is a person's in exactly one of them; else the centimetres per unit that make it
+    :data:`TYPICAL_PERSON_CM` (as text, e.g. ``"5.617"``: see the module docstring).
 
     Raises:
-      ValueError: the size is a person's in none of the units (or, impossibly, in two).
+      ValueError: the skeleton has no size (its bones are all of zero length).
     """
+    size = skeleton_size(motion, hips, head, feet)
+    fits = [u for u in DETECTED_UNITS if PERSON_CM[0] <= size * CM_PER_UNIT[u] <= PERSON_CM[1]]
+    if len(fits) == 1:
+        return fits[0]
+    if not (np.isfinite(size) and size > 0):
+        raise ValueError(f"cannot tell the clip's units: its head-to-hips-to-foot bones are {size:.4g} units long")
+    return f"{TYPICAL_PERSON_CM / size:.6g}"
+
+
+def skeleton_size(motion: BvhMotion, hips: int, head: int, feet: tuple[int, int]) -> float:
+    """The length of the bones from ``head`` down to ``hips`` and on to the longer of the
+    ``feet``' legs, in the file's units (the same in every pose)."""
     parents = motion.skeleton.parents
     offsets = np.asarray(motion.skeleton.offsets, np.float64)
-    size = chain_length(parents, offsets, head, hips) + max(chain_length(parents, offsets, hips, f) for f in feet)
-    fits = [u for u in DETECTED_UNITS if PERSON_CM[0] <= size * CM_PER_UNIT[u] <= PERSON_CM[1]]
-    if len(fits) != 1:
-        raise ValueError(
-            f"cannot tell the clip's units: its head-to-hips-to-foot bones are {size:.4g} units long, a person's "
-            f"{PERSON_CM[0]:.0f}–{PERSON_CM[1]:.0f} cm in {'more than one' if fits else 'none'} of {', '.join(DETECTED_UNITS)}; "
-            f"give them ({', '.join(CM_PER_UNIT)})"
-        )
-    return fits[0]
+    return chain_length(parents, offsets, head, hips) + max(chain_length(parents, offsets, hips, f) for f in feet)
 
 
 def detect_up(motions: BvhMotion | Sequence[BvhMotion], head: int, feet: tuple[int, int]) -> str:
@@ -170,4 +204,4 @@ def detect_clip_frame(motion: BvhMotion, hips: int, head: int, feet: tuple[int, 
     return ClipFrame(detect_units(motion, hips, head, feet), detect_up(motion, head, feet))
 
 
-__all__ = ["CM_PER_UNIT", "UP_AXES", "ClipFrame", "chain_length", "detect_clip_frame", "detect_units", "detect_up"]
+__all__ = ["CM_PER_UNIT", "TYPICAL_PERSON_CM", "UP_AXES", "ClipFrame", "chain_length", "cm_per_unit", "detect_clip_frame", "detect_units", "detect_up", "skeleton_size"]

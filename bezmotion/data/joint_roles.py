@@ -6,7 +6,8 @@ MotionBuilder), ``hand_l`` (Unreal), ``hand.L`` (Blender), ``Hand_L`` (Bandai-Na
 under a namespace or a prefix shared by every joint (``mixamorig:``, ``Character1_``). A
 name is split into lower-case words (at separators and at case changes); the words every
 joint begins with are dropped; a side word (``left``/``l``, ``right``/``r``) is set aside,
-and what remains must be exactly one role's word:
+and what remains must be exactly one role's word (a side glued to it, as in Poser/Daz's
+lower-case ``lhand`` or ``rfoot``, is split off first):
 
 =========  =====================  =====
 role       words                  side
@@ -57,6 +58,13 @@ def name_words(name: str) -> tuple[str, ...]:
     return tuple(word.lower() for word in _WORDS.findall(bare))
 
 
+def elided(items: Sequence[object], limit: int = 8) -> str:
+    """``items`` joined by commas, those past ``limit`` counted instead of listed
+    (``"hip, abdomen, chest, … (165 in all)"``), so that an error line stays readable."""
+    shown = ", ".join(map(str, items[:limit]))
+    return shown if len(items) <= limit else f"{shown}, … ({len(items)} in all)"
+
+
 def guess_characteristic_joints(names: Sequence[str], parents: Sequence[int]) -> dict[str, str]:
     """Role → joint name for the six characteristic joints, read off the joint names.
 
@@ -76,7 +84,7 @@ def guess_characteristic_joints(names: Sequence[str], parents: Sequence[int]) ->
         shared += 1
     found: dict[str, list[tuple[int, int]]] = {}  # role → [(preference, joint)]
     for joint, w in enumerate(words):
-        rest = [x for x in w[shared:] if not x.isdigit()]
+        rest = [part for x in w[shared:] if not x.isdigit() for part in _side_split(x)]
         sides = [_SIDES[x] for x in rest if x in _SIDES]
         rest = [x for x in rest if x not in _SIDES]
         if len(rest) != 1 or len(sides) > 1:
@@ -98,10 +106,19 @@ def guess_characteristic_joints(names: Sequence[str], parents: Sequence[int]) ->
         if len(best) > 1 and role == "hips":
             best = _nearest_root(best, parents)
         if len(best) > 1:
-            raise ValueError(f"{[names[j] for j in best]} all read as the {role.replace('_', ' ')}")
+            raise ValueError(f"{elided([names[j] for j in best])} all read as the {role.replace('_', ' ')}")
         mapping[role] = best[0]
     _check_hierarchy(mapping, names, parents)
     return {role: names[mapping[role]] for role in CHARACTERISTIC_JOINTS}
+
+
+def _side_split(word: str) -> tuple[str, ...]:
+    """A lower-case word that is a side glued to a role word split in two (Poser/Daz's
+    ``lhand``, ``rfoot``; ``lefthand``): ``("l", "hand")``; any other word as it is."""
+    for side in sorted(_SIDES, key=len, reverse=True):
+        if word.startswith(side) and any(word[len(side):] in role_words for role_words, _ in _ROLE_WORDS.values()):
+            return side, word[len(side):]
+    return (word,)
 
 
 def _branch_point(joints: Sequence[int], parents: Sequence[int]) -> int:
@@ -129,4 +146,4 @@ def _check_hierarchy(mapping: Mapping[str, int], names: Sequence[str], parents: 
             raise ValueError(f"the {role.replace('_', ' ')} {names[mapping[role]]!r} has no two ancestors for a limb")
 
 
-__all__ = ["guess_characteristic_joints", "name_words"]
+__all__ = ["elided", "guess_characteristic_joints", "name_words"]

@@ -59,7 +59,7 @@ from bezmotion.geometry.rotations import (
     safe_norm,
     slerp,
 )
-from bezmotion.geometry.skeleton import Skeleton, ancestors
+from bezmotion.geometry.skeleton import Skeleton, ancestors, forward_kinematics
 from bezmotion.ik.protocol import Character, IKTargets, Pose, pose_fk
 
 _HEAD, _LEFT_HAND, _RIGHT_HAND, _LEFT_FOOT, _RIGHT_FOOT = (
@@ -73,9 +73,9 @@ _LIMB_TARGET: tuple[int, ...] = (_LEFT_HAND, _RIGHT_HAND, _LEFT_FOOT, _RIGHT_FOO
 # right-to-left hip direction carried by the foot's target rotation). Which way along it
 # the knee goes comes from a rougher hint, towards the toes and the pelvis' forward
 # (sums of unit vectors), which also stands in when the foot's lateral axis lies along
-# the leg. This assumes only that the zero-rotation rest pose does not twist a leg about
-# its own axis (a half turn is fine: LaFAN1's legs point up at rest, Bandai-Namco's left
-# leg up and its right leg down). A bind pose whose knees bend says which way they go
+# the leg. The lateral axis is read off the rig's rest pose (the first key's, in the
+# commands), not the zero rotation, so a file's bone axes and zero-rotation pose do not
+# change it. A bind pose whose knees bend says which way they go
 # instead (_bind_knee_bends): the rough hint fails where the toes point along the leg.
 # Elbows: where the least rotation from a reference arm carries its elbow. The arm pointing
 # forward and down bends its elbow back, down and out; the arm turned from there to any
@@ -596,19 +596,30 @@ def _limb_bones(
     return jnp.stack(bones).reshape(n, 2, 3), jnp.stack(turns).reshape(n, 2, 3, 3)
 
 
-def _rest_lateral(rig: Rig, offsets: Float[Array, "joints 3"]) -> Float[Array, "3"]:
-    """The legs' lateral axis (right hip to left hip) at zero rotation: every joint frame is
-    then the world frame, so the hips' rest positions are sums of offsets and their
-    difference is the lateral axis in every joint's frame."""
-    hips = [offsets[np.asarray([*rig.spine[1 : k + 1], *path])].sum(axis=0) for k, path in rig.limb_bases[2:]]
-    return normalize(hips[0] - hips[1])
+def _rest_lateral(rig: Rig, offsets: Float[Array, "joints 3"], rest: Float[Array, "joints 4"]) -> Float[Array, "2 3"]:
+    """Per leg, the axis its knee bends about, in that leg's foot frame, as the rig's rest
+    pose (``rest``, its local rotations: in the commands, the first key's) holds it: the
+    knee's own hinge (thigh × shin) where the pose bends it, else the legs' lateral axis
+    (right hip to left hip), blended between the two as the bend grows to
+    ``_BIND_KNEE_MIN``. Measured on that pose rather than at zero rotation, it does not
+    depend on how a file lays out its zero-rotation pose or its bones' axes: turning a
+    joint's frame by ``C`` turns this vector by ``Cᵀ`` and the target rotation by ``C``,
+    and their product stays the same."""
+    rot, pos = forward_kinematics(rig.skeleton.parents, rest, offsets)
+    upper, knee, ankle = (np.asarray(j) for j in zip(*rig.limbs[2:]))
+    across = normalize(pos[upper[0]] - pos[upper[1]])
+    hinge = _cross(normalize(pos[knee] - pos[upper]), normalize(pos[ankle] - pos[knee]))  # (2, 3), |·| = sin(bend)
+    hinge = jnp.where(jnp.sum(hinge * across, axis=-1, keepdims=True) < 0.0, -hinge, hinge)  # a knee bends forward of the hips' line
+    weight = jnp.clip(safe_norm(hinge, keepdims=True) / _BIND_KNEE_MIN, 0.0, 1.0)
+    axis = _where_normalize(weight * _where_normalize(hinge, across) + (1.0 - weight) * across, across)
+    return _apply(jnp.swapaxes(matrix_from_quat(rot[ankle]), -1, -2), axis)
 
 
 def _bind_knee_bends(
-    rig: Rig, bones: Float[Array, "limbs 2 3"], turns: Float[Array, "limbs 2 3 3"], rest_rot: Float[Array, "joints 3 3"], lateral: Float[Array, "3"]
+    rig: Rig, bones: Float[Array, "limbs 2 3"], turns: Float[Array, "limbs 2 3 3"], rest_rot: Float[Array, "joints 3 3"], lateral: Float[Array, "2 3"]
 ) -> tuple[Array, Array]:
     """``(sense (2, 1), bent (2, 1))`` per leg: which way the bind pose's knee bends about the
-    foot's ``lateral`` axis (its frame's, as at zero rotation), the sign of ``(thigh × shin) ·
+    foot's ``lateral`` axis (per leg, in its foot's frame: :func:`_rest_lateral`), the sign of ``(thigh × shin) ·
     lateral``, and whether that product is at least ``_BIND_KNEE_MIN`` (a straight leg, e.g.
     the zero rotation's, says nothing). Unlike where the knee lies, the sense does not change
     as the knee bends further or the ankle flexes."""
@@ -690,7 +701,7 @@ def rig_ik(rig: Rig, targets: IKTargets) -> Pose:
     feet = np.asarray(_LIMB_TARGET[2:])
     toes = jnp.stack([rot_target[t] @ offsets[toe] if toe >= 0 else jnp.zeros(3, dtype) for t, toe in zip(feet, rig.toes)])
     toward = normalize(toes) + _KNEE_FORWARD_WEIGHT * forward[1]
-    rest_lateral = _rest_lateral(rig, offsets)
+    rest_lateral = _rest_lateral(rig, offsets, rest)
     lateral = _apply(rot_target[feet], rest_lateral)
     across = _cross(lateral, _where_normalize(pos_target[feet] - roots[2:], normalize(toward)))
     side = jnp.where(jnp.sum(across * toward, axis=-1, keepdims=True) < 0.0, -1.0, 1.0)

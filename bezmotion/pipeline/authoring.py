@@ -7,7 +7,7 @@ from the BMM's training skeleton, and results written by file suffix.
 - :func:`resolve_bmm`, :func:`resolve_ik_model`: ``--model NAME|PATH``, a name from the one
   registry of pretrained models (:mod:`bezmotion.assets.registry`) or a folder;
 - :func:`recognise_character`: a BVH skeleton is LaFAN1 or Bandai-Namco when it has that
-  preset's six characteristic joint names; any other skeleton has its six joints read off
+  preset's whole hierarchy; any other skeleton has its six joints read off
   its names (``mixamorig:LeftHand``, ``hand_l``, ``L_Wrist``:
   :mod:`bezmotion.data.joint_roles`) or given by a mapping file (:func:`read_mapping`: the
   six joints, and optionally the rig's chains — without them the chains are read off the
@@ -38,9 +38,9 @@ from bezmotion.assets import PROFILES_DIR
 from bezmotion.assets.registry import resolve_folder
 from bezmotion.bmm.sampling import SampledCurves
 from bezmotion.data.bvh import BvhMotion, read_bvh, write_bvh
-from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, SKELETON_MAPS
-from bezmotion.data.joint_roles import guess_characteristic_joints, name_words
-from bezmotion.data.clip_frame import CM_PER_UNIT, ClipFrame
+from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, PRESET_HIERARCHIES, preset_of
+from bezmotion.data.joint_roles import elided, guess_characteristic_joints, name_words
+from bezmotion.data.clip_frame import ClipFrame
 from bezmotion.data.resample import resample_motion
 from bezmotion.geometry.skeleton import forward_kinematics
 from bezmotion.ik.protocol import Character, IKFn, Pose, pose_fk, pose_from_motion
@@ -139,7 +139,7 @@ class RecognisedCharacter:
 
     Attributes:
       character: the clip's skeleton (its own offsets and End Sites) and six joints.
-      preset: ``"lafan1"`` or ``"bandai_namco"`` when the joint names are a preset's, else None.
+      preset: ``"lafan1"`` or ``"bandai_namco"`` when the hierarchy is a preset's, else None.
       rig_spec: the chains of the analytic rig.
       read_off_names: role → joint name when the six joints were read off the joint names
         (:func:`~bezmotion.data.joint_roles.guess_characteristic_joints`: no preset, no
@@ -255,7 +255,7 @@ def derive_rig_spec(character: Character) -> RigSpec:
 
 
 def recognise_character(motion: BvhMotion, mapping: str | os.PathLike | None = None) -> RecognisedCharacter:
-    """The character of a BVH motion: a preset recognised by its joint names, or the mapping file's.
+    """The character of a BVH motion: a preset recognised by its whole hierarchy, or the mapping file's.
 
     Args:
       motion: the clip (its offsets and End Sites are kept).
@@ -275,9 +275,9 @@ def recognise_character(motion: BvhMotion, mapping: str | os.PathLike | None = N
         spec = spec if spec is not None else derive_rig_spec(character)
         make_rig(character, spec)  # check the chains against the skeleton now, with their names
         return RecognisedCharacter(character, None, spec)
-    for preset, roles in SKELETON_MAPS.items():
-        if all(name in names for name in roles.values()):
-            return RecognisedCharacter(Character.from_bvh(motion, preset), preset, RigSpec.preset(preset))
+    preset = preset_of(names, motion.skeleton.parents)
+    if preset is not None:
+        return RecognisedCharacter(Character.from_bvh(motion, preset), preset, RigSpec.preset(preset))
     try:
         roles = guess_characteristic_joints(names, motion.skeleton.parents)
         character = Character.from_bvh(motion, roles)
@@ -285,11 +285,12 @@ def recognise_character(motion: BvhMotion, mapping: str | os.PathLike | None = N
         make_rig(character, spec)
     except ValueError as why:
         raise ValueError(
-            f"unknown skeleton: its joints {list(names)} are not those of a known skeleton "
-            f"({', '.join(SKELETON_MAPS)}) and cannot be read off their names ({why}); give --mapping MAP.json naming its "
-            f"{', '.join(CHARACTERISTIC_JOINTS)} joints"
+            f"unknown skeleton of {len(names)} joints ({elided(names)}): not the whole hierarchy of a known one "
+            f"({', '.join(PRESET_HIERARCHIES)}), and its six joints cannot be read off their names: {why}; name its "
+            f"{', '.join(CHARACTERISTIC_JOINTS)} joints in a mapping file"
         ) from None
     return RecognisedCharacter(character, None, spec, read_off_names=roles)
+
 
 
 def same_skeleton(a: BvhMotion, b: BvhMotion) -> bool:
@@ -329,18 +330,38 @@ def make_transfer(trained_on: CharacterProfile | None, target: CharacterProfile)
 # ---------------------------------------------------------------------------------- IK
 
 
+# A bone more than this far (degrees) from the learned IK's at rest: the file lays out its
+# rest pose or its bones' axes otherwise, and the rotations the IK predicts would not fit it.
+_REST_BONE_DEGREES = 20.0
+
+
 def check_ik_model(model: ProtoResModel, character: Character) -> None:
-    """Refuse a learned IK trained on another skeleton than ``character``'s.
+    """Refuse a learned IK trained on another skeleton than ``character``'s: other joints,
+    another hierarchy, or bones that point elsewhere at rest (another rest pose or other
+    bone axes: the local rotations it predicts are in its own skeleton's frames).
 
     Raises:
-      ValueError: the joints or the hierarchy differ (the message names the IK's skeleton).
+      ValueError: the joints, the hierarchy or the rest pose differ (the message names the
+        IK's skeleton, or the bones that differ most).
     """
     theirs = model.character.skeleton
-    if theirs.names != character.skeleton.names or theirs.parents != character.skeleton.parents:
+    ours = character.skeleton
+    if theirs.names != ours.names or theirs.parents != ours.parents:
         raise ValueError(
             f"it was trained on the {model.character.name} skeleton ({theirs.num_joints} joints, "
-            f"{list(theirs.names)[:4]}…), not this one ({character.num_joints} joints, "
-            f"{list(character.skeleton.names)[:4]}…); use --ik exact_rig or rig (no training)"
+            f"{elided(theirs.names, 4)}), not this one ({character.num_joints} joints, "
+            f"{elided(ours.names, 4)}); the rig and exact_rig IKs need no training"
+        )
+    a, b = np.asarray(theirs.offsets, np.float64)[1:], np.asarray(ours.offsets, np.float64)[1:]
+    length = np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1)
+    cos = np.sum(a * b, axis=-1) / np.where(length > 1e-12, length, 1.0)
+    degrees = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+    off = [(d, n) for d, n, ok in zip(degrees, theirs.names[1:], length > 1e-12) if ok and d > _REST_BONE_DEGREES]
+    if off:
+        worst = [f"{n} {d:.0f}°" for d, n in sorted(off, reverse=True)]
+        raise ValueError(
+            f"its rest pose differs from the {model.character.name} skeleton's the learned IK was trained on "
+            f"(bones turned by {elided(worst, 4)}: another rest pose or other bone axes); the rig and exact_rig IKs fit any"
         )
 
 
@@ -449,7 +470,7 @@ class ResultFiles:
 
 def _write_bvh(path: Path, result: ResultFiles) -> None:
     # Six decimals of a cm, as many of a larger unit (8 of a metre): the file as precise in any unit.
-    decimals = 6 + max(0, int(np.ceil(np.log10(CM_PER_UNIT[result.clip_frame.units]))))
+    decimals = 6 + max(0, int(np.ceil(np.log10(result.clip_frame.cm_per_unit))))
     motion = result.motion
     if result.bvh_fps is not None:
         motion, _ = resample_motion(motion, result.bvh_fps)

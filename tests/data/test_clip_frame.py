@@ -12,7 +12,7 @@ from helpers import np_forward_kinematics, turned_about_z
 
 from bezmotion.assets import DEMO_CLIP
 from bezmotion.data.bvh import read_bvh
-from bezmotion.data.clip_frame import CM_PER_UNIT, ClipFrame, detect_clip_frame, detect_units, detect_up
+from bezmotion.data.clip_frame import CM_PER_UNIT, TYPICAL_PERSON_CM, ClipFrame, detect_clip_frame, detect_units, detect_up, skeleton_size
 from bezmotion.ik.protocol import Character
 
 CLIP = read_bvh(DEMO_CLIP)  # Bandai-Namco: cm, Y up
@@ -52,10 +52,26 @@ def test_inches_read_as_a_small_character_in_cm():
     assert detect_units(ClipFrame("in").from_ours(CLIP), HIPS, HEAD, FEET) == "cm"
 
 
-def test_a_size_no_unit_makes_a_person_raises_with_the_size():
-    tiny = dataclasses.replace(CLIP, skeleton=dataclasses.replace(CLIP.skeleton, offsets=np.asarray(CLIP.skeleton.offsets) * 1e-4))
-    with pytest.raises(ValueError, match=r"cannot tell the clip's units: its head-to-hips-to-foot bones are 0\.01\d* units long"):
-        detect_units(tiny, HIPS, HEAD, FEET)
+def test_a_size_no_named_unit_makes_a_person_is_taken_for_a_typical_adults():
+    """Raw CMU files are in a unit of about 5.6 cm: a person's size in none of cm, m and mm.
+    The unit is then the one that makes the skeleton a typical adult's size, within a
+    person's build of the truth; a skeleton of no size at all raises."""
+    cmu = ClipFrame(f"{5.6:.6g}")
+    units = detect_units(cmu.from_ours(CLIP), HIPS, HEAD, FEET)
+    assert units not in CM_PER_UNIT
+    size = skeleton_size(ClipFrame(units).to_ours(cmu.from_ours(CLIP)), HIPS, HEAD, FEET)
+    assert size == pytest.approx(TYPICAL_PERSON_CM, rel=1e-5)
+    assert 0.7 < float(units) / 5.6 < 1.4  # the demo's actor is 134 cm head to hips to foot
+    flat = dataclasses.replace(CLIP, skeleton=dataclasses.replace(CLIP.skeleton, offsets=np.zeros_like(CLIP.skeleton.offsets)))
+    with pytest.raises(ValueError, match=r"cannot tell the clip's units: its head-to-hips-to-foot bones are 0 units long"):
+        detect_units(flat, HIPS, HEAD, FEET)
+
+
+def test_a_unit_may_be_any_number_of_centimetres():
+    frame = ClipFrame("5.6", "z")
+    assert frame.cm_per_unit == 5.6 and not frame.is_ours
+    back = frame.to_ours(frame.from_ours(CLIP))
+    np.testing.assert_allclose(positions(back), positions(CLIP), atol=1e-9)
 
 
 def lying(motion, frames: int, about_z: float):
@@ -88,7 +104,10 @@ def test_a_clip_standing_along_x_raises_with_the_counts():
 
 
 def test_an_unknown_unit_or_axis_raises():
-    with pytest.raises(ValueError, match="units must be one of cm, m, mm, in, got 'km'"):
+    with pytest.raises(ValueError, match=r"units must be one of cm, m, mm, in or centimetres per unit \(a number\), got 'km'"):
         ClipFrame("km")
+    for bad in ("0", "-2", "nan", "inf", "1e300"):
+        with pytest.raises(ValueError, match=f"got '{bad}'"):
+            ClipFrame(bad)
     with pytest.raises(ValueError, match="up must be one of y, z, got 'x'"):
         ClipFrame("cm", "x")

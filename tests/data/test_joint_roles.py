@@ -7,8 +7,8 @@ import pytest
 from bezmotion.assets import DEMO_CLIP
 from bezmotion.data import lafan1
 from bezmotion.data.bvh import read_bvh
-from bezmotion.data.characteristic import SKELETON_MAPS
-from bezmotion.data.joint_roles import guess_characteristic_joints, name_words
+from bezmotion.data.characteristic import SKELETON_MAPS, preset_of
+from bezmotion.data.joint_roles import elided, guess_characteristic_joints, name_words
 
 # One body in the bundled clip's hierarchy (root, hips, spine ×2, neck, head, then per side
 # shoulder, upper arm, forearm, hand, and upper leg, lower leg, foot, toes), named by each
@@ -28,6 +28,8 @@ _CONVENTIONS = {
                 "forearm.R hand.R thigh.L shin.L foot.L toe.L thigh.R shin.R foot.R toe.R"),
     "daz": ("figure hip abdomen chest neck head lCollar lShldr lForeArm lHand rCollar rShldr rForeArm rHand "
             "lThigh lShin lFoot lToe rThigh rShin rFoot rToe"),
+    "daz_lower_case": ("figure hip abdomen chest neck head lcollar lshldr lforearm lhand rcollar rshldr rforearm rhand "
+                       "lthigh lshin lfoot ltoe rthigh rshin rfoot rtoe"),
     "biped": ("Bip01 Bip01_Pelvis Bip01_Spine Bip01_Spine1 Bip01_Neck Bip01_Head Bip01_L_Clavicle Bip01_L_UpperArm "
               "Bip01_L_Forearm Bip01_L_Hand Bip01_R_Clavicle Bip01_R_UpperArm Bip01_R_Forearm Bip01_R_Hand "
               "Bip01_L_Thigh Bip01_L_Calf Bip01_L_Foot Bip01_L_Toe0 Bip01_R_Thigh Bip01_R_Calf Bip01_R_Foot Bip01_R_Toe0"),
@@ -71,6 +73,33 @@ def test_a_wrist_and_an_ankle_come_before_a_hand_and_a_foot_below_them():
     }  # fmt: skip
 
 
+def test_a_side_glued_to_a_role_word_is_split_off_and_nothing_else_is():
+    names = _CONVENTIONS["daz_lower_case"].split()
+    assert guess_characteristic_joints(names, _parents())["left_hand"] == "lhand"
+    # "lhandindex1" or "rheadtop" are no hand or head: only a side before exactly a role word splits.
+    fingers = [n.replace("lcollar", "lhandindex1") for n in names]
+    assert guess_characteristic_joints(fingers, _parents())["left_hand"] == "lhand"
+
+
+def test_a_preset_is_its_whole_hierarchy_not_six_names():
+    """A CMU or MotionBuilder file has LaFAN1's six names (Hips, Head, LeftHand …) but not its
+    joints between them: it is no LaFAN1 skeleton."""
+    assert preset_of(lafan1.JOINT_NAMES, lafan1.PARENTS) == "lafan1"
+    demo = read_bvh(DEMO_CLIP).skeleton
+    assert preset_of(demo.names, demo.parents) == "bandai_namco"
+    cmu = [n.replace("Spine2", "Neck1") for n in lafan1.JOINT_NAMES]
+    assert preset_of(cmu, lafan1.PARENTS) is None
+    assert preset_of([*lafan1.JOINT_NAMES, "LeftHandIndex1"], [*lafan1.PARENTS, lafan1.JOINT_NAMES.index("LeftHand")]) is None
+    reparented = list(lafan1.PARENTS)
+    reparented[lafan1.JOINT_NAMES.index("LeftShoulder")] = lafan1.JOINT_NAMES.index("Spine1")
+    assert preset_of(lafan1.JOINT_NAMES, reparented) is None
+
+
+def test_an_error_lists_a_handful_of_joints_and_counts_the_rest():
+    assert elided([f"j{i}" for i in range(165)]) == "j0, j1, j2, j3, j4, j5, j6, j7, … (165 in all)"
+    assert elided(["a", "b"]) == "a, b"
+
+
 def test_names_split_into_words():
     assert name_words("mixamorig:LeftHandIndex1") == ("left", "hand", "index", "1")
     assert name_words("hand.L") == ("hand", "l") and name_words("lHand") == ("l", "hand") and name_words("LHand") == ("l", "hand")
@@ -85,7 +114,7 @@ def test_names_that_do_not_tell_the_six_joints_raise_naming_why():
     with pytest.raises(ValueError, match=r"no joint's name reads as the left hand"):
         guess_characteristic_joints([n.replace("LeftHand", "LeftPaw") for n in names], parents)
     twice = [n.replace("mixamorig:LeftShoulder", "LeftHand") for n in names]  # two left hands, in two namespaces
-    with pytest.raises(ValueError, match=r"\['LeftHand', 'mixamorig:LeftHand'\] all read as the left hand"):
+    with pytest.raises(ValueError, match=r"LeftHand, mixamorig:LeftHand all read as the left hand"):
         guess_characteristic_joints(twice, parents)
     below = list(names)
     below[1], below[3] = "mixamorig:Chest", "mixamorig:Hips"  # the hips below the spine: still above the head

@@ -403,11 +403,11 @@ def test_a_bent_bind_pose_keeps_the_knees_side_when_the_toes_point_along_the_leg
     bind pose with a bent knee tells which way knees bend about the foot's lateral axis, at any
     bend: every knee stays on its side."""
     c, rig = bandai, bandai.rig
-    lateral = _rest_lateral(rig, jnp.asarray(c.character.skeleton.offsets))  # every foot frame's, at rest
+    lateral = _rest_lateral(rig, jnp.asarray(c.character.skeleton.offsets), rig.rest_quat_local)  # per foot, in its frame
     quat = c.truth.quat_local
     frames = quat.shape[0]
-    point = quat_from_axis_angle(jnp.broadcast_to(lateral, (frames, 3)), jnp.full(frames, -2.0))
-    for _, _, foot in rig.limbs[2:]:
+    for (_, _, foot), foot_lateral in zip(rig.limbs[2:], lateral):
+        point = quat_from_axis_angle(jnp.broadcast_to(foot_lateral, (frames, 3)), jnp.full(frames, -2.0))
         quat = quat.at[:, foot].set(quat_mul(quat[:, foot], point))
     pointed = c.truth._replace(quat_local=quat)
     knees = [mid for _, mid, _ in rig.limbs[2:]]
@@ -423,7 +423,7 @@ def test_a_bent_bind_pose_keeps_the_knees_side_when_the_toes_point_along_the_leg
     bent = int(np.argmax(np.linalg.norm(np.cross(thigh, shin), axis=-1) / np.linalg.norm(thigh, axis=-1) / np.linalg.norm(shin, axis=-1)))
     assert (knee_error(rig) > 10.0).sum() >= 8  # measured 16 of 40 frames, 45 cm at worst
     with_bind = knee_error(make_rig(c.character, "bandai_namco", rest_quat_local=np.asarray(c.truth.quat_local[bent])))
-    assert with_bind.max() < 3.0, with_bind.max()  # measured 2.0 cm
+    assert with_bind.max() < 4.5, with_bind.max()  # measured 3.8 cm (2.0 with the zero rotation's lateral axis, which other bone axes break)
 
 
 def test_elbows_turn_with_the_hand_all_around_the_shoulder(bandai):
