@@ -204,7 +204,7 @@ def demo(
     except ValueError as error:
         raise ValueError(f"--frame {frame} --offset {' '.join(f'{x:g}' for x in offset)}: {error}") from None
     # Curves of another skeleton are moved over (BMM §5.2).
-    transfer = None if bmm_corpus == recognised.preset else make_transfer(load_profile(bmm_corpus), target_profile(recognised, [motion]))
+    transfer = make_transfer(load_profile(bmm_corpus), None if bmm_corpus == recognised.preset else target_profile(recognised, [motion]))
     start, end = jax.tree.map(lambda x: x[0], truth), jax.tree.map(lambda x: x[-1], truth)
     t0 = time.perf_counter()
     run = functools.partial(inbetween, key=jax.random.key(seed), transfer=transfer, steps=steps, foot_lock=foot_lock)

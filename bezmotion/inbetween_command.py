@@ -116,6 +116,7 @@ from bezmotion.pipeline.authoring import (
     ik_model_joint_limits,
     load_profile,
     make_ik,
+    FACING_CHOICES,
     make_transfer,
     motion_poses,
     motion_window,
@@ -127,7 +128,7 @@ from bezmotion.pipeline.authoring import (
     target_profile,
     write_result,
 )
-from bezmotion.pipeline.transfer import Transfer
+from bezmotion.pipeline.transfer import ORIENTATION_CHOICES, Transfer
 
 
 @options
@@ -175,6 +176,16 @@ class InbetweenOptions:
     trained_on: str | None = option(
         None, metavar="NAME|PROFILE.json", help="the skeleton --model was trained on: a profile name (bandai_namco, lafan1) or a profile JSON; "
         "default: a named model's own; for a folder, the clips' skeleton (no transfer)",
+    )  # fmt: skip
+    facing: str = option(
+        "trained", choices=FACING_CHOICES,
+        help="trained (default): turn the in-between to start facing the way the BMM's training motions do, and back; "
+        "keys: sample it facing the way the keys do (the paper's)",
+    )  # fmt: skip
+    orientation: str = option(
+        "anatomical", choices=ORIENTATION_CHOICES,
+        help="how a transfer to another skeleton aligns the joints' orientations: anatomical (default: each joint against its bones) "
+        "or facing (each joint's mean orientation against the facing, over the clip)",
     )  # fmt: skip
     mapping: Path | None = option(None, metavar="MAP.json", help="JSON or TOML naming the six characteristic joints (and optionally the rig's chains) of another skeleton; without it they are read off the joint names (LeftHand, hand_l, L_Wrist, …), with a warning")
     units: str = option(
@@ -493,6 +504,7 @@ class Plan:
     warnings: tuple[str, ...] = ()  # about the inputs, for stderr and the summary
     clip_fps: float = TRAINED_FPS  # the start clip's own frame rate (the keys are resampled to TRAINED_FPS)
     bvh_fps: float = TRAINED_FPS  # the BVH file's rate (bvh_frame_rate): TRAINED_FPS or a whole multiple of it
+    transferred: bool = False  # the BMM was trained on another skeleton (``transfer`` may also hold the facing alone)
 
 
 def _outputs(args: InbetweenOptions) -> tuple[list[dict[str, Path]], Path | None]:
@@ -619,12 +631,14 @@ def plan(args: InbetweenOptions) -> Plan:
     key_velocity = _clip_key_velocities(character, keys) if args.key_velocities else None
     trained_on = args.trained_on if args.trained_on is not None else bundled_trained_on
     transfer = None
-    if trained_on is not None and trained_on != recognised.preset:
+    transferred = trained_on is not None and trained_on != recognised.preset
+    if trained_on is not None:
         try:
             source = load_profile(trained_on)
         except ValueError as error:
             raise _error("--trained-on", trained_on, error) from None
-        transfer = make_transfer(source, target_profile(recognised, list({id(m): m for _, _, _, m, _ in keys}.values())))
+        target = target_profile(recognised, list({id(m): m for _, _, _, m, _ in keys}.values())) if transferred else None
+        transfer = make_transfer(source, target, orientation=args.orientation, facing=args.facing)
 
     settings = exact_settings(args.exact)  # its errors name the item
     ik = args.ik
@@ -661,7 +675,7 @@ def plan(args: InbetweenOptions) -> Plan:
     return Plan(
         recognised, start_motion, key_poses, reference, bmm, ik, ik_fn, ik_params, transfer, handles, records, reach, outputs, folder,
         label, key_velocity, {"bmm": model_name, "ik": None if ik_model is None else ik_model_name}, clip_frame, tuple(frame_warnings),
-        clip_fps, bvh_fps,
+        clip_fps, bvh_fps, transferred,
     )  # fmt: skip
 
 
@@ -860,7 +874,7 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
         f"{p.label}: {character.name} ({character.num_joints} joints), BMM {p.models['bmm']}, IK {p.ik}"
         + (f" (learned IK {p.models['ik']})" if p.models["ik"] is not None else "") + f", {len(p.handle_records)} handle(s), "
         f"{n} sample(s) of {frames} frames" + (f" ({windows} windows, one chain)" if windows > 1 else "") + f", {args.steps} DDIM steps"
-        + (", transferred from the BMM's skeleton" if p.transfer is not None else "")
+        + (", transferred from the BMM's skeleton" if p.transferred else "")
     )
     # The handles as written, all in the in-between's frames (a chain's too), for their reports.
     written = _records_as_handles(p.handle_records)
@@ -939,7 +953,8 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
         "foot_lock": args.foot_lock,
         "exact": exact_settings(args.exact),
         "seed": args.seed,
-        "transfer": p.transfer is not None,
+        "transfer": p.transferred,
+        "facing": args.facing,
         "clip_units": {"units": p.clip_frame.units, "up": p.clip_frame.up},  # the BVH's; the rest here is in cm, Y up
         "handles": p.handle_records,
         "input_warnings": list(p.warnings),

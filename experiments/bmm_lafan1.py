@@ -128,6 +128,7 @@ class Options(DistributedOptions):
     warmup_steps: int = option(0, help="linear warm-up steps of the cosine schedule")
     augment_yaw: bool = option(False, help="turn every training window by a random angle about the vertical (ours)")
     augment_mirror: float = option(0.0, help="probability of mirroring a training window left/right (ours)")
+    augment_still: float = option(0.0, help="probability of holding one pose of a training window still for the whole window (ours)")
     ema_decay: float = option(
         BMMTrainConfig.ema_decay, help="decay of the evaluated and saved parameters' moving average (paper: 0.999; its ~1/(1-decay)-step memory lags a short run)"
     )
@@ -173,6 +174,8 @@ class Options(DistributedOptions):
             parts.append("yaw")
         if self.augment_mirror:
             parts.append(f"mirror{self.augment_mirror:g}")
+        if self.augment_still:
+            parts.append(f"still{self.augment_still:g}")
         if self.ema_decay != BMMTrainConfig.ema_decay:
             parts.append(f"ema{self.ema_decay:g}")
         if self.also_corpus:
@@ -430,6 +433,7 @@ def main(argv: list[str] | None = None) -> dict:
         off_grid_handles=args.off_grid_handles, lr_schedule=args.lr_schedule, warmup_steps=args.warmup_steps,
         total_steps=args.steps if args.lr_schedule != "constant" else None, yaw_augmentation=args.augment_yaw,
         mirror_augmentation=args.augment_mirror, rest_reflections=reflections, ema_decay=args.ema_decay,
+        still_augmentation=args.augment_still,
     )  # fmt: skip
     metrics_config = None
     curve = None
@@ -469,7 +473,7 @@ def main(argv: list[str] | None = None) -> dict:
             "min_snr_gamma": train_config.min_snr_gamma, "off_grid_handles": train_config.off_grid_handles,
             "train_windows": len(train_set), "bandai_namco": bool(args.bandai_namco), "also_corpus": args.also_corpus, "wall_s_this_run": train_s,
             "lr_schedule": args.lr_schedule, "warmup_steps": args.warmup_steps, "augment_yaw": args.augment_yaw,
-            "augment_mirror": args.augment_mirror, "rest_reflections": reflections, "holdout_contents": list(args.holdout_contents),
+            "augment_mirror": args.augment_mirror, "augment_still": args.augment_still, "rest_reflections": reflections, "holdout_contents": list(args.holdout_contents),
             "ema_decay": args.ema_decay, "evaluated_parameters": args.parameters, "history": history, "learning_curve": curve,
         },
         "eval": {"n_windows": int(eval_set.start.shape[0]), "floor_height_cm": metrics_config.floor_height, "fps": val_set.fps},

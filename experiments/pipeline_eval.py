@@ -209,7 +209,7 @@ from bezmotion.pipeline.window_figures import (
 from bezmotion.data.windows import join_windows
 from bezmotion.pipeline.inbetweening import KEY_BLEND_FRAMES, WindowCurves
 from bezmotion.pipeline.authoring import load_profile
-from bezmotion.pipeline.transfer import Transfer
+from bezmotion.pipeline.transfer import ORIENTATION_CHOICES, Transfer
 from _common import window_labels
 
 CORPORA = ("bandai_namco", "lafan1")
@@ -225,12 +225,18 @@ class Options:
     bmm: str = option(
         "bundled", help="a saved BMM folder or a registered model's name (`bezmotion models`); 'bundled' (default): the corpus's own (LaFAN1's once trained here)"
     )
+    orientation: str = option(
+        "anatomical", choices=ORIENTATION_CHOICES,
+        help="how a transfer aligns the joints' orientations: anatomical (each joint against its bones) or facing (its mean against the facing)",
+    )  # fmt: skip
     trained_on: str | None = option(
         None, metavar="NAME|PROFILE.json",
         help="the skeleton --bmm was trained on: a profile name (bandai_namco, lafan1) or a profile JSON; default: a "
         "registered model's own, a saved folder's the corpus's; another skeleton's curves are transferred to the corpus's",
     )  # fmt: skip
-    ik_model: str = option("bundled", help="a saved learned IK folder or a registered model's name; 'bundled' (default): the corpus's own")
+    ik_model: str = option(
+        "bundled", help="a saved learned IK folder or a registered model's name; 'bundled' (default): the corpus's own; 'none': the curves alone, no IK"
+    )
     joint_limits: str | None = option(None, help="the exact IK's joint limits JSON (default: joint_limits.json beside the IK model, if any)")
     no_limits: bool = False
     exact: tuple[str, ...] = option(
@@ -307,7 +313,7 @@ def bmm_transfer(args: Options) -> tuple[str, Transfer | None]:
         trained_on = args.corpus if entry is None else entry.skeleton
     if trained_on == args.corpus:
         return trained_on, None
-    return trained_on, Transfer.between(load_profile(trained_on), load_profile(args.corpus))
+    return trained_on, Transfer.between(load_profile(trained_on), load_profile(args.corpus), orientation=args.orientation)
 
 
 def open_windows(args: Options, character: Character | None = None) -> tuple[Corpus, CurveDataset]:
@@ -543,9 +549,14 @@ def main(argv: list[str] | None = None) -> dict:
     if args.off_grid_prior is not None:
         bmm = with_off_grid_prior(bmm, args.off_grid_prior)
     trained_on, transfer = bmm_transfer(args)
-    ik_model = load_ik_model(model_path(args, "ik_model"))
-    character = ik_model.character
-    corpus, dataset = open_windows(args, character)
+    if args.ik_model == "none":  # the curves alone: no learned IK needed, the corpus's own skeleton
+        ik_model = None
+        corpus, dataset = open_windows(args)
+        character = Character.from_skeleton(corpus.skeleton, args.corpus)
+    else:
+        ik_model = load_ik_model(model_path(args, "ik_model"))
+        character = ik_model.character
+        corpus, dataset = open_windows(args, character)
     clips = motion_clips(corpus, "validation")
     items = draw_items(args, dataset, clips, character)
     k, truth = args.segments, items.truth
@@ -558,7 +569,7 @@ def main(argv: list[str] | None = None) -> dict:
     # inbetween` gives it the take's; this one only checks the rig and measures its chains.
     rig = make_rig(character, args.corpus, rest_quat_local=np.asarray(truth.quat_local[0, 0]))
     chains = reach_chains(rig)
-    iks, limited = build_iks(args, ik_model, rig)
+    iks, limited = build_iks(args, ik_model, rig) if ik_model is not None else ({}, False)
     true_targets = targets_from_pose(character, truth)
     mocap_jumps = chain_velocity_jumps(true_targets.position, k) if k > 1 else None  # every curve's jumps are set beside these
     keys = window_keys(jax.random.key(args.sample_seed), first_rows)
@@ -610,7 +621,7 @@ def main(argv: list[str] | None = None) -> dict:
         "corpus": args.corpus,
         "source": args.bvh_dir or f"{args.corpus} validation",
         "settings": {
-            "bmm": str(model_path(args, "bmm")), "ik_model": str(model_path(args, "ik_model")), "joint_limits": limited,
+            "bmm": str(model_path(args, "bmm")), "ik_model": None if ik_model is None else str(model_path(args, "ik_model")), "joint_limits": limited,
             "bmm_trained_on": trained_on,
             "transfer": None if transfer is None else {"scale": float(transfer.scale), "rot_offset": np.asarray(transfer.rot_offset).tolist()},
             "handle_frames": args.handle_frames, "off_grid_prior": bmm.config.off_grid_prior, "steps": args.steps, "key_blend_frames": args.key_blend,

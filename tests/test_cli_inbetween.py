@@ -296,12 +296,26 @@ def test_a_clip_at_120_fps_is_in_betweened_at_the_models_30_over_one_second(tmp_
     assert code == 2 and f"CLIP {ntsc}: at 29.97 fps no whole number of frames spans the BMM's window of 30 frames at 30 fps (1 s)" in stderr, stderr
 
 
-def test_a_clip_whose_units_or_up_cannot_be_told_asks_for_them(tmp_path):
+def test_a_clip_in_no_named_unit_is_taken_for_a_typical_adult_and_said(tmp_path):
+    """A skeleton a person's size in none of cm, m and mm (raw CMU's ~5.6 cm unit; here the
+    demo's actor 1000× smaller) is scaled to a typical adult, with a warning; the BVH is
+    written back in the clip's own unit. A bad --units is refused in one line."""
     clip = read_bvh(DEMO_CLIP)
-    tiny = tmp_path / "tiny.bvh"  # a person 1.5 mm tall in cm, 1.5 cm in mm
+    tiny = tmp_path / "tiny.bvh"
     write_bvh(tiny, dataclasses.replace(clip, skeleton=dataclasses.replace(clip.skeleton, offsets=np.asarray(clip.skeleton.offsets) * 1e-3), pos_local=clip.pos_local * 1e-3), precision=10)
-    code, _, stderr = run_cli(tiny, "--frames", "0", "30", *FAST)
-    assert code == 2 and f"CLIP {tiny}: cannot tell the clip's units:" in stderr and stderr.rstrip().endswith("with --units"), stderr
+    out = tmp_path / "out"
+    code, _, stderr = run_cli(tiny, "--frames", "0", "30", "--no-preview", "--out", out, *FAST)
+    assert code == 0, stderr
+    summary = json.loads((out / "summary.json").read_text())
+    units = float(summary["clip_units"]["units"])
+    assert 800.0 < units < 1400.0  # the demo's actor is 134 cm head to hips to foot, a typical adult 150
+    assert f"1 unit = {units:.4g} cm" in stderr and "a person's size in none of cm, m or mm" in summary["input_warnings"][0]
+    written = read_bvh(out / "inbetween.bvh")
+    np.testing.assert_allclose(np.asarray(written.skeleton.offsets)[1:], np.asarray(clip.skeleton.offsets)[1:] * 1e-3, rtol=1e-4, atol=1e-9)
+    for bad in ("km", "0", "-1"):
+        code, _, stderr = run_cli(tiny, "--frames", "0", "30", "--units", bad, *FAST)
+        assert code == 2 and f"--units {bad}: units must be one of cm, m, mm, in or centimetres per unit (a number), got '{bad}'" in stderr, stderr
+        assert len(stderr.strip().splitlines()) == 1
     code, _, stderr = run_cli(tiny, "--frames", "0", "30", "--units", "mm", "--up", "x", *FAST)
     assert code == 2 and "argument --up: invalid choice: 'x'" in stderr
 
@@ -584,7 +598,9 @@ def _cases(tmp):
         "missing end file": (["--start", f"{clip}@0", "--end", f"{tmp}/nope.bvh@30"], f"--end {tmp}/nope.bvh@30: no such file"),
         "unknown skeleton": (
             [f"{tmp}/numbered.bvh", "--frames", "0", "30"],
-            f"CLIP {tmp}/numbered.bvh: unknown skeleton: its joints ['j0', 'j1', ",
+            f"CLIP {tmp}/numbered.bvh: unknown skeleton of 22 joints (j0, j1, j2, j3, j4, j5, j6, j7, … (22 in all)): not the whole "
+            "hierarchy of a known one (lafan1, bandai_namco), and its six joints cannot be read off their names: no joint's name "
+            "reads as the head; name its hips, head, left_hand, right_hand, left_foot, right_foot joints in a mapping file",
         ),
         "missing mapping": ([f"{tmp}/custom.bvh", "--frames", "0", "30", "--mapping", f"{tmp}/map.json"], f"--mapping {tmp}/map.json: no such file"),
         "missing model": ([*keys, "--model", f"{tmp}/models/bmm"], f"--model {tmp}/models/bmm: not a saved BMM (no such folder)"),
@@ -649,7 +665,8 @@ def test_the_learned_ik_refuses_another_skeleton(tmp_path):
     mapping = tmp_path / "map.json"
     mapping.write_text(json.dumps({role: f"my_{name}" for role, name in ROLES.items()}))
     code, _, err = run_cli(clip, "--frames", "0", "30", "--mapping", mapping, "--ik", "learned", "--out", tmp_path / "o.bvh")
-    assert code == 2 and "--ik learned: the learned IK bandai_namco does not fit this skeleton" in err and "use --ik exact_rig or rig" in err
+    assert code == 2 and "--ik learned: the learned IK bandai_namco does not fit this skeleton" in err and "the rig and exact_rig IKs need no training" in err
+    assert "--ik exact_rig" not in err  # an option the user did not pass
     assert not (tmp_path / "o.bvh").exists()
 
 

@@ -29,9 +29,9 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Bool, Float
+from jaxtyping import Array, Bool, Float, Int
 
-from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
+from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.geometry.rotations import matrix_from_rot6d, rot6d_from_matrix
 from bezmotion.geometry.skeleton import Skeleton
 
@@ -166,13 +166,43 @@ def mirror(example: Example, reflections: tuple[Reflection, ...]) -> Example:
     return flip(pos), flip(tangent), rot6d_from_matrix(matrices), contacts[..., ::-1], flip(dense)
 
 
-def augment(
-    key: Array, example: Example, *, yaw: bool, mirror_probability: float, reflections: tuple[Reflection, ...] | None
-) -> Example:
-    """A random symmetry of ``example``: a uniform yaw turn (when ``yaw``), then a mirror with ``mirror_probability``.
+def hold_still(example: Example, control: Int[Array, ""]) -> Example:
+    """``example``'s pose at control point ``control`` held for the whole window: every control
+    point and dense frame at it, tangents zero, both feet planted; moved in XZ so the hips
+    start at the origin, as every window is.
 
-    With ``yaw=False`` and ``mirror_probability=0`` the example comes back unchanged
-    (no random numbers drawn, so the paper's setting keeps its random stream).
+    A corpus records people moving: where its start and end poses agree, the window is a
+    wave or a raised hand (Bandai-Namco: every window whose keys lie within 5 cm comes from
+    its wave and raise-up contents). A BMM trained on it alone learns that identical keys
+    call for a gesture, and invents one when a user's clip stands still; held poses of every
+    content teach it that keys which ask for no motion may get none.
+    """
+    pos, tangent, rot6d, contacts, dense = example
+    held = pos[control] - pos[control, HIPS] * jnp.asarray([1.0, 0.0, 1.0], pos.dtype)
+    return (
+        jnp.broadcast_to(held, pos.shape),
+        jnp.zeros_like(tangent),
+        jnp.broadcast_to(rot6d[control], rot6d.shape),
+        jnp.ones_like(contacts),
+        jnp.broadcast_to(held, dense.shape),
+    )
+
+
+def augment(
+    key: Array,
+    example: Example,
+    *,
+    yaw: bool,
+    mirror_probability: float,
+    reflections: tuple[Reflection, ...] | None,
+    still_probability: float = 0.0,
+) -> Example:
+    """A random symmetry of ``example``: a uniform yaw turn (when ``yaw``), then a mirror with
+    ``mirror_probability``; then, with ``still_probability``, one of its poses held still
+    (:func:`hold_still`, at a uniformly drawn control point).
+
+    With ``yaw=False`` and both probabilities 0 the example comes back unchanged (no random
+    numbers drawn, so the paper's setting keeps its random stream).
     """
     yaw_key, mirror_key = jax.random.split(key)
     if yaw:
@@ -181,7 +211,12 @@ def augment(
         mirrored = mirror(example, reflections)
         flip = jax.random.bernoulli(mirror_key, mirror_probability)
         example = jax.tree.map(lambda m, e: jnp.where(flip, m, e), mirrored, example)
+    if still_probability > 0.0:
+        still_key, control_key = jax.random.split(jax.random.fold_in(key, 3))
+        held = hold_still(example, jax.random.randint(control_key, (), 0, example[0].shape[0]))
+        stay = jax.random.bernoulli(still_key, still_probability)
+        example = jax.tree.map(lambda h, e: jnp.where(stay, h, e), held, example)
     return example
 
 
-__all__ = ["Reflection", "augment", "mirror", "rest_reflections", "rotate_yaw"]
+__all__ = ["Reflection", "augment", "hold_still", "mirror", "rest_reflections", "rotate_yaw"]

@@ -70,7 +70,9 @@ class BMMTrainConfig:
     - ``yaw_augmentation``: every example turned by a uniform random angle about the vertical;
     - ``mirror_augmentation``: the probability that an example is mirrored left/right, with
       ``rest_reflections`` the six joints' rest mirrors of the skeleton
-      (:func:`bezmotion.bmm.augmentation.rest_reflections`; required then).
+      (:func:`bezmotion.bmm.augmentation.rest_reflections`; required then);
+    - ``still_augmentation``: the probability that an example is one of its poses held still
+      (:func:`bezmotion.bmm.augmentation.hold_still`), so that keys asking for no motion get none.
     """
 
     batch_size: int = 64
@@ -89,6 +91,7 @@ class BMMTrainConfig:
     yaw_augmentation: bool = False
     mirror_augmentation: float = 0.0
     rest_reflections: tuple[tuple[float, float, float], ...] | None = None
+    still_augmentation: float = 0.0
 
     def __post_init__(self):
         if self.batch_size < 1 or self.learning_rate <= 0 or self.weight_decay < 0:
@@ -97,8 +100,9 @@ class BMMTrainConfig:
             raise ValueError(f"condition_dropout and ema_decay must be in [0, 1), got {self}")
         if not 0.0 <= self.off_grid_handles <= 1.0:
             raise ValueError(f"off_grid_handles must be a probability in [0, 1], got {self.off_grid_handles}")
-        if not 0.0 <= self.mirror_augmentation <= 1.0:
-            raise ValueError(f"mirror_augmentation must be a probability in [0, 1], got {self.mirror_augmentation}")
+        for name in ("mirror_augmentation", "still_augmentation"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                raise ValueError(f"{name} must be a probability in [0, 1], got {getattr(self, name)}")
         if self.lr_schedule not in LR_SCHEDULES:
             raise ValueError(f"unknown lr_schedule {self.lr_schedule!r}; known: {LR_SCHEDULES}")
         if self.lr_schedule == "cosine" and (self.total_steps is None or not 0 <= self.warmup_steps < self.total_steps):
@@ -179,6 +183,7 @@ def make_bmm_train_step(
         pos, tangent, rot6d, contacts, dense = augment(
             jax.random.fold_in(rng, 7), (pos, tangent, rot6d, contacts, dense), yaw=train_config.yaw_augmentation,
             mirror_probability=train_config.mirror_augmentation, reflections=train_config.rest_reflections,
+            still_probability=train_config.still_augmentation,
         )  # fmt: skip
         t = jax.random.randint(t_key, (), 0, schedule.num_timesteps)
         x0 = to_tokens(stats.normalize(control_features(pos, tangent, rot6d)))

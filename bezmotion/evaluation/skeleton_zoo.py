@@ -15,6 +15,9 @@ checked joint by joint (``experiments/skeleton_zoo.py``, ``tests/evaluation/test
 - :func:`renamed`: joint names, e.g. Daz's lower-case ``lhand``;
 - :func:`with_leaf_joints`, :func:`with_twist_joints`: joints added that the body's motion
   does not need (fingers and toes at rest, a joint halfway along a limb bone);
+- :func:`without_joint`: a spine or neck joint fewer (another skeleton, the same motion of
+  every other joint);
+- :func:`yawed`: the whole clip facing another way in the world;
 - :func:`scaled`, :func:`z_up`: the length unit and the up axis (:class:`~bezmotion.data.clip_frame.ClipFrame`'s inverse);
 - :func:`world_positions`: every joint's world position per frame, to compare two writings.
 
@@ -217,6 +220,43 @@ def with_twist_joints(motion: BvhMotion, bones: Mapping[str, str]) -> BvhMotion:
     return _insert(motion, new)
 
 
+def without_joint(motion: BvhMotion, name: str) -> BvhMotion:
+    """``motion`` without joint ``name`` (a spine or neck joint): its children hang from its
+    parent, their rotations composed with its own and their translations animated (position
+    channels), so every other joint keeps its world position. Not a re-expression of the
+    same skeleton: an IK poses the shorter chain otherwise."""
+    skeleton = motion.skeleton
+    names, parents = list(skeleton.names), list(skeleton.parents)
+    j = names.index(name)
+    if parents[j] < 0:
+        raise ValueError(f"{name!r} is the root")
+    quat, pos = motion.quat_local, motion.pos_local
+    children = [c for c in range(len(names)) if parents[c] == j]
+    quat_local, pos_local = quat.copy(), pos.copy()
+    channels = list(motion.channels)
+    for c in children:
+        quat_local[:, c] = _f64(quat_mul, quat[:, j], quat[:, c])
+        pos_local[:, c] = pos[:, j] + _f64(quat_rotate, quat[:, j], pos[:, c])
+        rotations = tuple(x for x in channels[c] if x.endswith("rotation"))
+        channels[c] = ("Xposition", "Yposition", "Zposition", *rotations)
+    offsets = np.asarray(skeleton.offsets, np.float64).copy()
+    offsets[children] = pos_local[0, children]
+    keep = [k for k in range(len(names)) if k != j]
+    index = {old: new for new, old in enumerate(keep)}
+    new_parent = lambda k: -1 if parents[k] < 0 else index[parents[j] if parents[k] == j else parents[k]]  # noqa: E731
+    end_sites = [(index[p], o) for p, o in motion.end_sites if p != j]
+    return _with(
+        motion,
+        parents=[new_parent(k) for k in keep],
+        names=[names[k] for k in keep],
+        offsets=offsets[keep],
+        quat_local=quat_local[:, keep],
+        pos_local=pos_local[:, keep],
+        channels=[channels[k] for k in keep],
+        end_sites=end_sites,
+    )
+
+
 def scaled(motion: BvhMotion, factor: float) -> BvhMotion:
     """``motion`` in another length unit: every offset, translation and End Site times ``factor``
     (``factor`` file units per centimetre: 0.01 for metres, 1/5.6 for CMU's ~5.6 cm unit)."""
@@ -232,13 +272,24 @@ def scaled(motion: BvhMotion, factor: float) -> BvhMotion:
 _Y_TO_Z = np.array([np.sqrt(0.5), np.sqrt(0.5), 0.0, 0.0])  # +90° about X: (x, y, z) → (x, −z, y)
 
 
-def z_up(motion: BvhMotion) -> BvhMotion:
-    """``motion`` (Y up) turned to Z up: the root's rotation and position turned +90° about X."""
+def turned(motion: BvhMotion, turn: np.ndarray) -> BvhMotion:
+    """``motion`` turned as a whole about the world origin by the quaternion ``turn`` (the
+    root's rotation and position; every other joint is in its parent's frame)."""
     quat_local = motion.quat_local.copy()
     pos_local = motion.pos_local.copy()
-    quat_local[:, 0] = _f64(quat_mul, _Y_TO_Z[None], motion.quat_local[:, 0])
-    pos_local[:, 0] = _f64(quat_rotate, _Y_TO_Z[None], motion.pos_local[:, 0])
+    quat_local[:, 0] = _f64(quat_mul, np.asarray(turn)[None], motion.quat_local[:, 0])
+    pos_local[:, 0] = _f64(quat_rotate, np.asarray(turn)[None], motion.pos_local[:, 0])
     return _with(motion, offsets=motion.skeleton.offsets, quat_local=quat_local, pos_local=pos_local, end_sites=motion.end_sites)
+
+
+def z_up(motion: BvhMotion) -> BvhMotion:
+    """``motion`` (Y up) turned to Z up: +90° about X."""
+    return turned(motion, _Y_TO_Z)
+
+
+def yawed(motion: BvhMotion, degrees: float) -> BvhMotion:
+    """``motion`` (Y up) facing elsewhere: turned ``degrees`` about the vertical through the origin."""
+    return turned(motion, _f64(quat_from_axis_angle, np.array([0.0, 1.0, 0.0]), np.array(np.radians(degrees))))
 
 
 def still(motion: BvhMotion, frame: int, frames: int) -> BvhMotion:
@@ -260,7 +311,10 @@ __all__ = [
     "scaled",
     "still",
     "with_leaf_joints",
+    "without_joint",
+    "turned",
     "with_twist_joints",
     "world_positions",
+    "yawed",
     "z_up",
 ]

@@ -48,6 +48,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
+from bezmotion.data.joint_roles import name_words
 from bezmotion.geometry.rotations import (
     matrix_from_quat,
     matrix_from_rot6d,
@@ -268,6 +269,61 @@ def _descent(skeleton: Skeleton, chain: Sequence[int], where: str) -> tuple[tupl
             )
         between.append(tuple(reversed(above[: above.index(parent)])))
     return tuple(between)
+
+
+# Joints inside a limb that only turn it about its bone (Daz Genesis' lForearmTwist, Unreal's
+# upperarm_twist_01_l when in the chain, "ForeArmRoll"): no elbow or knee.
+_TWIST_WORDS = frozenset({"twist", "roll"})
+
+
+def derive_rig_spec(character: Character) -> RigSpec:
+    """The rig's chains read off the hierarchy: the spine is the path from the hips to the
+    head, each limb the hand (ankle) and its two nearest ancestors that bend it — skipping
+    twist and roll joints (by name) and joints at their parent's place (no bone), which the
+    rig holds at rest (``lShldrBend → lShldrTwist → lForearmBend → lForearmTwist → lHand``
+    is the arm ``(lShldrBend, lForearmBend, lHand)``).
+
+    Raises:
+      ValueError: the head does not descend from the hips, or a hand or foot has fewer than
+        two such ancestors below the spine.
+    """
+    names, parents = character.skeleton.names, character.skeleton.parents
+    role = dict(zip(CHARACTERISTIC_JOINTS, character.characteristic))
+    spine, j = [role["head"]], parents[role["head"]]
+    while j >= 0 and j != role["hips"]:
+        spine.append(j)
+        j = parents[j]
+    if j != role["hips"]:
+        raise ValueError(
+            f"the head {names[role['head']]!r} does not descend from the hips {names[role['hips']]!r}; "
+            "name the rig's chains in the mapping file ('rig')"
+        )
+    spine.append(j)
+
+    offsets = np.asarray(character.skeleton.offsets, np.float64)
+    on_spine = set(spine)
+
+    def bends(j: int) -> bool:
+        return not (_TWIST_WORDS & set(name_words(names[j]))) and float(np.linalg.norm(offsets[j])) > 1e-6
+
+    def limb(end: int) -> tuple[str, ...]:
+        chain, j = [end], parents[end]
+        while len(chain) < 3 and j >= 0 and j not in on_spine:
+            if bends(j):
+                chain.append(j)
+            j = parents[j]
+        if len(chain) < 3:
+            raise ValueError(
+                f"{names[end]!r} needs two ancestors below the spine that bend it for a two-bone limb; "
+                "name the chains in the mapping file ('rig')"
+            )
+        return tuple(names[i] for i in reversed(chain))
+
+    return RigSpec(
+        spine=tuple(names[i] for i in reversed(spine)),
+        left_arm=limb(role["left_hand"]), right_arm=limb(role["right_hand"]),
+        left_leg=limb(role["left_foot"]), right_leg=limb(role["right_foot"]),
+    )  # fmt: skip
 
 
 def make_rig(

@@ -39,15 +39,15 @@ from bezmotion.assets.registry import resolve_folder
 from bezmotion.bmm.sampling import SampledCurves
 from bezmotion.data.bvh import BvhMotion, read_bvh, write_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, PRESET_HIERARCHIES, preset_of
-from bezmotion.data.joint_roles import elided, guess_characteristic_joints, name_words
+from bezmotion.data.joint_roles import elided, guess_characteristic_joints
 from bezmotion.data.clip_frame import ClipFrame
 from bezmotion.data.resample import resample_motion
-from bezmotion.geometry.skeleton import forward_kinematics
+from bezmotion.geometry.skeleton import ancestors, forward_kinematics
 from bezmotion.ik.protocol import Character, IKFn, Pose, pose_fk, pose_from_motion
 from bezmotion.ik.exact import exact_ik
 from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.protores import ProtoResModel, protores_ik_fn, protores_refined_ik_fn
-from bezmotion.ik.rig import RigSpec, make_rig, rig_ik
+from bezmotion.ik.rig import RigSpec, derive_rig_spec, make_rig, rig_ik
 from bezmotion.pipeline.transfer import CharacterProfile, Transfer
 
 IK_CHOICES = ("refined", "learned", "rig", "exact", "exact_rig")
@@ -199,61 +199,6 @@ def read_mapping(path: str | os.PathLike) -> tuple[dict[str, str], RigSpec | Non
     return dict(roles), (RigSpec.from_dict(rig) if rig is not None else None)
 
 
-# Joints inside a limb that only turn it about its bone (Daz Genesis' lForearmTwist, Unreal's
-# upperarm_twist_01_l when in the chain, "ForeArmRoll"): no elbow or knee.
-_TWIST_WORDS = frozenset({"twist", "roll"})
-
-
-def derive_rig_spec(character: Character) -> RigSpec:
-    """The rig's chains read off the hierarchy: the spine is the path from the hips to the
-    head, each limb the hand (ankle) and its two nearest ancestors that bend it — skipping
-    twist and roll joints (by name) and joints at their parent's place (no bone), which the
-    rig holds at rest (``lShldrBend → lShldrTwist → lForearmBend → lForearmTwist → lHand``
-    is the arm ``(lShldrBend, lForearmBend, lHand)``).
-
-    Raises:
-      ValueError: the head does not descend from the hips, or a hand or foot has fewer than
-        two such ancestors below the spine.
-    """
-    names, parents = character.skeleton.names, character.skeleton.parents
-    role = dict(zip(CHARACTERISTIC_JOINTS, character.characteristic))
-    spine, j = [role["head"]], parents[role["head"]]
-    while j >= 0 and j != role["hips"]:
-        spine.append(j)
-        j = parents[j]
-    if j != role["hips"]:
-        raise ValueError(
-            f"the head {names[role['head']]!r} does not descend from the hips {names[role['hips']]!r}; "
-            "name the rig's chains in the mapping file ('rig')"
-        )
-    spine.append(j)
-
-    offsets = np.asarray(character.skeleton.offsets, np.float64)
-    on_spine = set(spine)
-
-    def bends(j: int) -> bool:
-        return not (_TWIST_WORDS & set(name_words(names[j]))) and float(np.linalg.norm(offsets[j])) > 1e-6
-
-    def limb(end: int) -> tuple[str, ...]:
-        chain, j = [end], parents[end]
-        while len(chain) < 3 and j >= 0 and j not in on_spine:
-            if bends(j):
-                chain.append(j)
-            j = parents[j]
-        if len(chain) < 3:
-            raise ValueError(
-                f"{names[end]!r} needs two ancestors below the spine that bend it for a two-bone limb; "
-                "name the chains in the mapping file ('rig')"
-            )
-        return tuple(names[i] for i in reversed(chain))
-
-    return RigSpec(
-        spine=tuple(names[i] for i in reversed(spine)),
-        left_arm=limb(role["left_hand"]), right_arm=limb(role["right_hand"]),
-        left_leg=limb(role["left_foot"]), right_leg=limb(role["right_foot"]),
-    )  # fmt: skip
-
-
 def recognise_character(motion: BvhMotion, mapping: str | os.PathLike | None = None) -> RecognisedCharacter:
     """The character of a BVH motion: a preset recognised by its whole hierarchy, or the mapping file's.
 
@@ -322,9 +267,35 @@ def target_profile(recognised: RecognisedCharacter, motions: Sequence[BvhMotion]
     return CharacterProfile.from_poses(character, jax.tree.map(lambda *x: jnp.concatenate(x), *poses))
 
 
-def make_transfer(trained_on: CharacterProfile | None, target: CharacterProfile) -> Transfer | None:
-    """The transfer from the BMM's training skeleton to the clip's; None for the same skeleton."""
-    return None if trained_on is None else Transfer.between(trained_on, target)
+FACING_CHOICES = ("trained", "keys")
+"""``trained`` (default): each in-between turned to start facing the way the BMM's training
+motions do, and back (:attr:`~bezmotion.pipeline.transfer.Transfer.facing`); ``keys``: the
+keys as they face (the paper's)."""
+
+
+def make_transfer(
+    trained_on: CharacterProfile | None,
+    target: CharacterProfile | None,
+    *,
+    orientation: str = "anatomical",
+    facing: str = "trained",
+) -> Transfer | None:
+    """The transfer from the BMM's training skeleton to the clip's (:meth:`Transfer.between`);
+    for the same skeleton (``target`` None), the facing alone (:meth:`Transfer.identity`).
+    None where nothing is to be moved: no known training skeleton, or the same skeleton with
+    ``facing="keys"``.
+
+    Raises:
+      ValueError: an unknown ``facing`` or ``orientation``.
+    """
+    if facing not in FACING_CHOICES:
+        raise ValueError(f"facing must be one of {', '.join(FACING_CHOICES)}, got {facing!r}")
+    turn = facing == "trained"
+    if trained_on is None:
+        return None
+    if target is None:
+        return Transfer.identity(trained_on.facing) if turn and trained_on.facing is not None else None
+    return Transfer.between(trained_on, target, orientation=orientation, facing=turn)
 
 
 # ---------------------------------------------------------------------------------- IK
@@ -352,11 +323,15 @@ def check_ik_model(model: ProtoResModel, character: Character) -> None:
             f"{elided(theirs.names, 4)}), not this one ({character.num_joints} joints, "
             f"{elided(ours.names, 4)}); the rig and exact_rig IKs need no training"
         )
-    a, b = np.asarray(theirs.offsets, np.float64)[1:], np.asarray(ours.offsets, np.float64)[1:]
+    # The bones below the hips: the hips' own offset is where a take put them (Bandai-Namco
+    # animates their translation under a root at the origin), not a bone.
+    bones = np.asarray(sorted(set(range(ours.num_joints)) - set(ancestors(ours.parents, character.characteristic[0]))))
+    a, b = np.asarray(theirs.offsets, np.float64)[bones], np.asarray(ours.offsets, np.float64)[bones]
     length = np.linalg.norm(a, axis=-1) * np.linalg.norm(b, axis=-1)
     cos = np.sum(a * b, axis=-1) / np.where(length > 1e-12, length, 1.0)
     degrees = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
-    off = [(d, n) for d, n, ok in zip(degrees, theirs.names[1:], length > 1e-12) if ok and d > _REST_BONE_DEGREES]
+    names = [theirs.names[j] for j in bones]
+    off = [(d, n) for d, n, ok in zip(degrees, names, length > 1e-12) if ok and d > _REST_BONE_DEGREES]
     if off:
         worst = [f"{n} {d:.0f}°" for d, n in sorted(off, reverse=True)]
         raise ValueError(
@@ -534,6 +509,7 @@ __all__ = [
     "load_profile",
     "ik_model_joint_limits",
     "make_ik",
+    "FACING_CHOICES",
     "make_transfer",
     "motion_poses",
     "motion_window",

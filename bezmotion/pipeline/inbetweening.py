@@ -38,10 +38,11 @@ from bezmotion.bmm.sampling import (
     shared_key_mask,
 )
 from bezmotion.diffusion.projection import project_onto_handles
-from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
+from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.data.windows import join_windows
+from bezmotion.geometry.rotations import quat_rotate
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, solve_frames, targets_from_pose
-from bezmotion.pipeline.transfer import Transfer, curves_to_target, floor_anchor, orientations_to_source_space, to_source_space
+from bezmotion.pipeline.transfer import Placement, Transfer, curves_to_target, orientations_to_source_space, placement, to_source_space
 
 
 KEY_BLEND_FRAMES = 6
@@ -126,23 +127,28 @@ def window_curves_traced(
     frames around the keys): conditions of the curves like the key orientations
     (:func:`~bezmotion.bmm.sampling.sample_curves`'s ``key_tangent``), met exactly."""
     first, last = targets_from_pose(character, start), targets_from_pose(character, end)
-    anchor = floor_anchor(first.position[HIPS])
+    anchor = placement(transfer, first.position)
     source = functools.partial(to_source_space, transfer, anchor)
-    key_rot6d = orientations_to_source_space(transfer, jnp.stack([first.rot6d, last.rot6d])) if key_orientations else None
+    key_rot6d = orientations_to_source_space(transfer, jnp.stack([first.rot6d, last.rot6d]), anchor.turn) if key_orientations else None
     layout = BezierLayout.from_controls(bmm.config.num_controls, bmm.config.stride)
     key_tangent = None if key_velocity is None else tangent_from_velocity(layout, key_velocity)
     curves = sample_curves(
         bmm, source(first.position), source(last.position), handles._replace(position=source(handles.position)),
         key=key, steps=steps, guidance=guidance, foot_lock=foot_lock, key_rot6d=key_rot6d,
-        key_tangent=None if key_tangent is None else key_tangent / transfer.scale,
+        key_tangent=None if key_tangent is None else _tangent_to_source(transfer, anchor, key_tangent),
     )  # fmt: skip
     return _window_in_target(bmm, transfer, anchor, curves, first, last, handles, key_tangent=key_tangent)
+
+
+def _tangent_to_source(transfer: Transfer, anchor: Placement, tangent: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3"]:
+    """Tangents (or velocities) of the target character → the BMM's space: turned and scaled like positions."""
+    return quat_rotate(anchor.turn.astype(tangent.dtype), tangent) / transfer.scale
 
 
 def _window_in_target(
     bmm: BezierMotionModel,
     transfer: Transfer,
-    anchor: Float[Array, "3"],
+    anchor: Placement,
     curves: SampledCurves,
     first: IKTargets,
     last: IKTargets,
@@ -412,16 +418,16 @@ def chain_curves_traced(
     ``key_velocity``: optionally ``(keys, 6, 3)`` the six joints' velocities at every key
     (cm/frame, target character), conditions met exactly, by both windows of a shared key."""
     targets = targets_from_pose(character, keys)  # (keys, 6, ·)
-    anchor = floor_anchor(targets.position[0, HIPS])
+    anchor = placement(transfer, targets.position[0])
     source = functools.partial(to_source_space, transfer, anchor)
-    key_rot6d = orientations_to_source_space(transfer, targets.rot6d) if key_orientations else None
+    key_rot6d = orientations_to_source_space(transfer, targets.rot6d, anchor.turn) if key_orientations else None
     windows, cfg = targets.position.shape[0] - 1, bmm.config
     layout = BezierLayout.from_controls(cfg.num_controls, cfg.stride)
     key_tangent = None if key_velocity is None else tangent_from_velocity(layout, key_velocity)
     curves = sample_chained_curves(
         bmm, source(targets.position), handles._replace(position=source(handles.position)),
         key=key, steps=steps, guidance=guidance, coupled=coupled, foot_lock=foot_lock, key_rot6d=key_rot6d,
-        key_tangent=None if key_tangent is None else key_tangent / transfer.scale,
+        key_tangent=None if key_tangent is None else _tangent_to_source(transfer, anchor, key_tangent),
     )  # fmt: skip
     # The handle projection after the transfer must keep the tangents the chain shares.
     shared = shared_key_mask(windows, cfg.num_controls, cfg.num_joints) if coupled else None

@@ -1,9 +1,22 @@
 """**Character transfer** (BMM §5.2): a BMM trained on one skeleton drives another through
 a :class:`Transfer` — positions scaled by the ratio of standing hip heights about the
 start hips' floor point, and the generated global orientations composed with fixed per-joint offsets.
-The offsets come from each character's mean characteristic-joint orientation relative
-to its facing (:class:`CharacterProfile`), the data-driven stand-in for the paper's
-"align both skeletons to the same pose".
+
+The offsets stand in for the paper's "align both skeletons to the same pose". Two ways to
+measure them (:class:`CharacterProfile`, ``Transfer.between(…, orientation=…)``):
+
+- ``"anatomical"`` (default): each joint's frame against a frame its bones make —
+  the hips' against the spine and the hip line, the head's against the neck and the
+  shoulder line, a hand's (foot's) against its forearm (shin) and elbow's (knee's) hinge
+  (:func:`anatomical_frames`). That relation is fixed by how a file lays out its joint axes,
+  up to the wrist's, ankle's or neck's own turn, so its mean over a few poses is the
+  skeleton's convention whatever the poses are: a user's clip of someone standing still
+  gives the same offsets as one of someone waving.
+- ``"facing"``: each joint's mean orientation relative to the character's facing. That mean
+  is of the poses as much as of the skeleton: measured on a user's own clip (the only
+  poses of an unknown skeleton there are), it maps the clip's poses onto the training
+  corpus's mean pose (a still clip with hanging arms reads as the corpus's mean hand,
+  raised in a third of Bandai-Namco's contents).
 """
 
 from __future__ import annotations
@@ -12,6 +25,7 @@ import dataclasses
 import json
 import os
 from pathlib import Path
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -21,9 +35,13 @@ from jaxtyping import Array, Float
 from bezmotion.bmm.sampling import SampledCurves
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.data.curves import CurveDataset
-from bezmotion.geometry.rotations import quat_conjugate, quat_from_rot6d, quat_mul, rot6d_from_quat
-from bezmotion.ik.protocol import Character, Pose, targets_from_pose
+from bezmotion.geometry.rotations import quat_conjugate, quat_from_matrix, quat_from_rot6d, quat_mul, quat_rotate, rot6d_from_quat
+from bezmotion.ik.protocol import Character, Pose, pose_fk, targets_from_pose
+from bezmotion.ik.rig import derive_rig_spec
 from bezmotion.linalg import top_eigenvector
+
+ORIENTATION_CHOICES = ("anatomical", "facing")
+"""How :meth:`Transfer.between` aligns two skeletons' joint orientations (see the module docstring)."""
 
 LEFT = tuple(CHARACTERISTIC_JOINTS.index(j) for j in ("left_hand", "left_foot"))
 RIGHT = tuple(CHARACTERISTIC_JOINTS.index(j) for j in ("right_hand", "right_foot"))
@@ -55,6 +73,50 @@ def mean_rotation(quat: Float[Array, "samples 4"]) -> Float[Array, "4"]:
     return jnp.where(mean[:1] < 0, -mean, mean)
 
 
+def _frame(primary: Float[Array, "*batch 3"], secondary: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3 3"]:
+    """The rotation whose columns are ``primary`` (normalised), ``secondary``'s part across it
+    (normalised), and their cross product."""
+    x = primary / jnp.linalg.norm(primary, axis=-1, keepdims=True)
+    y = secondary - jnp.sum(secondary * x, axis=-1, keepdims=True) * x
+    y = y / jnp.linalg.norm(y, axis=-1, keepdims=True)
+    return jnp.stack([x, y, jnp.cross(x, y)], axis=-1)
+
+
+# A hinge (thigh × shin, upper arm × forearm, unit bones) is |sin bend| long; the body's forward
+# direction, this long, takes over where the limb is straight and the hinge says nothing.
+_STRAIGHT_LIMB_FALLBACK = 0.05
+
+
+def anatomical_frames(character: Character, poses: Pose) -> Float[Array, "*batch 6 3 3"]:
+    """The frames the six joints' bones make (world from frame), pose by pose, for the
+    ``"anatomical"`` orientation offsets (see the module docstring):
+
+    - hips: along the first spine bone, then the hip line (right upper leg to left);
+    - head: along the neck (its parent to it), then the shoulder line (right upper arm to left);
+    - hands and feet: along the forearm and shin, then the elbow's or knee's hinge (upper bone ×
+      lower bone), or the body's forward direction where the limb is straight.
+
+    The limbs are the rig's chains (:func:`~bezmotion.ik.rig.derive_rig_spec`: twist joints
+    skipped).
+    """
+    spec = derive_rig_spec(character)
+    index = {name: j for j, name in enumerate(character.skeleton.names)}
+    spine = [index[n] for n in spec.spine]
+    arms = [[index[n] for n in chain] for chain in (spec.left_arm, spec.right_arm)]
+    legs = [[index[n] for n in chain] for chain in (spec.left_leg, spec.right_leg)]
+    _, pos = pose_fk(character, poses)
+    hips = _frame(pos[..., spine[1], :] - pos[..., spine[0], :], pos[..., legs[0][0], :] - pos[..., legs[1][0], :])
+    head = _frame(pos[..., spine[-1], :] - pos[..., spine[-2], :], pos[..., arms[0][0], :] - pos[..., arms[1][0], :])
+    forward = hips[..., 2]  # spine × hip line: the pelvis' forward
+    limbs = []
+    for upper, middle, end in (*arms, *legs):
+        a = pos[..., middle, :] - pos[..., upper, :]
+        b = pos[..., end, :] - pos[..., middle, :]
+        hinge = jnp.cross(a / jnp.linalg.norm(a, axis=-1, keepdims=True), b / jnp.linalg.norm(b, axis=-1, keepdims=True))
+        limbs.append(_frame(b, hinge + _STRAIGHT_LIMB_FALLBACK * forward))
+    return jnp.stack([hips, head, *limbs], axis=-3)
+
+
 @dataclasses.dataclass(frozen=True)
 class CharacterProfile:
     """What a transfer needs to know about one character.
@@ -65,24 +127,43 @@ class CharacterProfile:
         it does not depend on how a skeleton's rest pose or joints are laid out.
       mean_orientation: ``(6, 4)`` chordal mean over many poses of each characteristic
         joint's global orientation relative to the character's facing (:func:`facing_yaw`).
+      anatomical_offset: ``(6, 4)`` chordal mean over the same poses of each joint's frame
+        as seen from its own (:func:`anatomical_frames`: ``Rᵀ A``); None for a profile
+        written without it.
+      facing: the poses' mean facing (degrees about +Y from +Z: :func:`facing_yaw`'s angle,
+        their circular mean); for a training corpus, the way a BMM trained on it expects a
+        motion to start (:func:`placement`). None for a profile written without it.
     """
 
     height: float
     mean_orientation: Float[np.ndarray, "6 4"]
+    anatomical_offset: Float[np.ndarray, "6 4"] | None = None
+    facing: float | None = None
 
     @classmethod
     def from_poses(cls, character: Character, poses: Pose) -> CharacterProfile:
         """Profile from a batch of poses ``(samples, …)`` of the character (e.g. its corpus)."""
         targets = targets_from_pose(character, poses)
+        quat = quat_from_rot6d(targets.rot6d)
         yaw = facing_yaw(targets.position)
-        relative = quat_mul(quat_conjugate(yaw)[..., None, :], quat_from_rot6d(targets.rot6d))
+        relative = quat_mul(quat_conjugate(yaw)[..., None, :], quat)
         mean = jax.vmap(mean_rotation, in_axes=1)(relative)
+        anatomical = quat_mul(quat_conjugate(quat), quat_from_matrix(anatomical_frames(character, poses)))
+        offset = jax.vmap(mean_rotation, in_axes=1)(anatomical)
         pos = np.asarray(targets.position)
         floor = np.percentile(pos[:, 4:6, 1], 5.0)
-        return cls(float(np.median(pos[:, HIPS, 1]) - floor), np.asarray(mean, np.float64))
+        yaw = np.asarray(yaw, np.float64)
+        angle = 2.0 * np.arctan2(yaw[:, 2], yaw[:, 0])  # about +Y from +Z
+        facing = float(np.degrees(np.arctan2(np.sin(angle).mean(), np.cos(angle).mean())))
+        return cls(float(np.median(pos[:, HIPS, 1]) - floor), np.asarray(mean, np.float64), np.asarray(offset, np.float64), facing)
 
     def to_json(self) -> dict:
-        return {"height": self.height, "mean_orientation": np.asarray(self.mean_orientation).tolist()}
+        data = {"height": self.height, "mean_orientation": np.asarray(self.mean_orientation).tolist()}
+        if self.anatomical_offset is not None:
+            data["anatomical_offset"] = np.asarray(self.anatomical_offset).tolist()
+        if self.facing is not None:
+            data["facing_deg"] = self.facing
+        return data
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> CharacterProfile:
@@ -95,15 +176,22 @@ class CharacterProfile:
 
     @classmethod
     def from_json(cls, data: dict) -> CharacterProfile:
-        mean = np.asarray(data["mean_orientation"], np.float64)
-        if mean.shape != (len(CHARACTERISTIC_JOINTS), 4) or not np.isfinite(mean).all():
-            raise ValueError(f"mean_orientation must be a finite (6, 4) array, got {mean.shape}")
-        norms = np.linalg.norm(mean, axis=-1)
-        if np.any(np.abs(norms - 1.0) > 1e-3):
-            raise ValueError(f"mean_orientation must hold unit quaternions, got norms {norms.round(4).tolist()}")
+        def rotations(name: str) -> np.ndarray:
+            quat = np.asarray(data[name], np.float64)
+            if quat.shape != (len(CHARACTERISTIC_JOINTS), 4) or not np.isfinite(quat).all():
+                raise ValueError(f"{name} must be a finite (6, 4) array, got {quat.shape}")
+            norms = np.linalg.norm(quat, axis=-1)
+            if np.any(np.abs(norms - 1.0) > 1e-3):
+                raise ValueError(f"{name} must hold unit quaternions, got norms {norms.round(4).tolist()}")
+            return quat
+
         if not float(data["height"]) > 0:
             raise ValueError(f"height must be positive, got {data['height']}")
-        return cls(float(data["height"]), mean)
+        offset = rotations("anatomical_offset") if "anatomical_offset" in data else None
+        facing = None if "facing_deg" not in data else float(data["facing_deg"])
+        if facing is not None and not np.isfinite(facing):
+            raise ValueError(f"facing_deg must be a finite angle, got {data['facing_deg']}")
+        return cls(float(data["height"]), rotations("mean_orientation"), offset, facing)
 
 
 @jax.tree_util.register_dataclass
@@ -114,23 +202,87 @@ class Transfer:
     Attributes:
       scale: target height ÷ source height (scalar array).
       rot_offset: ``(6, 4)`` per-joint offsets: ``q_target = q_source ⊗ rot_offset``.
+      facing: ``(4,)`` the turn about +Y taking +Z to the way the BMM's training motions
+        face (:attr:`CharacterProfile.facing`), or None. A BMM trained without yaw
+        augmentation on a corpus whose actors mostly face one way (Bandai-Namco: 71 % of
+        frames within 30° of its mean) knows motion facing that way; with a facing, each
+        in-between is turned about the start hips to start facing it in the BMM's space,
+        and back (:func:`placement`). None: the keys as they face (the paper's).
     """
 
     scale: Float[Array, ""]
     rot_offset: Float[Array, "6 4"]
+    facing: Float[Array, "4"] | None = None
 
     @classmethod
-    def identity(cls) -> Transfer:
-        """No transfer: the BMM was trained on the target character."""
+    def identity(cls, facing: float | None = None) -> Transfer:
+        """No transfer: the BMM was trained on the target character; ``facing`` (degrees, its
+        training corpus's :attr:`CharacterProfile.facing`) as in :meth:`between`."""
         rot = jnp.zeros((len(CHARACTERISTIC_JOINTS), 4), jnp.float32).at[:, 0].set(1.0)
-        return cls(jnp.asarray(1.0, jnp.float32), rot)
+        return cls(jnp.asarray(1.0, jnp.float32), rot, _yaw_quat(facing))
 
     @classmethod
-    def between(cls, source: CharacterProfile, target: CharacterProfile) -> Transfer:
-        """The transfer aligning ``source``'s mean orientations and height to ``target``'s."""
-        src, tgt = jnp.asarray(source.mean_orientation), jnp.asarray(target.mean_orientation)
-        offset = quat_mul(quat_conjugate(src), tgt)
-        return cls(jnp.asarray(target.height / source.height, jnp.float32), offset.astype(jnp.float32))
+    def between(
+        cls, source: CharacterProfile, target: CharacterProfile, *, orientation: str = "anatomical", facing: bool = True
+    ) -> Transfer:
+        """The transfer from ``source`` to ``target``: their heights' ratio, and orientation
+        offsets that align (see the module docstring)
+
+        - ``"anatomical"``: each joint's frame against its bones' (``q_s a_s = q_t a_t``, so
+          ``offset = a_s a_t⁻¹``); where a profile has no ``anatomical_offset``, ``"facing"``;
+        - ``"facing"``: each joint's mean orientation relative to the facing (``offset = m_s⁻¹ m_t``).
+
+        ``facing``: turn each in-between to start facing the way ``source``'s motions do
+        (its :attr:`CharacterProfile.facing`, where it has one; see :attr:`Transfer.facing`).
+
+        Raises:
+          ValueError: another ``orientation``.
+        """
+        if orientation not in ORIENTATION_CHOICES:
+            raise ValueError(f"orientation must be one of {', '.join(ORIENTATION_CHOICES)}, got {orientation!r}")
+        if orientation == "anatomical" and source.anatomical_offset is not None and target.anatomical_offset is not None:
+            offset = quat_mul(jnp.asarray(source.anatomical_offset), quat_conjugate(jnp.asarray(target.anatomical_offset)))
+        else:
+            offset = quat_mul(quat_conjugate(jnp.asarray(source.mean_orientation)), jnp.asarray(target.mean_orientation))
+        return cls(
+            jnp.asarray(target.height / source.height, jnp.float32), offset.astype(jnp.float32), _yaw_quat(source.facing if facing else None)
+        )
+
+
+def _yaw_quat(degrees: float | None) -> Float[Array, "4"] | None:
+    """The turn by ``degrees`` about +Y (w, x, y, z), float32; None for None."""
+    if degrees is None:
+        return None
+    half = 0.5 * np.radians(degrees)
+    return jnp.asarray([np.cos(half), 0.0, np.sin(half), 0.0], jnp.float32)
+
+
+class Placement(NamedTuple):
+    """Where one in-between sits in the BMM's space: ``p_bmm = origin + turn (p − origin) / scale``.
+
+    Attributes:
+      origin: ``(3,)`` the start hips on the floor (:func:`floor_anchor`), which positions
+        are scaled and turned about.
+      turn: ``(4,)`` a turn about +Y (identity: none).
+    """
+
+    origin: Float[Array, "3"]
+    turn: Float[Array, "4"]
+
+
+def placement(transfer: Transfer, start: Float[Array, "6 3"]) -> Placement:
+    """The placement of an in-between whose first key's six joints are at ``start`` (cm):
+    about its hips on the floor, turned (when ``transfer.facing`` is set) so that the key
+    faces (:func:`facing_yaw`) the way the BMM's training motions do."""
+    origin = floor_anchor(start[HIPS])
+    if transfer.facing is None:
+        return Placement(origin, jnp.asarray([1.0, 0.0, 0.0, 0.0], start.dtype))
+    turn = quat_mul(transfer.facing.astype(start.dtype), quat_conjugate(facing_yaw(start)))
+    return Placement(origin, turn)
+
+
+def _origin_turn(anchor: Float[Array, "3"] | Placement) -> tuple[Array, Array | None]:
+    return (anchor.origin, anchor.turn) if isinstance(anchor, Placement) else (anchor, None)
 
 
 def floor_anchor(start_hips: Float[Array, "3"]) -> Float[Array, "3"]:
@@ -138,25 +290,38 @@ def floor_anchor(start_hips: Float[Array, "3"]) -> Float[Array, "3"]:
     return start_hips * jnp.asarray([1.0, 0.0, 1.0], start_hips.dtype)
 
 
-def to_source_space(transfer: Transfer, anchor: Float[Array, "3"], position: Float[Array, "*batch 3"]) -> Float[Array, "*batch 3"]:
-    """Target-character positions → the BMM's training-character positions."""
-    return anchor + (position - anchor) / transfer.scale
+def to_source_space(
+    transfer: Transfer, anchor: Float[Array, "3"] | Placement, position: Float[Array, "*batch 3"]
+) -> Float[Array, "*batch 3"]:
+    """Target-character positions → the BMM's training-character positions, scaled about
+    ``anchor`` (a point, or a :class:`Placement` that also turns them)."""
+    origin, turn = _origin_turn(anchor)
+    moved = (position - origin) / transfer.scale
+    return origin + (moved if turn is None else quat_rotate(turn.astype(position.dtype), moved))
 
 
-def orientations_to_source_space(transfer: Transfer, rot6d: Float[Array, "*batch 6 6"]) -> Float[Array, "*batch 6 6"]:
+def orientations_to_source_space(
+    transfer: Transfer, rot6d: Float[Array, "*batch 6 6"], turn: Float[Array, "4"] | None = None
+) -> Float[Array, "*batch 6 6"]:
     """Target-character global orientations of the six joints → the training character's
-    (the inverse of :func:`curves_to_target`'s ``q_source ⊗ rot_offset``)."""
+    (the inverse of :func:`curves_to_target`'s ``turn⁻¹ ⊗ q_source ⊗ rot_offset``)."""
     offset = quat_conjugate(transfer.rot_offset.astype(rot6d.dtype))
-    return rot6d_from_quat(quat_mul(quat_from_rot6d(rot6d), offset))
+    quat = quat_mul(quat_from_rot6d(rot6d), offset)
+    return rot6d_from_quat(quat if turn is None else quat_mul(turn.astype(rot6d.dtype), quat))
 
 
-def curves_to_target(transfer: Transfer, anchor: Float[Array, "3"], curves: SampledCurves) -> SampledCurves:
-    """Sampled curves of the source character → the target character (positions, tangents, orientations)."""
-    quat = quat_mul(quat_from_rot6d(curves.ctrl_rot6d), transfer.rot_offset.astype(curves.ctrl_rot6d.dtype))
+def curves_to_target(transfer: Transfer, anchor: Float[Array, "3"] | Placement, curves: SampledCurves) -> SampledCurves:
+    """Sampled curves of the source character → the target character (positions, tangents,
+    orientations), the inverse of :func:`to_source_space` and :func:`orientations_to_source_space`."""
+    origin, turn = _origin_turn(anchor)
+    dtype = curves.ctrl_rot6d.dtype
+    back = None if turn is None else quat_conjugate(turn.astype(dtype))
+    unturn = (lambda v: v) if back is None else (lambda v: quat_rotate(back, v))  # noqa: E731
+    quat = quat_mul(quat_from_rot6d(curves.ctrl_rot6d), transfer.rot_offset.astype(dtype))
     return SampledCurves(
-        anchor + (curves.ctrl_pos - anchor) * transfer.scale,
-        curves.ctrl_tangent * transfer.scale,
-        rot6d_from_quat(quat),
+        origin + unturn(curves.ctrl_pos - origin) * transfer.scale,
+        unturn(curves.ctrl_tangent) * transfer.scale,
+        rot6d_from_quat(quat if back is None else quat_mul(back, quat)),
         curves.contacts,
     )
 

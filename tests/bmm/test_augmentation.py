@@ -14,7 +14,7 @@ import pytest
 from bmm.common import TINY
 
 from bezmotion.assets import DEMO_CLIP
-from bezmotion.bmm.augmentation import augment, mirror, rest_reflections, rotate_yaw
+from bezmotion.bmm.augmentation import augment, hold_still, mirror, rest_reflections, rotate_yaw
 from bezmotion.bmm.train import BMMTrainConfig, CurveArrays, init_bmm_train_state, make_bmm_train_step
 from bezmotion.data.bvh import read_bvh
 from bezmotion.data.characteristic import SKELETON_MAPS
@@ -132,3 +132,21 @@ def test_levers_off_keep_the_paper_step_and_on_train(demo_dataset, stats):
         assert all(np.isfinite(float(v)) for v in metrics.values())
         results[name] = float(metrics["loss"])
     assert results["base"] != results["on"]
+
+
+def test_a_held_pose_is_still_aligned_and_planted(demo_dataset):
+    ex = example_of(demo_dataset)
+    pos, tangent, rot6d, contacts, dense = hold_still(ex, jnp.asarray(3))
+    want = np.asarray(ex[0][3]) - np.asarray(ex[0][3, 0]) * np.array([1.0, 0.0, 1.0])  # the hips start at the origin in XZ
+    np.testing.assert_allclose(pos, np.broadcast_to(want, pos.shape), atol=1e-5)
+    np.testing.assert_allclose(dense, np.broadcast_to(want, dense.shape), atol=1e-5)
+    np.testing.assert_array_equal(tangent, 0.0)
+    np.testing.assert_allclose(rot6d, np.broadcast_to(np.asarray(ex[2][3]), rot6d.shape))
+    assert np.asarray(contacts).all()
+    held = augment(jax.random.key(1), ex, yaw=False, mirror_probability=0.0, reflections=None, still_probability=1.0)
+    assert np.ptp(np.asarray(held[0]), axis=0).max() == 0.0  # every example held still
+    kept = augment(jax.random.key(1), ex, yaw=False, mirror_probability=0.0, reflections=None, still_probability=0.0)
+    for a, b in zip(kept, ex):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="still_augmentation must be a probability in"):
+        BMMTrainConfig(still_augmentation=1.5)

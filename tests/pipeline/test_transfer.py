@@ -25,6 +25,9 @@ from pipeline.common import K, LEFT_HAND, STEPS
 from bezmotion.bmm.sampling import SampledCurves
 from bezmotion.data.characteristic import HIPS
 from bezmotion.ik.protocol import Pose
+from bezmotion.assets import DEMO_CLIP
+from bezmotion.data.bvh import read_bvh
+from bezmotion.evaluation import skeleton_zoo as zoo
 from bezmotion.pipeline import (
     CharacterProfile,
     Transfer,
@@ -32,8 +35,11 @@ from bezmotion.pipeline import (
     facing_yaw,
     inbetween,
     mean_rotation,
+    orientations_to_source_space,
+    placement,
     to_source_space,
 )
+from bezmotion.pipeline.authoring import load_profile, motion_poses, recognise_character
 
 SCALED = 1.37  # a transfer scale whose round trip is not exact in float32
 source_space = jax.jit(to_source_space)
@@ -209,3 +215,46 @@ def test_transfer_curve_dataset_moves_real_windows_into_the_target_space():
         return np.abs(np.asarray(dense) - np.swapaxes(d.dense_pos, 1, 2)).max()
 
     np.testing.assert_allclose(fit_error(moved), scale * fit_error(dataset), rtol=1e-3, atol=1e-4)
+
+
+def test_a_placement_turns_the_start_to_the_trained_facing_and_back(rng):
+    """With a facing, the start key faces the BMM's training facing in its space; the curves come back exactly."""
+    trained = 30.0
+    t = Transfer(jnp.asarray(SCALED, jnp.float32), jnp.asarray(random_quat_np(rng, (6,)), jnp.float32), Transfer.identity(trained).facing)
+    start = jnp.asarray(rng.normal(scale=30.0, size=(6, 3)), jnp.float32)
+    where = placement(t, start)
+    source = source_space(t, where, start)
+    np.testing.assert_allclose(source[HIPS, [0, 2]], start[HIPS, [0, 2]], atol=1e-4)  # turned about the start hips
+    assert_same_rotation(np.asarray(yaw_of(source)), np.asarray(t.facing), atol=1e-5)
+    tangent = jnp.asarray(rng.normal(size=(K, 6, 3)), jnp.float32)
+    quat = random_quat_np(rng, (K, 6))
+    rot6d = jnp.asarray(np_rot6d(quat), jnp.float32)
+    pos = jnp.asarray(rng.normal(scale=50.0, size=(K, 6, 3)), jnp.float32)
+    curves = SampledCurves(source_space(t, where, pos), tangent, orientations_to_source_space(t, rot6d, where.turn), jnp.zeros((K, 2)))
+    back = to_target(t, where, curves)
+    np.testing.assert_allclose(back.ctrl_pos, pos, atol=1e-3)
+    np.testing.assert_allclose(back.ctrl_rot6d, rot6d, atol=1e-5)
+    np.testing.assert_allclose(np.linalg.norm(back.ctrl_tangent, axis=-1), SCALED * np.linalg.norm(tangent, axis=-1), rtol=1e-5)
+    # No facing: no turn (the paper's placement, the keys as they face).
+    assert_same_rotation(np.asarray(placement(Transfer.identity(), start).turn), np.array([1.0, 0.0, 0.0, 0.0]), atol=0.0)
+
+
+def test_anatomical_offsets_follow_a_files_bone_axes():
+    """The same motion with every joint's axes turned by C_j: the anatomical offsets turn by C_j
+    too (offset' = offset ⊗ C), so the transferred orientations are the file's own; the facing
+    offsets (each joint's mean over the clip) do as well, but also carry the clip's poses."""
+    motion = read_bvh(DEMO_CLIP)
+    turn = zoo.random_axes(motion, 3)
+    profiles = []
+    for m in (motion, zoo.reorient(motion, turn)):
+        recognised = recognise_character(m)
+        profiles.append(CharacterProfile.from_poses(recognised.character, motion_poses(m, recognised.character, slice(None))))
+    source = load_profile("bandai_namco")
+    six = list(recognise_character(motion).character.characteristic)
+    for orientation in ("anatomical", "facing"):
+        before, after = (np.asarray(Transfer.between(source, p, orientation=orientation).rot_offset, np.float64) for p in profiles)
+        assert_same_rotation(after, np_quat_mul(before, turn[six]), atol=2e-4)
+    # The bundled profile's anatomical offsets describe the same skeleton as the demo clip's own.
+    own = np.asarray(Transfer.between(source, profiles[0]).rot_offset, np.float64)
+    angles = np.degrees(2 * np.arccos(np.clip(np.abs(own[:, 0]), 0.0, 1.0)))
+    assert angles.max() < 25.0, angles  # the wrists' and ankles' own turns in 40 frames of a walk
