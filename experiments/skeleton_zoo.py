@@ -28,10 +28,10 @@ and a Markdown table beside it.
 
 from __future__ import annotations
 
-import dataclasses
 import tempfile
 from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -53,8 +53,7 @@ from bezmotion.pipeline.authoring import recognise_character
 PREFIX = "ref:"  # the reference's namespace: no preset's names, read as a user's own skeleton
 
 
-@dataclasses.dataclass(frozen=True)
-class Variant:
+class Variant(NamedTuple):
     """One way of writing the reference clip.
 
     Attributes:
