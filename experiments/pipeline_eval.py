@@ -208,7 +208,7 @@ from bezmotion.pipeline.window_figures import (
 )
 from bezmotion.data.windows import join_windows
 from bezmotion.pipeline.inbetweening import KEY_BLEND_FRAMES, WindowCurves
-from bezmotion.pipeline.authoring import load_profile
+from bezmotion.pipeline.authoring import FACING_CHOICES, load_profile, make_transfer
 from bezmotion.pipeline.transfer import ORIENTATION_CHOICES, Transfer
 from _common import window_labels
 
@@ -225,6 +225,10 @@ class Options:
     bmm: str = option(
         "bundled", help="a saved BMM folder or a registered model's name (`bezmotion models`); 'bundled' (default): the corpus's own (LaFAN1's once trained here)"
     )
+    facing: str = option(
+        "trained", choices=FACING_CHOICES,
+        help="trained (default, as bezmotion inbetween): each window turned to start facing the way the BMM's training motions do; keys: as the keys face (the paper's)",
+    )  # fmt: skip
     orientation: str = option(
         "anatomical", choices=ORIENTATION_CHOICES,
         help="how a transfer aligns the joints' orientations: anatomical (each joint against its bones) or facing (its mean against the facing)",
@@ -271,7 +275,7 @@ class Options:
     sample_seed: int = option(7, help="key of the BMM sampler (folded with each window's row)")
 
     def __post_init__(self):
-        for what in ("bmm", "ik_model"):
+        for what in ("bmm", "ik_model") if self.ik_model != "none" else ("bmm",):
             model_path(self, what)  # raises naming the folder (and the command that trains a registered model)
         if self.bvh_dir is not None and not Path(self.bvh_dir).is_dir():
             raise ValueError(f"--bvh-dir {self.bvh_dir}: not a folder")
@@ -311,9 +315,10 @@ def bmm_transfer(args: Options) -> tuple[str, Transfer | None]:
     if trained_on is None:
         entry = REGISTRY.get(args.corpus if args.bmm == "bundled" else args.bmm)  # None: a saved folder
         trained_on = args.corpus if entry is None else entry.skeleton
+    source = load_profile(trained_on)
     if trained_on == args.corpus:
-        return trained_on, None
-    return trained_on, Transfer.between(load_profile(trained_on), load_profile(args.corpus), orientation=args.orientation)
+        return trained_on, make_transfer(source, None, facing=args.facing)
+    return trained_on, make_transfer(source, load_profile(args.corpus), orientation=args.orientation, facing=args.facing)
 
 
 def open_windows(args: Options, character: Character | None = None) -> tuple[Corpus, CurveDataset]:
@@ -623,7 +628,8 @@ def main(argv: list[str] | None = None) -> dict:
         "settings": {
             "bmm": str(model_path(args, "bmm")), "ik_model": None if ik_model is None else str(model_path(args, "ik_model")), "joint_limits": limited,
             "bmm_trained_on": trained_on,
-            "transfer": None if transfer is None else {"scale": float(transfer.scale), "rot_offset": np.asarray(transfer.rot_offset).tolist()},
+            "transfer": None if trained_on == args.corpus else {"scale": float(transfer.scale), "rot_offset": np.asarray(transfer.rot_offset).tolist()},
+            "facing": args.facing, "orientation": args.orientation,
             "handle_frames": args.handle_frames, "off_grid_prior": bmm.config.off_grid_prior, "steps": args.steps, "key_blend_frames": args.key_blend,
             "key_velocities": args.key_velocities, "foot_lock": args.foot_lock, "foot_lock_anchor": args.foot_lock_anchor,
             "chunk": args.chunk, "seed": args.seed, "sample_seed": args.sample_seed, "segments": k,
@@ -807,16 +813,17 @@ def format_report(r: dict) -> str:
                 f"{diff(o['foot_skating_ratio'], 4)} | {diff(i['foot_sliding_ratio'], 4)} | {diff(o['foot_sliding_ratio'], 4)} | "
                 f"{diff(i['curve_error_cm'], 3)} |"
             )
-    first_ik = next(iter(r["ik"]))
+    first_ik = next(iter(r["ik"]), None)  # None: the curves alone (--ik-model none)
     lines += [
         "",
-        f"Per label (in distribution; after IK: {first_ik}):",
+        f"Per label (in distribution; after IK: {first_ik}):" if first_ik else "Per label (in distribution; the curves alone):",
         "",
         "| label | windows | BMM dense (cm) | reference dense (cm) | BMM orientation (°) | handles (cm) | MPJPE (cm) | skating | mocap skating |",
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for label, x in r["labels"].items():
-        b, ref, ik = x["curves"]["bmm"]["id"], x["curves"]["reference"]["id"], x["ik"][first_ik]["id"]
+        b, ref = x["curves"]["bmm"]["id"], x["curves"]["reference"]["id"]
+        ik = x["ik"][first_ik]["id"] if first_ik else {"handles_error_cm": b["handles_error_cm"], "mpjpe_cm": float("nan"), "foot_skating_ratio": b["foot_skating_ratio"]}
         lines.append(
             f"| {label} | {x['windows']} | {b['dense_error_cm']:.3f} | {ref['dense_error_cm']:.3f} | {b['orientation_error_deg']:.2f} | "
             f"{ik['handles_error_cm']:.4f} | {ik['mpjpe_cm']:.3f} | {ik['foot_skating_ratio']:.4f} | {x['mocap']['foot_skating_ratio']:.4f} |"
