@@ -191,7 +191,7 @@ class InbetweenOptions:
     units: str = option(
         "auto", metavar="auto|cm|m|mm|in|CM",
         help="the clips' length unit, or centimetres per unit (a number); auto (default): told from the skeleton's size (cm, m or mm "
-        "where one gives a person's size, else the unit that gives a typical adult's, with a warning; inches need --units in). "
+        "where one gives a person's size, else the unit that gives a typical adult's, with a warning). "
         "The in-between is written in it; handles, reports and the .glb are in cm (.glb: m), Y up",
     )  # fmt: skip
     up: str = option("auto", choices=("auto", *UP_AXES), help="the clips' up axis; auto (default): where the head stands above the feet")

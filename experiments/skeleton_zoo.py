@@ -48,7 +48,7 @@ from bezmotion.inbetween_command import InbetweenOptions, run_inbetween
 from bezmotion.io import write_results
 from bezmotion.ik.rig import derive_rig_spec
 from bezmotion.options import option, options, parse_options
-from bezmotion.pipeline.authoring import recognise_character
+from bezmotion.pipeline.authoring import motion_window, recognise_character
 
 PREFIX = "ref:"  # the reference's namespace: no preset's names, read as a user's own skeleton
 
@@ -264,7 +264,8 @@ def measure_clip(clip: BvhMotion, frames: list[int], names: list[str], seeds: in
 class Options:
     out: str = option(help="JSON results (a Markdown table is written beside it)")
     clips: tuple[str, ...] = option(("bundled",), help="BVH clips (bundled: the demo clip)")
-    keys: tuple[int, ...] = option((0, 30), help="key frames of each clip at 30 fps (30 apart)")
+    first: int = option(0, help="the frame of each clip the keys count from (the clip is cut to first … first + the last key)")
+    keys: tuple[int, ...] = option((0, 30), help="key frames at 30 fps (30 apart), counted from --first")
     variants: tuple[str, ...] = option((), help="variants to run (default: all)")
     seeds: int = option(4, help="seeds of the still-clip test")
 
@@ -286,7 +287,7 @@ def main(argv: list[str] | None = None) -> dict:
     per_clip = []
     with tempfile.TemporaryDirectory() as tmp:
         for k, path in enumerate(clips):
-            clip = read_bvh(path)
+            clip = motion_window(read_bvh(path), args.first, args.keys[-1] + 1)
             names = list(args.variants) or list(variants(zoo.renamed(clip, lambda n: PREFIX + n)))
             folder = Path(tmp) / str(k)
             folder.mkdir()
@@ -300,7 +301,7 @@ def main(argv: list[str] | None = None) -> dict:
             "no_handle_ratio": float(np.mean([r["no_handle_ratio"] for r in rows])),
             "same_skeleton": rows[0]["same_skeleton"],
         }
-    results = {"variants": merged, "clips": [str(c) for c in clips], "keys": list(args.keys), "per_clip": per_clip}
+    results = {"variants": merged, "clips": [str(c) for c in clips], "first": args.first, "keys": list(args.keys), "per_clip": per_clip}
     write_results(args.out, results, report(results))
     print(report(results))
     return results

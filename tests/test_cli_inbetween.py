@@ -429,7 +429,7 @@ def test_models_default_to_those_of_the_clips_skeleton_trained_here(tmp_path, mo
     argv = [str(clip), "--frames", "0", "30", "--steps", "2", "--no-progress"]
     assert trained_for("lafan1", "bmm") is None and trained_for("bandai_namco", "ik") == "bandai_namco" and trained_for(None, "ik") is None
     before = plan(parse_options(InbetweenOptions, argv))  # nothing trained on LaFAN1 here: the bundled models
-    assert before.models == {"bmm": "bandai_namco", "ik": None} and before.ik == "exact_rig" and before.transfer is not None
+    assert before.models == {"bmm": "bandai_namco", "ik": None} and before.ik == "exact_rig" and before.transferred
 
     # "Train" lafan1_cpu here: the bundled BMM's files, and a small untrained IK of the LaFAN1 skeleton.
     runs = tmp_path / "cache" / "runs"
@@ -440,9 +440,10 @@ def test_models_default_to_those_of_the_clips_skeleton_trained_here(tmp_path, mo
     save_ik_model(runs / "ik_lafan1" / "model", ProtoResModel(params, character, graphdef, config))
     assert trained_for("lafan1", "bmm") == trained_for("lafan1", "ik") == "lafan1_cpu"
     own = plan(parse_options(InbetweenOptions, argv))
-    assert own.models == {"bmm": "lafan1_cpu", "ik": "lafan1_cpu"} and own.ik == "exact" and own.transfer is None
+    assert own.models == {"bmm": "lafan1_cpu", "ik": "lafan1_cpu"} and own.ik == "exact" and not own.transferred
+    assert own.transfer.facing is not None and float(own.transfer.scale) == 1.0  # the training facing alone
     named = plan(parse_options(InbetweenOptions, [*argv, "--model", "bandai_namco", "--ik-model", "bandai_namco"]))
-    assert named.models == {"bmm": "bandai_namco", "ik": None} and named.ik == "exact_rig" and named.transfer is not None
+    assert named.models == {"bmm": "bandai_namco", "ik": None} and named.ik == "exact_rig" and named.transferred
     assert default_models("lafan1", "my_bmm/", None) == ("my_bmm/", "lafan1_cpu")
     assert default_models(None, None, None) == ("bandai_namco", "bandai_namco")
 

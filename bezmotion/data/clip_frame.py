@@ -15,12 +15,12 @@ in-between opens in the user's tool where the clip does.
   direction is within ~37° of an axis; lying frames count for both sides of a horizontal
   axis as the body turns);
 - **units**: the skeleton's size — the bone lengths from the head down to the hips and on to
-  a foot, as the offsets give them (the same in every pose) — is a person's 40–400 cm in
-  centimetres, in metres or in millimetres, and only one of them. Inches (a person ~60 in)
-  read as a small character in centimetres: they need ``units="in"``. A skeleton that is a
-  person's size in none of them (raw CMU files, in a unit of about 5.6 cm) is taken to be
-  a typical adult's size, :data:`TYPICAL_PERSON_CM`, and its unit is that many centimetres
-  over its size: any unit works, to within a person's build, and the caller says so.
+  a foot, as the offsets give them (the same in every pose) — is a person's 70–300 cm (a
+  child's to a giant's) in centimetres, in metres or in millimetres, and only one of them.
+  A skeleton that is a person's size in none of them (raw CMU files, in a unit of about
+  5.6 cm; inches, a person ~55–65 in) is taken to be a typical adult's size,
+  :data:`TYPICAL_PERSON_CM`, and its unit is that many centimetres over its size: any unit
+  works, to within a person's build, and the caller says so.
 
 A unit is a name of :data:`CM_PER_UNIT` or a number of centimetres per file unit, written
 as text (``"5.6"``).
@@ -43,7 +43,7 @@ CM_PER_UNIT = {"cm": 1.0, "m": 100.0, "mm": 0.1, "in": 2.54}
 """Centimetres per unit of each unit a clip may be in."""
 UP_AXES = ("y", "z")
 DETECTED_UNITS = ("cm", "m", "mm")  # told apart by size alone; inches are not (see the module docstring)
-PERSON_CM = (40.0, 400.0)  # a skeleton's head-to-hips-to-foot length (cm) that counts as a person's, any character's
+PERSON_CM = (70.0, 300.0)  # a skeleton's head-to-hips-to-foot length (cm) that counts as a person's, a child's to a giant's
 TYPICAL_PERSON_CM = 150.0  # an adult's head-to-hips-to-foot length (cm): LaFAN1's actors 166, Bandai-Namco's 134
 _DETECT_FRAMES = 256  # frames of a clip the up axis is told from (evenly spread)
 _UPRIGHT = 0.8  # a frame votes for an axis when its head-over-feet direction is within ~37° of it

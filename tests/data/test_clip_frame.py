@@ -47,9 +47,11 @@ def test_units_and_up_are_told_from_the_clip(frame):
     assert detect_clip_frame(frame.from_ours(CLIP), HIPS, HEAD, FEET) == frame
 
 
-def test_inches_read_as_a_small_character_in_cm():
-    """A person is ~60 in tall, a small character's size in cm: inches are never guessed."""
-    assert detect_units(ClipFrame("in").from_ours(CLIP), HIPS, HEAD, FEET) == "cm"
+def test_inches_read_as_a_typical_adults_unit():
+    """A person is ~55–65 in head to hips to foot: no person's size in cm, m or mm, so the unit is
+    the one that makes a typical adult, within a person's build of the inch."""
+    units = detect_units(ClipFrame("in").from_ours(CLIP), HIPS, HEAD, FEET)
+    assert units not in CM_PER_UNIT and 0.8 < float(units) / 2.54 < 1.25
 
 
 def test_a_size_no_named_unit_makes_a_person_is_taken_for_a_typical_adults():
