@@ -39,7 +39,6 @@ import numpy as np
 
 from bezmotion.assets import DEMO_CLIP
 from bezmotion.data.bvh import BvhMotion, read_bvh, write_bvh
-from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.data.resample import TRAINED_FPS, resample_motion
 from bezmotion.evaluation import skeleton_zoo as zoo
 from bezmotion.geometry.rotations import quat_conjugate
