@@ -171,11 +171,11 @@ def hold_still(example: Example, control: Int[Array, ""]) -> Example:
     point and dense frame at it, tangents zero, both feet planted; moved in XZ so the hips
     start at the origin, as every window is.
 
-    A corpus records people moving: where its start and end poses agree, the window is a
-    wave or a raised hand (Bandai-Namco: every window whose keys lie within 5 cm comes from
-    its wave and raise-up contents). A BMM trained on it alone learns that identical keys
+    A corpus records people moving: where its start and end poses agree, the window is often
+    a gesture (a wave, a raised hand). A BMM trained on it alone learns that identical keys
     call for a gesture, and invents one when a user's clip stands still; held poses of every
-    content teach it that keys which ask for no motion may get none.
+    content teach it that keys which ask for no motion may get none
+    (``experiments/still_keys.py`` counts such windows and measures a model on a held pose).
     """
     pos, tangent, rot6d, contacts, dense = example
     held = pos[control] - pos[control, HIPS] * jnp.asarray([1.0, 0.0, 1.0], pos.dtype)

@@ -204,10 +204,10 @@ class Transfer:
       rot_offset: ``(6, 4)`` per-joint offsets: ``q_target = q_source ⊗ rot_offset``.
       facing: ``(4,)`` the turn about +Y taking +Z to the way the BMM's training motions
         face (:attr:`CharacterProfile.facing`), or None. A BMM trained without yaw
-        augmentation on a corpus whose actors mostly face one way (Bandai-Namco: 71 % of
-        frames within 30° of its mean) knows motion facing that way; with a facing, each
-        in-between is turned about the start hips to start facing it in the BMM's space,
-        and back (:func:`placement`). None: the keys as they face (the paper's).
+        augmentation on a corpus whose actors mostly face one way knows motion facing that
+        way; with a facing, each in-between is turned about the start hips to start facing
+        it in the BMM's space, and back (:func:`placement`). None: the keys as they face
+        (the paper's). docs/skeletons.md measures both.
     """
 
     scale: Float[Array, ""]
