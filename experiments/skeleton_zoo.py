@@ -153,6 +153,12 @@ def _extra_joints(reference: BvhMotion) -> BvhMotion:
     return zoo.with_twist_joints(added, {part[f"{s}_hand"]: part[f"{s}_forearm"] + "_Twist" for s in "lr"})
 
 
+def _daz_everything(reference: BvhMotion, rename: Callable[[str], str]) -> BvhMotion:
+    """Daz lower-case names, fingers, toes, a jaw and twist joints, random bone axes and CMU's unit at once."""
+    extended = zoo.renamed(_extra_joints(reference), rename)
+    return zoo.scaled(zoo.reorient(extended, zoo.random_axes(extended, 1)), 1 / 5.6)
+
+
 def variants(reference: BvhMotion) -> dict[str, Variant]:
     """The zoo: every way of writing ``reference`` this experiment checks."""
     spine = [n for n, p in roles(reference).items() if p.startswith("spine")]
@@ -171,10 +177,7 @@ def variants(reference: BvhMotion) -> dict[str, Variant]:
         "z_up": Variant(zoo.z_up, up="z"),
         "yaw_90": Variant(lambda m: zoo.yawed(m, 90.0), yaw_deg=90.0),
         "yaw_180": Variant(lambda m: zoo.yawed(m, 180.0), yaw_deg=180.0),
-        "daz_everything": Variant(
-            lambda m: zoo.scaled(zoo.reorient(zoo.renamed(_extra_joints(m), named["daz_lower"]), zoo.random_axes(_extra_joints(m), 1)), 1 / 5.6),
-            named["daz_lower"], cm_per_unit=5.6,
-        ),
+        "daz_everything": Variant(lambda m: _daz_everything(m, named["daz_lower"]), named["daz_lower"], cm_per_unit=5.6),
     }  # fmt: skip
     if len(spine) > 1:
         out["joints_fewer_spine"] = Variant(lambda m: zoo.without_joint(m, spine[0]), lambda n: None if n == spine[0] else n, same_skeleton=False)

@@ -1,8 +1,8 @@
-"""Every ```python block of README.md runs as written.
+"""Every ```python block of README.md and of the docs pages runs as written.
 
 Each block is self-contained (its own imports) and runs in a fresh namespace inside an
 empty working directory, so files it writes land in a temporary folder and a block never
-leans on another's variables. The test id names the block's first line in README.md.
+leans on another's variables. The test id names the file and the block's first line.
 """
 
 from __future__ import annotations
@@ -12,25 +12,31 @@ from pathlib import Path
 
 import pytest
 
-README = Path(__file__).resolve().parents[1] / "README.md"
+ROOT = Path(__file__).resolve().parents[1]
+README = ROOT / "README.md"
+PAGES = [README, *sorted((ROOT / "docs").glob("*.md"))]
 FENCE = re.compile(r"^```python\n(.*?)^```$", re.MULTILINE | re.DOTALL)
 
 
-def python_blocks() -> list[tuple[int, str]]:
-    """``(line of the block's first code line, code)`` for each ```python block."""
-    text = README.read_text(encoding="utf-8")
-    return [(text.count("\n", 0, m.start(1)) + 1, m.group(1)) for m in FENCE.finditer(text)]
+def python_blocks() -> list[tuple[Path, int, str]]:
+    """``(page, line of the block's first code line, code)`` for each ```python block."""
+    blocks = []
+    for page in PAGES:
+        text = page.read_text(encoding="utf-8")
+        blocks += [(page, text.count("\n", 0, m.start(1)) + 1, m.group(1)) for m in FENCE.finditer(text)]
+    return blocks
 
 
 BLOCKS = python_blocks()
 
 
 def test_the_readme_has_python_examples():
-    assert len(BLOCKS) >= 4, f"found {len(BLOCKS)} python blocks in {README}"
+    assert len(BLOCKS) >= 4, f"found {len(BLOCKS)} python blocks in {[p.name for p in PAGES]}"
+    assert any(page == README for page, _, _ in BLOCKS), "the README has no Python example"
 
 
-@pytest.mark.parametrize(("line", "code"), BLOCKS, ids=[f"README.md:{line}" for line, _ in BLOCKS])
-def test_readme_block_runs(line, code, tmp_path, monkeypatch):
+@pytest.mark.parametrize(("page", "line", "code"), BLOCKS, ids=[f"{page.relative_to(ROOT)}:{line}" for page, line, _ in BLOCKS])
+def test_readme_block_runs(page, line, code, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
-    # Padding the source with blank lines makes tracebacks point at README.md's own lines.
-    exec(compile("\n" * (line - 1) + code, str(README), "exec"), {"__name__": f"readme_line_{line}"})
+    # Padding the source with blank lines makes tracebacks point at the page's own lines.
+    exec(compile("\n" * (line - 1) + code, str(page), "exec"), {"__name__": f"readme_line_{line}"})

@@ -190,7 +190,6 @@ def with_leaf_joints(motion: BvhMotion, at: Mapping[str, Sequence[str]], length:
     Each new bone is ``length`` long (file units), along its parent's own bone (straight
     on from it), so the new joints lie where fingers would."""
     names = motion.skeleton.names
-    parents = motion.skeleton.parents
     offsets = np.asarray(motion.skeleton.offsets, np.float64)
     new: list[tuple[str, int, np.ndarray, int | None]] = []
     count = len(names)
@@ -203,7 +202,6 @@ def with_leaf_joints(motion: BvhMotion, at: Mapping[str, Sequence[str]], length:
             new.append((name, parent, step, None))
             parent = count
             count += 1
-    del parents
     return _insert(motion, new)
 
 

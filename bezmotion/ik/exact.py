@@ -58,7 +58,7 @@ The pipeline uses it through :func:`bezmotion.ik.protocol.solve_frames`, which a
   hips' translation (see ``_levenberg_marquardt``).
 
 What it achieves on Bandai-Namco and LaFAN1 (handles, MPJPE, foot skating, key pop, speed)
-is in README's *Precision after IK*; docs/precision.md has every measurement, and how
+is in docs/authoring.md's *Precision after IK*; docs/precision.md has every measurement, and how
 each default of :class:`ExactIKParams` was chosen.
 """
 

@@ -211,7 +211,7 @@ def test_every_script_answers_help_from_its_options_class(load_script, capsys, f
         assert "--" + field.name.replace("_", "-") in text
 
 
-# The README's "Reproducing the paper numbers" commands (and the smoke tests' flags) parse.
+# docs/reproducing.md's "Reproducing the paper numbers" commands (and the smoke tests' flags) parse.
 README_COMMANDS = [
     ("experiments", "lafan1_baselines", ["--data", "../shared/data/lafan1/lafan1-subset.zip", "--out", "results/lafan1_baselines.json"]),
     ("experiments", "bezier_stride", ["--data", "../shared/data/lafan1/lafan1-subset.zip", "--out", "results/bezier_stride.json"]),
