@@ -14,7 +14,7 @@ milliseconds per window separately, one window (latency) and ``--batch`` windows
 ``--real N`` also times the window solve as the pipeline runs it (``solve_frames``: the keys
 joined) on N Bandai-Namco validation windows (``../shared/data``), one window a call as
 ``bezmotion inbetween`` runs them, each with 1–4 handles moved up to ±16 cm and spread over
-±6 frames like a curve through them (the issue's OOD handles): the benchmark's own window has
+±6 frames like a curve through them (OOD handles): the benchmark's own window has
 no keys and one handle, and needs less of the solve's work.
 
     python benchmarks/ik_exact.py --repeats 20 --real 40 --out ik_exact_real.json

@@ -1,7 +1,7 @@
 """Benchmark: a whole in-between (BMM sampling, then IK) per window and per chain, jit-compiled.
 
-Times what a user calls, :func:`bezmotion.pipeline.inbetween` for one window and
-:func:`bezmotion.pipeline.inbetween_chain` for K windows through K + 1 keys, on the bundled
+Times what a user calls, :func:`bezmotion.inbetween` for one window (two keys) and for K
+windows through K + 1 keys, on the bundled
 Bandai-Namco models (10 DDIM steps, foot lock on as in ``bezmotion inbetween``, a right-hand
 handle 25 cm above the straight line in every window, at its frame 15 or ``--handle-frame``), against K calls of the one-window
 in-between, the independent alternative. Compile time and steady-state milliseconds are
@@ -33,7 +33,8 @@ from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.protocol import Character, pose_from_motion, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn
 from bezmotion.options import option, options, parse_options
-from bezmotion.pipeline.inbetweening import KEY_BLEND_FRAMES, inbetween_chain_traced, inbetween_traced
+from bezmotion.pipeline.inbetweening import InbetweenOptions, inbetween_traced
+from bezmotion.pipeline.model import Inbetweener
 from bezmotion.pipeline.transfer import Transfer
 from bezmotion.xla_options import inference_compiler_options
 
@@ -68,13 +69,12 @@ def main(argv: list[str] | None = None) -> dict:
     if "exact" in args.ik:
         iks["exact"] = exact_ik(protores_ik_fn, model, character, limits=JointLimits.load(BUNDLED_IK / "joint_limits.json", character))
     options_ = dict(inference_compiler_options()) or None
-    common = dict(steps=args.steps, guidance=1.0, foot_lock=True, keep_keyframes=True, key_blend_frames=KEY_BLEND_FRAMES)
-    transfer, key = Transfer.identity(), jax.random.key(0)
+    run = functools.partial(inbetween_traced, options=InbetweenOptions(steps=args.steps, foot_lock=True))
+    key = jax.random.key(0)
     rows = {}
     for name in args.ik:
         ik_fn, ik_params = iks[name]
-        window = functools.partial(inbetween_traced, ik_fn=ik_fn, **common)
-        chain = functools.partial(inbetween_chain_traced, ik_fn=ik_fn, **common)
+        model_ = Inbetweener(bmm, ik_fn, ik_params, character, Transfer.identity())
         single = None
         for k in args.windows:
             keys = chain_keys(character, k, span)
@@ -82,9 +82,9 @@ def main(argv: list[str] | None = None) -> dict:
             per_window = [Handles.from_frames(["right_hand"], [args.handle_frame], (0.5 * (above[i] + above[i + 1]))[None], config=bmm.config) for i in range(k)]
             handles = jax.tree.map(lambda *x: jnp.stack(x), *per_window)
             if single is None:  # one window, the independent alternative's unit: timed once per IK
-                first = (jax.tree.map(lambda x: x[0], keys), jax.tree.map(lambda x: x[1], keys), per_window[0])
-                single = time_jitted(window, (bmm, ik_params, character, *first, transfer, key), repeats=args.repeats, compiler_options=options_)
-            chained = time_jitted(chain, (bmm, ik_params, character, keys, handles, transfer, key), repeats=args.repeats, compiler_options=options_)
+                first = (jax.tree.map(lambda x: x[:2], keys), jax.tree.map(lambda x: x[None], per_window[0]))
+                single = time_jitted(run, (model_, *first, key), repeats=args.repeats, compiler_options=options_)
+            chained = time_jitted(run, (model_, keys, handles, key), repeats=args.repeats, compiler_options=options_)
             label = f"{name}, {k} window(s)"
             rows[label] = {
                 "ik": name, "windows": k, "frames": k * span + 1,

@@ -1,12 +1,13 @@
 """bezmotion: precise, character-agnostic motion in-betweening in JAX.
 
-``import bezmotion as bm`` gives the verbs of the method, in the order data flows::
+``import bezmotion as bm``; one model object, one entry point::
 
-    clip = bm.read_bvh(bm.DEMO_CLIP)                      # mocap file → skeleton + local rotations
-    character = bm.Character.from_bvh(clip, "bandai_namco")
-    bmm, ik = bm.load_model(bm.BUNDLED_BMM), bm.load_ik_model(bm.BUNDLED_IK)
-    result = bm.inbetween(bmm, bm.protores_ik_fn, ik, ik.character, start, end, handles, key=key)
-    bm.write_bvh("out.bvh", bm.pose_to_bvh(ik.character, result.pose, template=clip))  # → file, rigged like the clip
+    clip = bm.read_bvh("my_walk.bvh")                              # any humanoid skeleton
+    model = bm.Inbetweener.from_bvh(clip)                          # or bm.pretrained("bandai_namco")
+    keys = model.poses(clip, [0, 30])                              # two keys: one window
+    handles = model.handles({"right_hand": (12, (0, 25, 0))}, relative_to=keys)  # frame, cm
+    result = model.inbetween(keys, handles, key=jax.random.key(0)) # = bm.inbetween(model, …)
+    bm.write_bvh("out.bvh", model.to_bvh(result, template=clip))
 
 Everything else lives in its subpackage (:mod:`bezmotion.geometry`, :mod:`bezmotion.bezier`,
 :mod:`bezmotion.data`, :mod:`bezmotion.diffusion`, :mod:`bezmotion.training`,
@@ -15,94 +16,47 @@ Everything else lives in its subpackage (:mod:`bezmotion.geometry`, :mod:`bezmot
 never from here, so this file can re-export anything without an import cycle.
 """
 
-# Bundled data and models (paths; load them with the verbs below).
-from bezmotion.assets import BUNDLED_BMM, BUNDLED_IK, DEMO_CLIP, PROFILES_DIR
-from bezmotion.assets.registry import Pretrained, pretrained  # models by name: bm.pretrained("bandai_namco")
+# The model object and the one entry point.
+from bezmotion.pipeline.model import Inbetweener, pretrained
+from bezmotion.pipeline.inbetweening import InbetweenOptions, InbetweenResult, inbetween
 
-# Bézier curves.
-from bezmotion.bezier import BezierLayout, evaluate, fit_curves
-
-# The Bézier Motion Model: sampling curves through handles, saving and loading.
-from bezmotion.bmm.sampling import (
-    BezierMotionModel,
-    Handles,
-    SampledCurves,
-    load_model,
-    sample_chained_curves,
-    sample_curves,
-    save_model,
-)
-
-# Mocap files, corpora (published or a folder of your BVH files) and the six characteristic joints.
-from bezmotion.data.bvh import BvhMotion, read_bvh, write_bvh
-from bezmotion.data.corpus import Corpus
-from bezmotion.data.sources import load_corpus
+# What they take and give.
+from bezmotion.bmm.sampling import BezierMotionModel, Handles, SampledCurves, load_model, sample_curves, save_model
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
+from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose
+from bezmotion.pipeline.transfer import Transfer
 
-# Skeletons and kinematics.
-from bezmotion.geometry.skeleton import Skeleton, forward_kinematics, inverse_kinematics
-
-# IK: the ik_fn(params, targets) -> pose protocol and its implementations.
-from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, pose_fk, pose_from_motion, targets_from_pose
-from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn, save_ik_model
-from bezmotion.ik.rig import make_rig, rig_ik
-
-# In-betweening end to end, character transfer, export (BVH, glTF, animated preview).
-from bezmotion.pipeline.export import pose_to_bvh
+# Files: BVH in and out, glTF with the curves, an animated preview; the bundled clip.
+from bezmotion.assets import DEMO_CLIP
+from bezmotion.data.bvh import BvhMotion, read_bvh, write_bvh
 from bezmotion.pipeline.gltf import read_glb, write_glb
-from bezmotion.pipeline.inbetweening import ChainResult, InbetweenResult, inbetween, inbetween_chain
 from bezmotion.pipeline.preview import write_preview
-from bezmotion.pipeline.transfer import CharacterProfile, Transfer
 
 __version__ = "0.1.0"
 
 __all__ = [
-    "BUNDLED_BMM",
-    "BUNDLED_IK",
     "CHARACTERISTIC_JOINTS",
     "DEMO_CLIP",
-    "PROFILES_DIR",
-    "BezierLayout",
     "BezierMotionModel",
     "BvhMotion",
-    "ChainResult",
     "Character",
-    "CharacterProfile",
-    "Corpus",
     "Handles",
     "IKFn",
     "IKTargets",
+    "InbetweenOptions",
     "InbetweenResult",
+    "Inbetweener",
     "Pose",
-    "Pretrained",
     "SampledCurves",
-    "Skeleton",
     "Transfer",
     "__version__",
-    "evaluate",
-    "fit_curves",
-    "forward_kinematics",
     "inbetween",
-    "inbetween_chain",
-    "inverse_kinematics",
-    "load_corpus",
-    "load_ik_model",
     "load_model",
-    "make_rig",
-    "pose_fk",
-    "pose_from_motion",
-    "pose_to_bvh",
     "pretrained",
-    "protores_ik_fn",
-    "protores_refined_ik_fn",
     "read_bvh",
     "read_glb",
-    "rig_ik",
-    "sample_chained_curves",
     "sample_curves",
-    "save_ik_model",
     "save_model",
-    "targets_from_pose",
     "write_bvh",
     "write_glb",
     "write_preview",

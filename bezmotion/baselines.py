@@ -249,9 +249,8 @@ def interpolation_through_points(
       frames alone, then the minimum-norm correction onto the others
       (:func:`~bezmotion.diffusion.projection.project_off_grid`). The correction moves only
       the two control points around the condition, so the curve bends there alone: a bump
-      that rises and falls within about six frames (measured on LaFAN1, 2026-12-01: the
-      handled joint's error three frames from such a handle is 2.4× that of the same
-      handle moved onto the nearest control frame).
+      that rises and falls within about six frames, so the joint strays from the motion
+      around the handle more than around a handle on a control frame.
     - ``"linear"`` (default): each joint's control positions linear in *frame* between its
       nearest conditions before and after them, wherever those sit (on control frames this
       is :func:`handle_interpolation`'s interpolation in control index), Catmull-Rom

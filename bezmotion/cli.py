@@ -21,7 +21,7 @@ from bezmotion.assets.registry import check_manifest, models_table, write_manife
 from bezmotion.compilation_cache import use_compilation_cache
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.demo import demo
-from bezmotion.inbetween_command import InbetweenOptions, run_inbetween
+from bezmotion.inbetween_command import InbetweenCommand, run_inbetween
 from bezmotion.options import add_options, option, options, options_from
 from bezmotion.ik.exact import exact_settings
 from bezmotion.pipeline.authoring import CHANNEL_CHOICES, EXACT_HELP, FOOT_LOCK_HELP, IK_CHOICES
@@ -87,9 +87,9 @@ def main(argv: list[str] | None = None) -> int:
     add_options(p_demo, DemoOptions)
     p_inbetween = sub.add_parser(
         "inbetween", help="in-between two poses of your own BVH files through handles; write BVH, glTF and a preview",
-        description=InbetweenOptions.__doc__, epilog=INBETWEEN_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=InbetweenCommand.__doc__, epilog=INBETWEEN_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter,
     )  # fmt: skip
-    add_options(p_inbetween, InbetweenOptions)
+    add_options(p_inbetween, InbetweenCommand)
     p_models = sub.add_parser(
         "models", help="list the pretrained models: bundled or how to train them, size, data, licence, retrain commands",
         description="The pretrained models by name (bezmotion.pretrained(NAME) in Python; --model NAME, --ik-model NAME here).",
@@ -110,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
                 channels=args.channels, foot_lock=args.foot_lock, exact_settings=exact_settings(args.exact),
             )  # fmt: skip
         elif parsed.command == "inbetween":
-            run_inbetween(options_from(p_inbetween, InbetweenOptions, parsed))
+            run_inbetween(options_from(p_inbetween, InbetweenCommand, parsed))
         elif parsed.command == "models":
             if parsed.write_manifest:
                 print(f"wrote {write_manifest()}")

@@ -4,8 +4,7 @@ Most of a ``bezmotion demo`` or ``bezmotion inbetween`` run is XLA compiling the
 the IKs, the same programs every time. JAX can keep compiled programs on disk and load them
 in the next process instead of compiling again (its persistent compilation cache, keyed by
 the program, the jax/jaxlib versions and the backend, so an upgrade misses rather than
-loads a stale program): the demo took 70 s the first time and 27–31 s after on a 2-core
-CPU (2026-12-02).
+loads a stale program), so a second run of the demo skips most of its compiling.
 
 The command line turns it on (:func:`use_compilation_cache`); the library does not, so code
 that imports bezmotion keeps whatever cache its process configures. Where the process has a
@@ -24,11 +23,9 @@ from bezmotion.data.cache import cache_dir
 
 SWITCH_ENV = "BEZMOTION_XLA_CACHE"
 OFF = ("0", "off", "false", "no")
-#: Programs that compile faster than this are not written (JAX's default is 1 s). The demo
-#: compiles one large program (the whole in-between, 25 s) and 235 small ones (16 s together,
-#: none over 0.4 s; ``JAX_LOG_COMPILES=1``, 2026-12-01). Keeping the small ones too costs 2.5 MB
-#: against 1.3 and saves a third of the second run: 27–31 s against 39–43 s with a 0.5 s threshold
-#: (two runs each after a first of 70 s, 2026-12-02).
+#: Programs that compile faster than this are not written (JAX's default is 1 s). Every program
+#: is kept: besides one large program (the whole in-between) the demo compiles hundreds of small
+#: ones, each under JAX's threshold but together a large part of its compile time.
 MIN_COMPILE_SECONDS = 0.0
 
 

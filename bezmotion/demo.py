@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from bezmotion.io import atomic_write_text, check_writable_folder, save_figure
@@ -31,7 +32,7 @@ from bezmotion.data.bvh import read_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, FEET
 from bezmotion.ik.protocol import Character, Pose, pose_fk
 from bezmotion.ik.protores import load_ik_model
-from bezmotion.pipeline import InbetweenResult, full_body_handles_error, inbetween, pose_to_bvh
+from bezmotion.pipeline import InbetweenOptions, InbetweenResult, Inbetweener, full_body_handles_error, inbetween, pose_to_bvh
 from bezmotion.pipeline.window_figures import curve_miss, largest_turn
 from bezmotion.pipeline.authoring import (
     CHANNEL_CHOICES,
@@ -72,7 +73,7 @@ def _plot(
     along = lambda p: p @ forward  # noqa: E731
     fig, (curves_ax, poses_ax) = plt.subplots(1, 2, figsize=(13, 4.8))
     colours = plt.cm.tab10(np.arange(len(CHARACTERISTIC_JOINTS)))
-    dense, ctrl = np.asarray(result.positions), np.asarray(result.curves.ctrl_pos)
+    dense, ctrl = np.asarray(result.positions), np.asarray(result.joined_curves().ctrl_pos)
     for j, name in enumerate(CHARACTERISTIC_JOINTS):
         curves_ax.plot(along(dense[:, j]), dense[:, j, 1], color=colours[j], label=name)
         curves_ax.plot(along(ctrl[:, j]), ctrl[:, j, 1], "o", color=colours[j], ms=4)
@@ -205,14 +206,14 @@ def demo(
         raise ValueError(f"--frame {frame} --offset {' '.join(f'{x:g}' for x in offset)}: {error}") from None
     # Curves of another skeleton are moved over (BMM §5.2).
     transfer = make_transfer(load_profile(bmm_corpus), None if bmm_corpus == recognised.preset else target_profile(recognised, [motion]))
-    start, end = jax.tree.map(lambda x: x[0], truth), jax.tree.map(lambda x: x[-1], truth)
+    model = Inbetweener(bmm, ik_fn, ik_params, character, transfer)
+    keys = jax.tree.map(lambda x: x[jnp.asarray([0, -1])], truth)
     t0 = time.perf_counter()
-    run = functools.partial(inbetween, key=jax.random.key(seed), transfer=transfer, steps=steps, foot_lock=foot_lock)
-    result = run(bmm, ik_fn, ik_params, character, start, end, handles)
-    jax.block_until_ready(result)
+    run = functools.partial(inbetween, model, keys, handles, key=jax.random.key(seed), options=InbetweenOptions(steps=steps, foot_lock=foot_lock))
+    result = jax.block_until_ready(run())
     first_call_s = time.perf_counter() - t0
     t0 = time.perf_counter()
-    jax.block_until_ready(run(bmm, ik_fn, ik_params, character, start, end, handles))
+    jax.block_until_ready(run())
     second_call_s = time.perf_counter() - t0
 
     out.mkdir(parents=True, exist_ok=True)
@@ -230,7 +231,7 @@ def demo(
     handle_records = ({"joint": joint, "frame": frame, "position": handle_pos.tolist()},)
     # BVH; the curves as glTF CUBICSPLINE controllers beside the skeleton; an animated preview.
     files = ResultFiles(
-        character, pose_to_bvh(character, result.pose, **export), result.curves, bmm.config.stride, handle_records, truth_motion,
+        character, pose_to_bvh(character, result.pose, **export), result.joined_curves(), bmm.config.stride, handle_records, truth_motion,
         f"{clip.name}: {joint} at frame {frame} moved by {list(offset)} cm",
     )  # fmt: skip
     for name in ("inbetween", "glb", "gif"):

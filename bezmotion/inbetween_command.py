@@ -18,7 +18,7 @@ the command refuses another distance rather than silently retiming the clip;
 More than two ``--frames`` (``CLIP.bvh --frames 0 30 60 90``, each 30 after the one before)
 in-between a chain through every one of them: one window per pair of consecutive keys, all
 sampled in one call and joined C¹ at the shared keys
-(:func:`~bezmotion.pipeline.inbetween_chain`), then one IK over the whole motion.
+(:func:`~bezmotion.pipeline.inbetween`), then one IK over the whole motion.
 ``--key FILE.bvh@FRAME``, repeated, makes such a chain through any poses of any files, in
 the order given, each put 30 frames after the one before.
 Every key file must have the same joints; the output rigs like the first one (its OFFSETs
@@ -91,7 +91,7 @@ from bezmotion.ik.protores import load_ik_model
 from bezmotion.ik.rig import make_rig
 from bezmotion.io import atomic_write_text, check_writable_folder
 from bezmotion.options import option, options
-from bezmotion.pipeline import inbetween, inbetween_chain, join_chain_curves, pose_to_bvh
+from bezmotion.pipeline import InbetweenOptions, Inbetweener, inbetween, pose_to_bvh
 from bezmotion.pipeline.window_figures import (
     HANDLE_MISS_CM,
     ReachChains,
@@ -132,7 +132,7 @@ from bezmotion.pipeline.transfer import ORIENTATION_CHOICES, Transfer
 
 
 @options
-class InbetweenOptions:
+class InbetweenCommand:
     """In-between two poses of your own BVH files through handles; write BVH, glTF and a preview."""
 
     clip: Path | None = option(None, positional=True, metavar="CLIP.bvh", help="one BVH file holding both key poses (with --frames)")
@@ -333,9 +333,9 @@ def resolve_handles(
       keys: the key poses, ``bmm.config.num_frames − 1`` (30) frames apart: two for one
         window, more for a chain.
     Returns:
-      The handles: ``(slots,)`` for one window; ``(windows, slots)`` for a chain, each in its
-      window's own frames (:func:`~bezmotion.pipeline.inbetween_chain`). The records keep the
-      frames as written (counted from the first key).
+      The handles ``(slots,)`` in the in-between's frames (counted from the first key),
+      padded (``valid=False``) to a multiple of :data:`_HANDLE_SLOTS` so that another count
+      reuses the compiled in-between; the records as written.
     Raises:
       ValueError: an unknown joint, a frame outside the in-between or on a key of a chain,
         one the sampler refuses (:meth:`Handles.from_frames`), or a position farther than
@@ -347,7 +347,6 @@ def resolve_handles(
     last = span * (len(keys) - 1)
     idx = np.asarray(character.characteristic)
     key_positions = np.stack([np.asarray(pose_fk(character, p)[1])[idx] for p in keys])  # (keys, 6, 3)
-    per_window: list[tuple[list[str], list[int], list[np.ndarray]]] = [([], [], []) for _ in range(len(keys) - 1)]
     records = []
     placed: dict[tuple[str, int], tuple[str, np.ndarray]] = {}  # (joint, frame) -> (handle as written, position)
     for r in requests:
@@ -375,30 +374,19 @@ def resolve_handles(
             Handles.from_frames([role], [local], position[None], config=bmm.config)
         except ValueError as error:
             raise ValueError(f"{r.source}: {error}") from None
-        for column, value in zip(per_window[window], (role, local, position)):
-            column.append(value)
         records.append({"joint": role, "frame": r.frame, "position": position.tolist()})
-    # Padded (valid=False) to one count, a multiple of _HANDLE_SLOTS, so that another count of
-    # handles reuses the compiled in-between rather than compiling again.
-    # (Never fewer than one slot: Handles.empty() has one.)
-    slots = _HANDLE_SLOTS * max(1, -(-max(len(roles) for roles, _, _ in per_window) // _HANDLE_SLOTS))
-
-    def padded(roles: list[str], frames: list[int], positions: list[np.ndarray]) -> Handles:
-        handles = Handles.from_frames(roles, frames, np.stack(positions), config=bmm.config) if roles else Handles.empty()
-        pad = slots - len(handles.valid)
-        return jax.tree.map(lambda x: jnp.concatenate([x, jnp.zeros((pad, *x.shape[1:]), x.dtype)]), handles)
-
-    windows = [padded(*columns) for columns in per_window]
-    return (windows[0] if len(windows) == 1 else jax.tree.map(lambda *x: jnp.stack(x), *windows)), records
+    return _records_as_handles(records, slots=_HANDLE_SLOTS * max(1, -(-len(records) // _HANDLE_SLOTS))), records
 
 
-def _records_as_handles(records: Sequence[dict[str, Any]]) -> Handles:
-    """The handle records (frames counted from the first key, as written) as one ``Handles``."""
+def _records_as_handles(records: Sequence[dict[str, Any]], slots: int | None = None) -> Handles:
+    """The handle records (frames counted from the first key, as written) as one ``Handles``,
+    padded with ``valid=False`` slots to ``slots`` (default: none)."""
+    pad = (len(records) if slots is None else slots) - len(records)
     return Handles(
-        joint=jnp.asarray([CHARACTERISTIC_JOINTS.index(r["joint"]) for r in records], jnp.int32),
-        frame=jnp.asarray([r["frame"] for r in records], jnp.int32),
-        position=jnp.asarray(np.reshape([r["position"] for r in records], (-1, 3)), jnp.float32),
-        valid=jnp.ones(len(records), bool),
+        joint=jnp.asarray([CHARACTERISTIC_JOINTS.index(r["joint"]) for r in records] + [0] * pad, jnp.int32),
+        frame=jnp.asarray([r["frame"] for r in records] + [0] * pad, jnp.int32),
+        position=jnp.asarray(np.reshape([r["position"] for r in records] + [[0.0] * 3] * pad, (-1, 3)), jnp.float32),
+        valid=jnp.asarray([True] * len(records) + [False] * pad),
     )
 
 
@@ -507,7 +495,7 @@ class Plan:
     transferred: bool = False  # the BMM was trained on another skeleton (``transfer`` may also hold the facing alone)
 
 
-def _outputs(args: InbetweenOptions) -> tuple[list[dict[str, Path]], Path | None]:
+def _outputs(args: InbetweenCommand) -> tuple[list[dict[str, Path]], Path | None]:
     """Per sample, ``{suffix: path}``; and the folder (None when ``--out`` is a file)."""
     out = args.out
     n = args.samples
@@ -541,7 +529,7 @@ def default_models(skeleton: str | None, model: str | None, ik_model: str | None
     )
 
 
-def plan(args: InbetweenOptions) -> Plan:
+def plan(args: InbetweenCommand) -> Plan:
     """Check every argument, read the inputs and load the models; writes nothing.
 
     Raises:
@@ -692,7 +680,7 @@ def bvh_frame_rate(choice: str, clip_fps: float) -> float:
 
 
 def _clip_frame(
-    args: InbetweenOptions, keys: Sequence[tuple[str, str, Path, BvhMotion, int]], character: Character
+    args: InbetweenCommand, keys: Sequence[tuple[str, str, Path, BvhMotion, int]], character: Character
 ) -> tuple[ClipFrame, list[str]]:
     """The clips' units and up axis (``--units``/``--up`` where given, else told from the
     clips: :mod:`bezmotion.data.clip_frame`), and warnings.
@@ -742,7 +730,7 @@ def _clip_frame(
     return ClipFrame(units, up), warnings
 
 
-def _read_keys(args: InbetweenOptions) -> tuple[list[tuple[str, str, Path, BvhMotion, int]], str]:
+def _read_keys(args: InbetweenCommand) -> tuple[list[tuple[str, str, Path, BvhMotion, int]], str]:
     """The key poses the arguments name, read and checked, in order: ``[(argument, as
     written, path, clip, frame)]``, and a label for them. One of CLIP ``--frames``,
     ``--start``/``--end`` or ``--key`` (repeated)."""
@@ -853,7 +841,7 @@ def _stderr(message: str) -> None:
     print(f"bezmotion inbetween: {message}", file=sys.stderr, flush=True)
 
 
-def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None = None) -> dict[str, Any]:
+def run_inbetween(args: InbetweenCommand, *, say: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Run ``bezmotion inbetween`` (see the module docstring); returns its summary.
 
     Args:
@@ -883,22 +871,17 @@ def run_inbetween(args: InbetweenOptions, *, say: Callable[[str], None] | None =
     for warning in [*p.warnings, *warnings]:
         warn(f"warning: {warning}")
     export = dict(fps=p.start_motion.nominal_fps, channels=None if args.channels == "default" else p.start_motion.channels, template=p.start_motion)
+    model = Inbetweener(p.bmm, p.ik_fn, p.ik_params, character, p.transfer)
+    keys = jax.tree.map(lambda *x: jnp.stack(x), *p.keys)
+    options = InbetweenOptions(steps=args.steps, foot_lock=args.foot_lock, key_orientations=not args.key_positions_only)
     samples = []
     for k in range(n):
         t0 = time.perf_counter()
         say(f"sample {k + 1}/{n}" + (" (compiling first, about a minute on a CPU) …" if k == 0 else " …"))
-        common = dict(
-            key=jax.random.fold_in(jax.random.key(args.seed), k), transfer=p.transfer, steps=args.steps,
-            key_orientations=not args.key_positions_only, key_velocity=p.key_velocity, foot_lock=args.foot_lock,
-        )  # fmt: skip
-        if windows == 1:
-            result = inbetween(p.bmm, p.ik_fn, p.ik_params, character, p.keys[0], p.keys[1], p.handles, **common)
-            curves = result.curves
-        else:
-            keys = jax.tree.map(lambda *x: jnp.stack(x), *p.keys)
-            result = inbetween_chain(p.bmm, p.ik_fn, p.ik_params, character, keys, p.handles, **common)
-            curves = join_chain_curves(result.curves)  # one curve through every key (C¹ there)
-        jax.block_until_ready(result)
+        result = inbetween(
+            model, keys, p.handles, key=jax.random.fold_in(jax.random.key(args.seed), k), options=options, key_velocity=p.key_velocity
+        )
+        curves = result.joined_curves()  # one curve through every key (C¹ there)
         seconds = time.perf_counter() - t0
         motion = pose_to_bvh(character, result.pose, **export)
         files = ResultFiles(

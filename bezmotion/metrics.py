@@ -126,8 +126,7 @@ def foot_skating_ratio(
     which frames are on the floor, the speeds still ``feet_pos``'. Given the curves two IKs
     were both given, it judges them on the same frames: by the paper's test an IK whose
     sliding feet hover more than ``height_threshold`` above the floor where the curves put
-    them on it skates less than one that keeps them there (docs/precision.md, *Sliding judged
-    on the curves' floor contacts*).
+    them on it skates less than one that keeps them there.
     """
     if heights_from is not None and heights_from.shape != feet_pos.shape:
         raise ValueError(f"heights_from has shape {heights_from.shape}, feet_pos {feet_pos.shape}: they must match")

@@ -2,10 +2,9 @@
 
 On the CPU backend, XLA hands matrix products to YNNPACK by default. For the BMM
 sampler's shapes (≈ 20 tokens × 512 features against 512 × 1536 weights, batch 1) its
-kernels are slower than XLA's own (Eigen): paper-size 10-step sampling measured
-75 ms against 81–83 ms (min of 80 runs, 2-core AMD EPYC, jaxlib 0.10.2;
-``benchmarks/bmm_inference.py`` reports both). Training steps, with 64× more rows,
-showed no difference, so training keeps XLA's defaults.
+kernels are slower than XLA's own (Eigen), so inference turns them off
+(``benchmarks/bmm_inference.py`` times both). Training steps, with 64× more rows, gain
+nothing from it, so training keeps XLA's defaults.
 
 The options are passed per computation (``jax.jit(..., compiler_options=…)``), never
 through the process-wide ``XLA_FLAGS``, so nothing else a user compiles is affected.
@@ -15,6 +14,8 @@ A jaxlib that does not know an option gets none (checked once by compiling a sca
 from __future__ import annotations
 
 import functools
+import logging
+import re
 from collections.abc import Callable
 
 import jax
@@ -51,3 +52,50 @@ def call_with_inference_options(compiled: Callable[[tuple[tuple[str, str], ...]]
         if "compiler_options" not in str(error):
             raise
         return compiled(())(*args, **kwargs)
+
+
+def inference_jit(fn: Callable | None = None, *, static_argnames: tuple[str, ...] = ()):
+    """``jax.jit(fn)`` compiled with the backend's inference options, for entry points.
+
+    Called with concrete arrays it waits for the result, so that a run-time check inside
+    (``eqx.error_if``) raises here as a ``ValueError`` with the check's own message; traced
+    inside a caller's ``jax.jit`` it is part of that computation and its checks raise
+    there, as Equinox reports them.
+    """
+    if fn is None:
+        return functools.partial(inference_jit, static_argnames=static_argnames)
+
+    @functools.cache
+    def compiled(options: tuple[tuple[str, str], ...]):
+        return jax.jit(fn, static_argnames=static_argnames, compiler_options=dict(options) or None)
+
+    @functools.wraps(fn)
+    def call(*args, **kwargs):
+        if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((args, kwargs))):
+            return compiled(())(*args, **kwargs)
+        try:
+            return jax.block_until_ready(call_with_inference_options(compiled, *args, **kwargs))
+        except (jax.errors.JaxRuntimeError, ValueError) as error:  # jax raises a failed callback as either
+            message = check_message(error)
+            if message is None:
+                raise
+            raise ValueError(message) from None
+
+    return call
+
+
+class _QuietChecks(logging.Filter):
+    """Drops JAX's log of a failed ``eqx.error_if`` callback: :func:`inference_jit` raises it."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not (record.exc_info and type(record.exc_info[1]).__name__ == "_EquinoxRuntimeError")
+
+
+logging.getLogger("jax._src.callback").addFilter(_QuietChecks())
+
+
+def check_message(error: BaseException) -> str | None:
+    """The message of a failed ``eqx.error_if`` inside a computation that ``jax.jit`` ran
+    (which wraps it in its own runtime error), or ``None`` for any other error."""
+    found = re.search(r"_EquinoxRuntimeError: (.*?)\n\n\n-----", str(error), re.DOTALL)
+    return None if found is None else found.group(1).strip()

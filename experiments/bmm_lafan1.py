@@ -101,7 +101,7 @@ class Options(DistributedOptions):
     )
     off_grid_prior: str = option(
         "linear", choices=OFF_GRID_REFERENCES,
-        help="with --prediction residual: how the reference curves it predicts over reach handles between control frames: linear (interpolated through them in frame; default) or projection (a bump at the handle; every model trained before 2026-12-01)",
+        help="with --prediction residual: how the reference curves it predicts over reach handles between control frames: linear (interpolated through them in frame; default) or projection (a bump at the handle; what models saved without off_grid_prior learned over)",
     )  # fmt: skip
     steps: int = option(6000, help="training steps (default 6000)")
     batch_size: int = BMMTrainConfig.batch_size

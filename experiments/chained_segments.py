@@ -1,4 +1,4 @@
-"""Chained segments (issue 15 item 5): the velocity jump at shared keys, coupled vs independent windows.
+"""Chained segments: the velocity jump at shared keys, coupled vs independent windows.
 
     python experiments/chained_segments.py --chains 50 --out results/chained_segments.json
 

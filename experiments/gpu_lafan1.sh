@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # LaFAN1 trainings on subjects 1–4 side by side on one GPU, each for the same wall time,
 # then each evaluated on subject 5 (BMMs: curves before IK, 10 DDIM steps; IK: Table 2
-# effector sets). JOBS picks them (default: the three of 2026-11-26's first run):
+# effector sets). JOBS picks them (default: paper_x0 paper_residual cpu_residual):
 #
 #   paper_x0        the paper's model (17.4 M) and training: x0 prediction, Min-SNR-γ 5,
 #                   batch 64, lr 1e-4 (BMM Table 4)
@@ -20,7 +20,7 @@
 # Precision: the curve fit asks for full float32 products itself (bezmotion.linalg), so
 # the networks may use the GPU's fast default (TF32). The script fits the datasets first
 # with the default and says whether that converged; if it did not, it sets
-# JAX_DEFAULT_MATMUL_PRECISION=highest for everything (as the first runs were measured).
+# JAX_DEFAULT_MATMUL_PRECISION=highest for everything.
 #
 # KILL_AFTER_S counts from the script's start. Runs unchanged on a CPU (slowly). Writes under $OUT: results.tar.gz (every job's JSON,
 # Markdown report, learning-curve PNG and JSON, log) and the trained models as float16

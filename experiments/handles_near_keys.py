@@ -4,7 +4,7 @@ A handle ``OFFSET`` (cm, default 20 up) off the straight line, ``d`` frames afte
 the joint to cover that much in ``d`` frames. Where the tangent at that key is held (a key's
 given velocity, ``--key-velocities``; a chain's shared key), the projection onto the handle
 can move only the next control point, whose weight one frame from the key is 0.07, and the
-curve swings far out (docs/precision.md, *Handles next to keys*). For each distance this
+curve swings far out. For each distance this
 samples the bundled clip's in-between (seed 0, bundled models, foot lock) with and without
 key velocities, and a chain of two windows through the clip played there and back with the
 handle after (and before) its shared key, and reports the joint's largest distance from its
@@ -27,10 +27,10 @@ import numpy as np
 from bezmotion.assets import DEMO_CLIP
 from bezmotion.data.bvh import read_bvh, write_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
-from bezmotion.inbetween_command import InbetweenOptions, plan
+from bezmotion.inbetween_command import InbetweenCommand, plan
 from bezmotion.io import atomic_write_text
 from bezmotion.options import option, options, parse_options
-from bezmotion.pipeline.inbetweening import inbetween, inbetween_chain
+from bezmotion.pipeline import InbetweenOptions, Inbetweener, inbetween
 
 
 @options
@@ -43,13 +43,13 @@ class Options:
 
 def curve(argv: list[str]) -> np.ndarray:
     """The dense curve ``(frames, 6, 3)`` of ``bezmotion inbetween ARGV``'s first sample (IK skipped: the rig)."""
-    p = plan(parse_options(InbetweenOptions, [*argv, "--ik", "rig"]))
-    common = dict(key=jax.random.fold_in(jax.random.key(0), 0), transfer=p.transfer, key_velocity=p.key_velocity, foot_lock=True)
-    character = p.recognised.character
-    if len(p.keys) == 2:
-        return np.asarray(inbetween(p.bmm, p.ik_fn, p.ik_params, character, p.keys[0], p.keys[1], p.handles, **common).positions)
+    p = plan(parse_options(InbetweenCommand, [*argv, "--ik", "rig"]))
+    model = Inbetweener(p.bmm, p.ik_fn, p.ik_params, p.recognised.character, p.transfer)
     keys = jax.tree.map(lambda *x: jnp.stack(x), *p.keys)
-    return np.asarray(inbetween_chain(p.bmm, p.ik_fn, p.ik_params, character, keys, p.handles, **common).positions)
+    result = inbetween(
+        model, keys, p.handles, key=jax.random.fold_in(jax.random.key(0), 0), options=InbetweenOptions(foot_lock=True), key_velocity=p.key_velocity
+    )
+    return np.asarray(result.positions)
 
 
 def swing(keys: list[str], handle_frames: list[int], joint: str, offset: str) -> list[dict]:

@@ -1,4 +1,4 @@
-"""Our motion feature extractor (issue 13): train it, then check that FID and diversity on
+"""Our motion feature extractor: train it, then check that FID and diversity on
 its embeddings say what they should.
 
     python experiments/motion_features.py --out results/motion_features.json

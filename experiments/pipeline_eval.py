@@ -1,4 +1,4 @@
-"""The whole pipeline on one corpus, every IK on the same curves (issue 15, item 6).
+"""The whole pipeline on one corpus, every IK on the same curves.
 
     python experiments/pipeline_eval.py --corpus bandai_namco --windows 100 --out results/pipeline_eval_bn.json
     python experiments/pipeline_eval.py --corpus bandai_namco --bvh-dir my_clips/ --ik exact --out mine.json
@@ -52,8 +52,8 @@ chain's frame; the keys are the mocap's poses at frames 0, 30, …, 30·K. The c
 sampled once per chain (:func:`~bezmotion.pipeline.evaluation.sample_chain_curves`, one
 ``sample_chained_curves`` call, key ``fold_in(--sample-seed, first window's row)``),
 coupled C¹ at the shared keys, and every IK runs once over the chain's joined frames, each
-window blended to its two keys (:func:`~bezmotion.pipeline.inbetweening.pose_from_chain_curves`,
-as :func:`~bezmotion.pipeline.inbetweening.inbetween_chain` does); ``--chunk`` windows per
+window blended to its two keys (:func:`~bezmotion.pipeline.inbetweening.pose_from_curves`,
+as :func:`~bezmotion.pipeline.inbetweening.inbetween` does); ``--chunk`` windows per
 call become ``--chunk // K`` chains (at least one). The same curves are also sampled
 independently (BMM Appendix D.1, same noise) for the velocity jump at the shared keys
 (:func:`~bezmotion.metrics.chain_velocity_jumps`, six joints, cm/frame), beside the mocap's
@@ -151,8 +151,8 @@ With ``--segments K`` (K > 1) ``windows`` is chains × K, ``curves`` also holds
       joints, its mean and standard error over the chains),
       "metrics": {<how each figure is taken over a chain>}, "not_computed": {<figure>: why}}
 
-With a single ``--ik`` its ``id`` and ``ood`` also sit at the top level (the issue's
-``{"windows": n, "id": {…}, "ood": {…}, "curves": …}``). A Markdown report is written
+With a single ``--ik`` its ``id`` and ``ood`` also sit at the top level
+(``{"windows": n, "id": {…}, "ood": {…}, "curves": …}``). A Markdown report is written
 beside the JSON.
 """
 
@@ -252,7 +252,7 @@ class Options:
     handle_frames: str = option("grid", choices=HANDLE_FRAMES, help="handles on control frames, between them, or any frame")
     off_grid_prior: str | None = option(
         None, choices=OFF_GRID_REFERENCES,
-        help="sample a residual BMM over this reference between control frames (default: the model's own; models trained before 2026-12-01 learned over projection)",
+        help="sample a residual BMM over this reference between control frames (default: the model's own; models saved without off_grid_prior learned over projection)",
     )  # fmt: skip
     segments: int = option(1, help="windows per evaluated chain, keys 30 frames apart (1: single windows)")
     steps: int = option(10, help="DDIM steps")
@@ -267,7 +267,7 @@ class Options:
     foot_lock_anchor: str = option(
         ANCHORS[0], choices=ANCHORS,
         help="where a locked run's control points stand: at the nearest of its conditions (a run between two steps "
-        "once between them) or at their mean (the rule before 2026-12-01)",
+        "once between them) or at their mean",
     )  # fmt: skip
     key_blend: int = option(KEY_BLEND_FRAMES, help="frames over which the start / end poses are blended in (0: replace the two frames)")
     chunk: int = option(10, help="windows per compiled call, chains: chunk // K (large chunks of the exact IK have hung XLA)")

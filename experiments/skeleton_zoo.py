@@ -43,7 +43,7 @@ from bezmotion.data.resample import TRAINED_FPS, resample_motion
 from bezmotion.evaluation import skeleton_zoo as zoo
 from bezmotion.geometry.rotations import quat_conjugate
 from bezmotion.geometry.skeleton import forward_kinematics
-from bezmotion.inbetween_command import InbetweenOptions, run_inbetween
+from bezmotion.inbetween_command import InbetweenCommand, run_inbetween
 from bezmotion.io import write_results
 from bezmotion.ik.rig import derive_rig_spec
 from bezmotion.options import option, options, parse_options
@@ -211,7 +211,7 @@ def in_reference_frame(variant: Variant, motion: BvhMotion, reference_names: tup
 def run(path: Path, frames: list[int], seed: int, out: Path, extra: tuple[str, ...] = ()) -> BvhMotion:
     """``bezmotion inbetween PATH --frames … --seed SEED --out OUT`` (a BVH file), read back."""
     argv = [str(path), "--frames", *map(str, frames), "--seed", str(seed), "--out", str(out), "--no-progress", *extra]
-    run_inbetween(parse_options(InbetweenOptions, argv))
+    run_inbetween(parse_options(InbetweenCommand, argv))
     return read_bvh(out)
 
 

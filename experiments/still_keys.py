@@ -26,10 +26,10 @@ from bezmotion.data.bvh import read_bvh, write_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, SKELETON_MAPS
 from bezmotion.evaluation import skeleton_zoo as zoo
 from bezmotion.geometry.rotations import quat_angle, quat_from_rot6d
-from bezmotion.inbetween_command import InbetweenOptions, plan
+from bezmotion.inbetween_command import InbetweenCommand, plan
 from bezmotion.io import write_results
 from bezmotion.options import option, options, parse_options
-from bezmotion.pipeline.inbetweening import chain_curves_traced
+from bezmotion.pipeline.inbetweening import InbetweenOptions, curves_traced, window_handles
 from bezmotion.pipeline.transfer import Transfer
 
 
@@ -70,15 +70,13 @@ def still_curves(args: Options) -> dict[str, list[float]]:
         write_bvh(held, zoo.still(clip, args.frame, round(31 * clip.nominal_fps / 30.0)), precision=9)
         extra = ["--model", args.model] if args.model else []
         extra += ["--trained-on", args.trained_on] if args.trained_on else []
-        p = plan(parse_options(InbetweenOptions, [str(held), "--frames", "0", str(round(30 * clip.nominal_fps / 30.0)), "--out", f"{tmp}/x.bvh", *extra]))
+        p = plan(parse_options(InbetweenCommand, [str(held), "--frames", "0", str(round(30 * clip.nominal_fps / 30.0)), "--out", f"{tmp}/x.bvh", *extra]))
     keys = jax.tree.map(lambda *x: jnp.stack(x), *p.keys)
     transfer = p.transfer if p.transfer is not None else Transfer.identity()
-    handles = jax.tree.map(lambda x: x[None], p.handles)
+    handles = window_handles(p.handles, 1, p.bmm.config.num_frames - 1)
     moved, turned = [], []
     for seed in range(args.seeds):
-        w = chain_curves_traced(
-            p.bmm, p.recognised.character, keys, handles, transfer, jax.random.key(seed), steps=10, guidance=1.0, foot_lock=True
-        )
+        w = curves_traced(p.bmm, p.recognised.character, keys, handles, transfer, jax.random.key(seed), InbetweenOptions(foot_lock=True))
         pos, quat = np.asarray(w.positions[0]), quat_from_rot6d(w.rot6d[0])
         moved.append(np.linalg.norm(pos - pos[:1], axis=-1).max(0).tolist())
         turned.append(np.degrees(np.asarray(quat_angle(quat, quat[:1]))).max(0).tolist())

@@ -1,4 +1,4 @@
-"""The paper's Table 1, complete (issue 13): every row on every corpus, after IK, with FID,
+"""The paper's Table 1, complete: every row on every corpus, after IK, with FID,
 diversity and multimodality; and its Table 6 / Figure 12 (FID against DDIM steps).
 
     python experiments/table1.py --out results/table1.json
@@ -570,7 +570,7 @@ def main(argv: list[str] | None = None) -> dict:
         table[name], extra["table6"][name], extra["info"][name] = r["rows"], r["table6"], r["info"]
     extra["settings"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in vars(args).items()}
     extra["seconds"] = time.perf_counter() - started
-    # The issue's layout: {corpus: {row: {metric: value}}}, what else beside it.
+    # The results' layout: {corpus: {row: {metric: value}}}, what else beside it.
     results = {**table, **extra}
     png = Path(args.out).with_suffix(".png")
     report = format_report(args, table, extra)

@@ -8,25 +8,23 @@ Compilation settings for the session (the suite's time is mostly XLA compiling s
 programs, not running them):
 
 - XLA's slower optimisation passes are off (``jax_disable_most_optimizations``): the same
-  programs with the same semantics, compiled ~20 % faster. ``BEZMOTION_TEST_XLA_OPTIMIZE=1``
+  programs with the same semantics, compiled faster. ``BEZMOTION_TEST_XLA_OPTIMIZE=1``
   runs the suite with XLA's full optimisation instead.
 - With them, XLA's CPU compiler emits elementwise code the older way
-  (``_FAST_COMPILE_FLAGS``, through ``XLA_FLAGS``): an exact IK window solve compiles in
-  3.8 s instead of 6.0, and the whole suite took 577 s instead of 869 on this 2-core machine
-  (jaxlib 0.10.2). The programs are the same; they run a little slower, which the tests
-  never time. (The older runtime's flag, ``--xla_cpu_use_thunk_runtime=false``, was passed
-  too until 2026-12-02: jaxlib 0.10.2 accepts it but ignores it, warning in every process
-  that it is no longer supported.) A jaxlib that does not know a flag would abort at
-  start-up, so the process that starts the session first tries them in a child process and
-  keeps those it accepts (``BEZMOTION_TEST_XLA_FLAGS`` hands the choice to xdist's workers).
+  (``_FAST_COMPILE_FLAGS``, through ``XLA_FLAGS``), which compiles the exact IK's solves
+  and the suite as a whole markedly faster. The programs are the same; they run a little
+  slower, which the tests never time. (The older runtime's flag,
+  ``--xla_cpu_use_thunk_runtime=false``, is not passed: jaxlib accepts it but ignores it,
+  warning in every process that it is no longer supported.) A jaxlib that does not know a
+  flag would abort at start-up, so the process that starts the session first tries them in a
+  child process and keeps those it accepts (``BEZMOTION_TEST_XLA_FLAGS`` hands the choice to
+  xdist's workers).
 - A persistent compilation cache in a temporary folder lives as long as the session and is
   shared by xdist's workers, so a program that several modules compile (the bundled
   models' sampler, say) is compiled once, in whichever worker needs it first, although
   :func:`release_compiled_code` drops every executable after each module. Every program is
   written, however fast it compiled: the many small ones (FK, rotations, metrics) come back
-  in module after module, and loading them beats compiling them again (the whole suite took
-  1,013 s with a 0.3 s threshold, 928 s with none; 30.4 against 27.7 CPU minutes; one run
-  each, 2026-12-02).
+  in module after module, and loading them beats compiling them again.
 """
 
 import atexit

@@ -1,4 +1,4 @@
-"""Our BVH files, imported by Blender (issue 16: "BVH files an animator can rig with").
+"""Our BVH files, imported by Blender: BVH files an animator can rig with.
 
 A pose sequence written the way ``bezmotion demo`` and ``bezmotion inbetween`` write it
 (:func:`~bezmotion.pipeline.export.pose_to_bvh` with the IK model's character and the

@@ -29,7 +29,7 @@ from bezmotion.cli import main
 from bezmotion.data.bvh import read_bvh, write_bvh
 from bezmotion.data.clip_frame import ClipFrame
 from bezmotion.data.resample import resample_motion
-from bezmotion.inbetween_command import HandleRequest, InbetweenOptions, bvh_frame_rate, parse_handle, plan, read_handles_file
+from bezmotion.inbetween_command import HandleRequest, InbetweenCommand, bvh_frame_rate, parse_handle, plan, read_handles_file
 from bezmotion.ik.protocol import targets_from_pose
 from bezmotion.options import parse_options
 from bezmotion.pipeline.authoring import RigSpec, derive_rig_spec, read_mapping, recognise_character
@@ -210,8 +210,8 @@ def test_a_skeleton_no_preset_knows_has_its_joints_read_off_their_names(tmp_path
     clip = renamed_clip(tmp_path)
     mapping = tmp_path / "map.json"
     mapping.write_text(json.dumps({role: f"my_{name}" for role, name in ROLES.items()}))
-    read_off = plan(parse_options(InbetweenOptions, [str(clip), "--frames", "0", "30", *FAST]))
-    mapped = plan(parse_options(InbetweenOptions, [str(clip), "--frames", "0", "30", "--mapping", str(mapping), *FAST]))
+    read_off = plan(parse_options(InbetweenCommand, [str(clip), "--frames", "0", "30", *FAST]))
+    mapped = plan(parse_options(InbetweenCommand, [str(clip), "--frames", "0", "30", "--mapping", str(mapping), *FAST]))
     assert read_off.recognised.read_off_names == {role: f"my_{name}" for role, name in ROLES.items()}
     assert mapped.recognised.read_off_names is None
     assert read_off.recognised.character.characteristic == mapped.recognised.character.characteristic
@@ -428,7 +428,7 @@ def test_models_default_to_those_of_the_clips_skeleton_trained_here(tmp_path, mo
     write_bvh(clip, BvhMotion.from_skeleton(skeleton, quat, root, rotation_order="zyx"))
     argv = [str(clip), "--frames", "0", "30", "--steps", "2", "--no-progress"]
     assert trained_for("lafan1", "bmm") is None and trained_for("bandai_namco", "ik") == "bandai_namco" and trained_for(None, "ik") is None
-    before = plan(parse_options(InbetweenOptions, argv))  # nothing trained on LaFAN1 here: the bundled models
+    before = plan(parse_options(InbetweenCommand, argv))  # nothing trained on LaFAN1 here: the bundled models
     assert before.models == {"bmm": "bandai_namco", "ik": None} and before.ik == "exact_rig" and before.transferred
 
     # "Train" lafan1_cpu here: the bundled BMM's files, and a small untrained IK of the LaFAN1 skeleton.
@@ -439,10 +439,10 @@ def test_models_default_to_those_of_the_clips_skeleton_trained_here(tmp_path, mo
     graphdef, params = init_protores(config, key=jax.random.key(0))
     save_ik_model(runs / "ik_lafan1" / "model", ProtoResModel(params, character, graphdef, config))
     assert trained_for("lafan1", "bmm") == trained_for("lafan1", "ik") == "lafan1_cpu"
-    own = plan(parse_options(InbetweenOptions, argv))
+    own = plan(parse_options(InbetweenCommand, argv))
     assert own.models == {"bmm": "lafan1_cpu", "ik": "lafan1_cpu"} and own.ik == "exact" and not own.transferred
     assert own.transfer.facing is not None and float(own.transfer.scale) == 1.0  # the training facing alone
-    named = plan(parse_options(InbetweenOptions, [*argv, "--model", "bandai_namco", "--ik-model", "bandai_namco"]))
+    named = plan(parse_options(InbetweenCommand, [*argv, "--model", "bandai_namco", "--ik-model", "bandai_namco"]))
     assert named.models == {"bmm": "bandai_namco", "ik": None} and named.ik == "exact_rig" and named.transferred
     assert default_models("lafan1", "my_bmm/", None) == ("my_bmm/", "lafan1_cpu")
     assert default_models(None, None, None) == ("bandai_namco", "bandai_namco")
@@ -535,8 +535,8 @@ def test_a_chain_through_three_keys_keeps_them_and_hits_handles_in_both_windows(
 def test_a_chain_refuses_a_handle_on_its_inner_key_and_takes_every_keys_velocity(long_clip):
     argv = [str(long_clip), "--frames", "1", "31", "61", *FAST]
     with pytest.raises(ValueError, match=r"--handle head@30=\+0,1,0: frame 30 is a key of the chain \(keys at \[0, 30, 60\]\)"):
-        plan(parse_options(InbetweenOptions, [*argv, "--handle", "head@30=+0,1,0"]))
-    p = plan(parse_options(InbetweenOptions, [*argv, "--key-velocities", "--handle", "head@59=+0,1,0"]))
+        plan(parse_options(InbetweenCommand, [*argv, "--handle", "head@30=+0,1,0"]))
+    p = plan(parse_options(InbetweenCommand, [*argv, "--key-velocities", "--handle", "head@59=+0,1,0"]))
     assert len(p.keys) == 3 and p.handles.position.shape == (2, 4, 3)  # (windows, slots, xyz)
     assert np.asarray(p.handles.valid).tolist() == [[False] * 4, [True, False, False, False]]
     assert int(p.handles.frame[1, 0]) == 29  # frame 59 of the chain is frame 29 of its window
@@ -556,7 +556,7 @@ def test_a_handle_one_frame_after_a_shared_key_moves_the_chain_no_faster_than_it
     from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
     from bezmotion.pipeline.inbetweening import inbetween_chain
 
-    p = plan(parse_options(InbetweenOptions, [str(long_clip), "--frames", "0", "30", "60", "--handle", "right_hand@31=+0,20,0", *FAST]))
+    p = plan(parse_options(InbetweenCommand, [str(long_clip), "--frames", "0", "30", "60", "--handle", "right_hand@31=+0,20,0", *FAST]))
     keys = jax.tree.map(lambda *x: jnp.stack(x), *p.keys)
     r = inbetween_chain(p.bmm, p.ik_fn, p.ik_params, p.recognised.character, keys, p.handles, key=jax.random.key(0), steps=2, transfer=p.transfer)
     hand = np.asarray(r.positions)[:, CHARACTERISTIC_JOINTS.index("right_hand")]  # (61, 3)
@@ -569,17 +569,17 @@ def test_keys_from_any_frames_of_any_files_make_a_chain_in_their_order(long_clip
     """``--key FILE@FRAME`` (repeated): each pose put 30 frames after the one before."""
     clip = str(DEMO_CLIP)
     argv = ["--key", f"{clip}@5", "--key", f"{long_clip}@60", "--key", f"{clip}@12", *FAST]
-    p = plan(parse_options(InbetweenOptions, argv))
+    p = plan(parse_options(InbetweenCommand, argv))
     assert p.label == f"{clip}@5 → {long_clip}@60 → {clip}@12" and p.reference is None
     six = list(p.recognised.character.characteristic)
     truth = fk_positions(read_bvh(DEMO_CLIP))[:, six]
     # The long clip's frame 60 is the bundled clip's frame 18 (played forward, then back).
     for pose, frame in zip(p.keys, (5, 18, 12)):
         np.testing.assert_allclose(np.asarray(targets_from_pose(p.recognised.character, pose).position), truth[frame], atol=1e-3)
-    p = plan(parse_options(InbetweenOptions, [*argv, "--key-velocities"]))
+    p = plan(parse_options(InbetweenCommand, [*argv, "--key-velocities"]))
     np.testing.assert_allclose(np.asarray(p.key_velocity)[1], (truth[17] - truth[19]) / 2, atol=1e-3)  # backwards there
     with pytest.raises(ValueError, match=f"--key-velocities: the key {clip}@0 is the first frame of its file; its velocity needs the frames on both sides"):
-        plan(parse_options(InbetweenOptions, ["--key", f"{clip}@5", "--key", f"{clip}@0", "--key", f"{clip}@12", "--key-velocities", *FAST]))
+        plan(parse_options(InbetweenCommand, ["--key", f"{clip}@5", "--key", f"{clip}@0", "--key", f"{clip}@12", "--key-velocities", *FAST]))
 
 
 # ------------------------------------------------------------------------ bad arguments
@@ -674,12 +674,12 @@ def test_the_learned_ik_refuses_another_skeleton(tmp_path):
 def test_key_velocities_come_from_the_frames_around_the_keys(tmp_path):
     """``--key-velocities``: the six joints' velocities at the keys from the frame before the
     start and the one after the end (the motion kept around the in-between)."""
-    args = parse_options(InbetweenOptions, [str(DEMO_CLIP), "--frames", "5", "35", "--key-velocities", *FAST, "--out", str(tmp_path / "x.bvh")])
+    args = parse_options(InbetweenCommand, [str(DEMO_CLIP), "--frames", "5", "35", "--key-velocities", *FAST, "--out", str(tmp_path / "x.bvh")])
     p = plan(args)
     six = list(p.recognised.character.characteristic)
     pos = fk_positions(read_bvh(DEMO_CLIP))[:, six]
     np.testing.assert_allclose(np.asarray(p.key_velocity), np.stack([pos[5] - pos[4], pos[36] - pos[35]]), atol=1e-3)
-    assert plan(parse_options(InbetweenOptions, [str(DEMO_CLIP), "--frames", "5", "35", *FAST])).key_velocity is None
+    assert plan(parse_options(InbetweenCommand, [str(DEMO_CLIP), "--frames", "5", "35", *FAST])).key_velocity is None
 
 
 @pytest.mark.parametrize("flag, locked", [([], True), (["--no-foot-lock"], False), (["--foot-lock"], True)])
@@ -694,7 +694,7 @@ def test_foot_lock_reaches_the_pipeline(flag, locked, tmp_path, monkeypatch):
         raise Called(kwargs["foot_lock"])
 
     monkeypatch.setattr(command, "inbetween", inbetween)
-    args = parse_options(InbetweenOptions, [str(DEMO_CLIP), "--frames", "0", "30", *FAST, *flag, "--out", str(tmp_path / "x.bvh")])
+    args = parse_options(InbetweenCommand, [str(DEMO_CLIP), "--frames", "0", "30", *FAST, *flag, "--out", str(tmp_path / "x.bvh")])
     with pytest.raises(Called) as called:
         command.run_inbetween(args)
     assert called.value.args == (locked,)
@@ -703,9 +703,9 @@ def test_foot_lock_reaches_the_pipeline(flag, locked, tmp_path, monkeypatch):
 def test_exact_settings_reach_the_exact_ik(tmp_path):
     """``--exact NAME=VALUE`` (repeatable) sets the exact IK's :class:`ExactIKParams`."""
     argv = [str(DEMO_CLIP), "--frames", "0", "30", *FAST, "--ik", "exact", "--out", str(tmp_path / "x.bvh")]
-    p = plan(parse_options(InbetweenOptions, [*argv, "--exact", "plant_weight=10", "--exact", "iterations=3"]))
+    p = plan(parse_options(InbetweenCommand, [*argv, "--exact", "plant_weight=10", "--exact", "iterations=3"]))
     assert p.ik == "exact" and p.ik_params.plant_weight == 10.0 and p.ik_params.iterations == 3
-    default = plan(parse_options(InbetweenOptions, argv)).ik_params
+    default = plan(parse_options(InbetweenCommand, argv)).ik_params
     assert default.plant_weight == 4.0 and default.iterations == 6
 
 

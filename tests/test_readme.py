@@ -1,4 +1,4 @@
-"""Every ```python block of README.md and of the docs pages runs as written.
+"""Every ```python block of README.md and of the documentation site's pages runs as written.
 
 Each block is self-contained (its own imports) and runs in a fresh namespace inside an
 empty working directory, so files it writes land in a temporary folder and a block never
@@ -14,6 +14,8 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
+# The README and the site's pages (docs/*.md); not docs/notebook/, whose dated entries are
+# records of what was run then, not examples kept runnable.
 PAGES = [README, *sorted((ROOT / "docs").glob("*.md"))]
 FENCE = re.compile(r"^```python\n(.*?)^```$", re.MULTILINE | re.DOTALL)
 

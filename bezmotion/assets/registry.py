@@ -1,6 +1,6 @@
 """Pretrained models by name: one registry of what ships, what must be retrained, and how.
 
-    pt = bezmotion.pretrained("bandai_namco")    # BMM, learned IK, character, profile, joint limits
+    parts = load_pretrained("bandai_namco")    # BMM, learned IK, character, profile, joint limits
     bezmotion models                             # what is bundled: size, data, licence, retrain commands
     bezmotion models --write-manifest            # after retraining a bundled model (--check: verify)
 
@@ -63,7 +63,7 @@ class ModelEntry:
     """A BMM and a learned IK trained on one skeleton, by name.
 
     Attributes:
-      name: what :func:`pretrained`, ``--model`` and ``--ik-model`` take.
+      name: what :func:`load_pretrained` and the command line's model options take.
       bmm, ik: the saved models' folders (POSIX paths): inside the models root
         (:data:`~bezmotion.assets.MODELS_DIR`) when ``bundled``, else inside ``<cache>/runs``.
       skeleton: the skeleton both were trained on: a profile in :data:`~bezmotion.assets.PROFILES_DIR`.
@@ -191,8 +191,8 @@ REGISTRY: Mapping[str, ModelEntry] = {
 """Every model by name: bundled ones and those their commands train locally."""
 
 
-class Pretrained(NamedTuple):
-    """What :func:`pretrained` returns.
+class PretrainedParts(NamedTuple):
+    """What :func:`load_pretrained` returns (:func:`bezmotion.pretrained` puts them in one model object).
 
     Attributes:
       bmm: the Bézier Motion Model (:func:`~bezmotion.bmm.sampling.sample_curves`).
@@ -375,7 +375,7 @@ def resolve_folder(name_or_path: str | os.PathLike, part: Part) -> tuple[Path, M
     return model_folder(entry.name, part), entry
 
 
-def pretrained(name: str, *, root: str | os.PathLike | None = None, verify: bool = True) -> Pretrained:
+def load_pretrained(name: str, *, root: str | os.PathLike | None = None, verify: bool = True) -> PretrainedParts:
     """A registered model's BMM, learned IK, character, profile and joint limits.
 
     ``bm.pretrained("bandai_namco")`` loads the bundled models (their checksums checked
@@ -398,7 +398,7 @@ def pretrained(name: str, *, root: str | os.PathLike | None = None, verify: bool
     limits_file = folders["ik"] / "joint_limits.json"
     limits = JointLimits.load(limits_file, ik.character) if limits_file.is_file() else None
     profile = CharacterProfile.load(PROFILES_DIR / f"{entry.skeleton}.json")
-    return Pretrained(bmm, ik, ik.character, profile, limits, entry)
+    return PretrainedParts(bmm, ik, ik.character, profile, limits, entry)
 
 
 # ------------------------------------------------------------------------------ listing
@@ -474,14 +474,14 @@ __all__ = [
     "REGISTRY",
     "ChecksumError",
     "ModelEntry",
-    "Pretrained",
+    "PretrainedParts",
     "check_manifest",
     "folder_digest",
     "get_entry",
     "model_folder",
     "model_names",
     "models_table",
-    "pretrained",
+    "load_pretrained",
     "read_manifest",
     "resolve_folder",
     "trained_for",

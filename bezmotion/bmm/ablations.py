@@ -12,7 +12,7 @@ same transformer denoiser, one token per *frame* instead of per control point.
   features), conditioned on the six characteristic joints (start, end, handles) like the
   BMM. The paper's version pairs every joint's position with its orientation (§5.3: "the
   data is represented as a pair of positions and orientation, where the constrained
-  positions can be inpainted"); ours keeps the positions that issue 13's metrics read
+  positions can be inpainted"); ours keeps the positions that Table 1's metrics read
   (handles error, skating, dense error). A pose for export would need the orientations,
   or an IK again.
 - **CondMDIᴳ** (``variant="condmdi_g"``, :class:`CondMDIConfig`): the paper's baseline
@@ -102,7 +102,7 @@ from bezmotion.training.checkpoint import CheckpointStore, save_model_folder
 from bezmotion.training.loop import shard_batch
 from bezmotion.training.state import TrainState, fresh_train_state
 from bezmotion.training.step import apply_gradients
-from bezmotion.xla_options import call_with_inference_options
+from bezmotion.xla_options import inference_jit
 
 ABLATIONS = ("minus_b", "minus_ik_b", "condmdi_g")
 """``minus_b``: BMM⁻ᴮ, dense six-joint trajectories; ``minus_ik_b``: BMM⁻ᴵᴷ⁻ᴮ, the dense full skeleton;
@@ -614,16 +614,10 @@ def sample_dense(
     batch = start.shape[:-2]
     if handles.position.shape[:-2] != batch:
         raise ValueError(f"handles must be batched like start {batch}, got {handles.position.shape[:-2]}")
-    return call_with_inference_options(
-        _compiled_dense_sampler, model, start, end, handles, key=key, steps=steps, guidance=guidance, overwrite=overwrite
-    )
+    return _sample_dense(model, start, end, handles, key=key, steps=steps, guidance=guidance, overwrite=overwrite)
 
 
-@functools.cache
-def _compiled_dense_sampler(options: tuple[tuple[str, str], ...]):
-    return jax.jit(_sample_dense, static_argnames=("steps", "guidance", "overwrite"), compiler_options=dict(options) or None)
-
-
+@functools.partial(inference_jit, static_argnames=("steps", "guidance", "overwrite"))
 def _sample_dense(model, start, end, handles, *, key, steps, guidance, overwrite) -> DenseMotion:
     one = functools.partial(_sample_dense_one, model, steps=steps, guidance=guidance, overwrite=overwrite)
     return over_batch(one, start.shape[:-2], key, start, end, handles)

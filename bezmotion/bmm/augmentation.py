@@ -1,4 +1,4 @@
-"""Training-time augmentation: the free symmetries of aligned curve windows (ours, issue 12).
+"""Training-time augmentation: the free symmetries of aligned curve windows (ours).
 
 Curve windows are aligned by translation only (hips start at the origin in XZ, Y up,
 :mod:`bezmotion.data.curves`), so two transformations of a window give another window a

@@ -71,12 +71,11 @@ class BMMConfig:
       off_grid_prior: with ``"residual"``, how the reference curves reach conditions between
         control frames (:func:`~bezmotion.baselines.interpolation_through_points`):
         ``"linear"`` (default) interpolates through them in frame, ``"projection"`` bends
-        the curve at the condition alone. The models trained before 2026-12-01 learned
-        their residual over ``"projection"`` (their saved configs have no such field, so
-        they load as ``"linear"``): sampled over ``"linear"`` they meet any-frame handles
-        with less error and grid handles identically (docs/precision.md, *A reference
-        through any-frame handles*); :func:`~bezmotion.bmm.sampling.with_off_grid_prior`
-        switches a loaded model.
+        the curve at the condition alone. Models whose saved config has no such field
+        learned their residual over ``"projection"`` and load as ``"linear"``: sampled over
+        ``"linear"`` they meet any-frame handles with less error and grid handles
+        identically; :func:`~bezmotion.bmm.sampling.with_off_grid_prior` switches a
+        loaded model.
     """
 
     num_controls: int = 6
@@ -279,7 +278,7 @@ class BMMDenoiser(nnx.Module):
         joint = jnp.where(valid_cond, conditions.joint, 0)
         # The exact frame, fractional in control units (frame / stride) between control
         # points: the same sinusoid the frame tokens get, so a condition on a control frame
-        # is encoded exactly as before.
+        # is encoded exactly as that control point's frame.
         cond_frames = jnp.where(valid_cond, conditions.frame, 0).astype(jnp.float32)
         cond_tokens = (
             self.condition_encoder(jnp.where(valid_cond[:, None], conditions.position, 0.0))

@@ -209,8 +209,8 @@ def trajectory_metrics(
 def reference_curves(eval_set: EvalSet, handles: Handles, layout: BezierLayout, *, off_grid: str = "linear") -> SampledCurves:
     """The non-learned reference for every window: interpolation through the start, end and
     handles, each met exactly (:func:`~bezmotion.baselines.interpolation_through_points`;
-    ``off_grid="projection"``: the reference of the figures before 2026-12-01, which reaches a
-    handle between control frames with a bump); no orientations, contacts all 0.5 (unknown)."""
+    ``off_grid="projection"``: a reference that reaches a handle between control frames with a
+    bump); no orientations, contacts all 0.5 (unknown)."""
     pos, tangent = _reference_controls(eval_set.start, eval_set.end, handles, layout=layout, off_grid=off_grid)
     n, k = pos.shape[:2]
     return SampledCurves(pos, tangent, jnp.zeros((*pos.shape[:-1], 6)), jnp.full((n, k, 2), 0.5))

@@ -119,7 +119,7 @@ def draw_handle_frames(key: Array, control: Int[Array, "*shape"], layout: Bezier
     from the same curve, so they agree.
 
     ``off_grid = 0`` returns ``control · stride`` without drawing anything (the paper's
-    handles, and the same random stream as before).
+    handles, and the random stream of a training without off-grid handles).
     """
     frame = jnp.asarray(layout.control_frames, jnp.int32)[control]
     if off_grid == 0.0:
@@ -217,8 +217,8 @@ def interpolation_prior(
 
     Positions and tangents are :func:`~bezmotion.baselines.interpolation_through_points` of
     the conditions (``off_grid``: how it reaches conditions between control frames;
-    ``"linear"`` interpolates through them, ``"projection"``, the prior every model trained
-    before 2026-12-01 learned its residual over, bends the curve at such a condition alone);
+    ``"linear"`` interpolates through them, ``"projection"``, the prior that models saved
+    without ``off_grid_prior`` learned their residual over, bends the curve at such a condition alone);
     orientations are the training mean (0 once normalised). A joint whose first or last
     control point is not conditioned (e.g. all conditions dropped for classifier-free
     guidance) gets the mean everywhere.

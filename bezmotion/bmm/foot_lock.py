@@ -70,11 +70,10 @@ def lock_feet(
     puts the foot (equally near ones: their mean), or, in a run without one, the mean of
     the whole run. A run whose conditions put the foot in two places (a key here, a key or
     a handle there) then steps once, between control points, from one to the other.
-    ``anchor="mean"`` (the rule before 2026-12-01): the mean of the run's constrained points.
+    ``anchor="mean"``: the mean of the run's constrained points.
     That holds such a run at a place between them, so the foot leaves each condition and
     reaches the next with zero horizontal velocity at every control point on the way: a
-    stop-and-go inside the window and, at a key two windows of a chain share, a velocity jump
-    (docs/precision.md, *A planted foot between two conditions*).
+    stop-and-go inside the window and, at a key two windows of a chain share, a velocity jump.
 
     A foot's handle between two control frames (``handles``, off the ``layout``'s grid)
     whose two control points lie in one contact run counts as one of the run's constrained
@@ -100,8 +99,7 @@ def lock_feet(
         cm); those on control frames are already in ``constrained`` and are skipped here.
       layout: the curves' layout (needed with ``handles``).
       anchor: ``"nearest"`` or ``"mean"`` (:data:`ANCHORS`), above.
-      max_stretch: the reach limit above, a factor ≥ 1; ``None``: no limit (the rule before
-        2026-12-03).
+      max_stretch: the reach limit above, a factor ≥ 1; ``None``: no limit.
     Returns:
       ``(ctrl_pos, ctrl_tangent)``.
     """

@@ -27,7 +27,7 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from bezmotion.xla_options import call_with_inference_options
+from bezmotion.xla_options import inference_jit
 from bezmotion.training.checkpoint import CheckpointStore, cast_floating, save_model_folder
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.bezier import BezierLayout
@@ -520,32 +520,25 @@ def sample_curves(
 
     Compiled once per input shape and static argument, with the backend's inference
     compiler options (:mod:`bezmotion.xla_options`); inside a caller's own ``jax.jit`` it is
-    simply traced into that computation.
+    simply traced into that computation. One window is a chain of two keys
+    (:func:`sample_chained_curves`).
     """
-    return call_with_inference_options(
-        _compiled_sampler, model, start, end, handles, key_rot6d, key_tangent,
-        key=key, steps=steps, guidance=guidance, overwrite=overwrite, foot_lock=lock_anchor(foot_lock),
-    )  # fmt: skip
-
-
-@functools.cache
-def _compiled_sampler(options: tuple[tuple[str, str], ...]):
-    return jax.jit(_sample_curves, static_argnames=("steps", "guidance", "overwrite", "foot_lock"), compiler_options=dict(options) or None)
-
-
-def _sample_curves(model, start, end, handles, key_rot6d, key_tangent, *, key, steps, guidance, overwrite, foot_lock) -> SampledCurves:
-    batch = start.shape[:-2]
     joints = model.config.num_joints
+    start, end = jnp.asarray(start), jnp.asarray(end)
     if start.shape[-2:] != (joints, 3) or end.shape != start.shape:
         raise ValueError(f"start and end must both be (..., {joints}, 3), got {start.shape}, {end.shape}")
-    if key_rot6d is not None and key_rot6d.shape != (*batch, 2, joints, 6):
-        raise ValueError(f"key_rot6d must be {(*batch, 2, joints, 6)} (start and end orientations), got {key_rot6d.shape}")
-    if key_tangent is not None and key_tangent.shape != (*batch, 2, joints, 3):
-        raise ValueError(f"key_tangent must be {(*batch, 2, joints, 3)} (start and end tangents), got {key_tangent.shape}")
+    batch = start.shape[:-2]
     if handles.position.shape[:-2] != batch:
         raise ValueError(f"handles must be batched like start {batch}, got {handles.position.shape[:-2]}")
-    one = functools.partial(_sample_one, model, steps=steps, guidance=guidance, overwrite=overwrite, foot_lock=foot_lock)
-    return over_batch(one, batch, key, start, end, handles, key_rot6d, key_tangent)
+    for name, value, last in (("key_rot6d", key_rot6d, 6), ("key_tangent", key_tangent, 3)):
+        if value is not None and value.shape != (*batch, 2, joints, last):
+            raise ValueError(f"{name} must be {(*batch, 2, joints, last)} (start and end), got {value.shape}")
+    one_window = Handles(*(jnp.expand_dims(x, len(batch)) for x in handles))
+    curves = sample_chained_curves(
+        model, jnp.stack([start, end], axis=-3), one_window, key=key, steps=steps, guidance=guidance, coupled=False,
+        overwrite=overwrite, foot_lock=foot_lock, key_rot6d=key_rot6d, key_tangent=key_tangent,
+    )  # fmt: skip
+    return jax.tree.map(lambda x: jnp.squeeze(x, len(batch)), curves)
 
 
 def over_batch(fn, batch: tuple[int, ...], key: Array, *args):
@@ -612,24 +605,16 @@ def sample_chained_curves(
 
     Compiled once per input shape and static argument, like :func:`sample_curves`.
     """
-    return call_with_inference_options(
-        _compiled_chain_sampler, model, key_pos, handles, key_rot6d, key_tangent,
+    return _sample_chained_curves(
+        model, key_pos, handles, key_rot6d, key_tangent,
         key=key, steps=steps, guidance=guidance, coupled=coupled, overwrite=overwrite, foot_lock=lock_anchor(foot_lock),
     )  # fmt: skip
-
-
-@functools.cache
-def _compiled_chain_sampler(options: tuple[tuple[str, str], ...]):
-    return jax.jit(
-        _sample_chained_curves,
-        static_argnames=("steps", "guidance", "coupled", "overwrite", "foot_lock"),
-        compiler_options=dict(options) or None,
-    )
 
 
 CHAIN_AXIS = "chain_window"  # the vmap axis the windows of one chain are coupled over
 
 
+@functools.partial(inference_jit, static_argnames=("steps", "guidance", "coupled", "overwrite", "foot_lock"))
 def _sample_chained_curves(model, key_pos, handles, key_rot6d, key_tangent, *, key, steps, guidance, coupled, overwrite, foot_lock) -> SampledCurves:
     joints = model.config.num_joints
     if key_pos.ndim < 3 or key_pos.shape[-2:] != (joints, 3) or key_pos.shape[-3] < 2:
@@ -657,6 +642,10 @@ def _sample_chained_curves(model, key_pos, handles, key_rot6d, key_tangent, *, k
     )  # fmt: skip
 
     def chain(start, end, handles, rot6d_pairs, tangent_pairs, key):
+        if windows == 1:  # a window alone: sampled with the key itself, and no vmap of one
+            first = lambda x: None if x is None else jax.tree.map(lambda a: a[0], x)  # noqa: E731
+            out = one(first(start), first(end), first(handles), first(rot6d_pairs), first(tangent_pairs), key)
+            return jax.tree.map(lambda a: a[None], out)
         # One vmap over the windows: its DDIM scans run as one batched loop.
         return jax.vmap(one, axis_name=CHAIN_AXIS)(start, end, handles, rot6d_pairs, tangent_pairs, jax.random.split(key, windows))
 

@@ -61,9 +61,9 @@ class BMMTrainConfig:
     ``off_grid_handles`` (ours): the probability that an intermediate handle is drawn at a
     uniformly random intermediate frame (1 … 29) rather than on its control frame, its
     position the training curve there; ``0`` (default) keeps the paper's handles on
-    control frames only, with the same random stream as before.
+    control frames only, and the paper's random stream.
 
-    Levers of ours (issue 12), all off by default (the paper's constant rate, no augmentation):
+    Levers of ours, all off by default (the paper's constant rate, no augmentation):
 
     - ``lr_schedule="cosine"``: a linear warm-up over ``warmup_steps`` from 0, then a cosine
       decay to ``final_lr_fraction × learning_rate`` at ``total_steps``;

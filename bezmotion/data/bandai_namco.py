@@ -273,9 +273,9 @@ def load_bandai_namco(
       use_cache: ``False`` always parses and never touches the cache.
       progress: show a tqdm bar while parsing.
     Returns:
-      The corpus, clips sorted by name. The first full load streams and parses for
-      ~45 s on a busy 2-core machine (``benchmarks/bvh_parse.py``); later loads of the
-      same bytes read the ~450 MB cache in ~2 s.
+      The corpus, clips sorted by name. The first full load streams and parses every
+      file (``benchmarks/bvh_parse.py`` times it); later loads of the same bytes read the
+      cache instead, much faster.
     """
     source = check_source(source, "Bandai-Namco")
     selected = None if clip_ids is None else sorted({int(i) for i in clip_ids})

@@ -12,7 +12,7 @@ joint and coordinate stack into ``A z = b`` (one row per handle on that joint).
 the variables' own space) that satisfies those equations, ``z ← z + A⁺ (b − A z)``,
 keeping fixed the control positions that grid constraints have already set. A handle on
 a control frame is such a grid constraint: it is an overwrite of one control position
-(the old behaviour, bit for bit), so the projection takes only off-grid rows, and
+(bit for bit the paper's conditioning), so the projection takes only off-grid rows, and
 everything else — padding, grid rows, other joints' rows — enters as zero rows, whose
 correction is exactly zero. :func:`project_onto_handles` does both in world space.
 
@@ -99,7 +99,7 @@ def project_off_grid(
         (e.g. a tangent shared with the next window of a chain); default none. A joint whose
         handles then outnumber its free variables in a stride meets them in slot order as
         far as the variables allow (:func:`bezmotion.linalg.min_norm_solve`).
-      metric: which correction is smallest: ``"variables"`` (default; issue 15's), the
+      metric: which correction is smallest: ``"variables"`` (default), the
         Euclidean norm of the variables' change (in the model's normalised space when they
         are normalised); ``"curve"``, the change of the curve itself, summed over every frame
         (``Σ_f |Δcurve(f)|²``, positions and tangents weighed by what they do to it); or a

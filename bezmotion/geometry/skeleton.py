@@ -157,8 +157,8 @@ def forward_kinematics(
         pos_local = pos_local.at[..., 0, :].set(root_pos)
     quat_local = jnp.broadcast_to(quat_local, (*batch, num_joints, 4))
     # A scan over joints (joints-leading buffers updated in place) rather than a Python
-    # loop: the unrolled loop makes XLA fuse and recompute every ancestor chain, which
-    # took ~11 s to compile and ~3x longer to run for 22 joints on CPU.
+    # loop: the unrolled loop makes XLA fuse and recompute every ancestor chain, which is
+    # slow to compile and to run.
     rot = jnp.moveaxis(quat_local, -2, 0)
     pos = jnp.moveaxis(pos_local, -2, 0)
     parent_of = jnp.asarray(np.asarray(parents, dtype=np.int32))

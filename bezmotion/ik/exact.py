@@ -27,11 +27,10 @@ of the weighted residuals
 The solver is ours rather than ``optimistix.LevenbergMarquardt``: the same damped
 Gauss–Newton steps with exact Jacobians, but FK's Jacobian is analytic (a joint's turn
 moves its subtree's points by axis × lever) and the normal equations are solved in their
-dual form (a 36 × 36 system per frame instead of QR on the 69-column Jacobian). A fixed
-step count keeps a batch of frames in lock step. On the demo window (31 frames) one pass
-measured ~8 ms against optimistix's 263 ms at the same accuracy; docs/precision.md gives
-today's timings (the window solve's two passes ~12 ms on a 2-core CPU, issue 15 aims at
-5 ms) and what was tried to go faster. Gradients pass through the unrolled steps.
+dual form (a 36 × 36 system per frame instead of QR on the 69-column Jacobian), so one pass
+on the demo window (31 frames) takes ~8 ms against optimistix's 263 ms at the same accuracy.
+A fixed step count keeps a batch of frames in lock step. Gradients pass through the unrolled
+steps.
 
 A target out of reach is approached as closely as the limbs allow (the positions'
 residual cannot vanish, the other terms keep the pose finite and near its start);
@@ -58,8 +57,7 @@ The pipeline uses it through :func:`bezmotion.ik.protocol.solve_frames`, which a
   hips' translation (see ``_levenberg_marquardt``).
 
 What it achieves on Bandai-Namco and LaFAN1 (handles, MPJPE, foot skating, key pop, speed)
-is in docs/authoring.md's *Precision after IK*; docs/precision.md has every measurement, and how
-each default of :class:`ExactIKParams` was chosen.
+is in docs/authoring.md's *Precision after IK*.
 """
 
 from __future__ import annotations
@@ -111,99 +109,66 @@ _RADIUS_GROW, _RADIUS_SHRINK = 2.0, 0.25
 @jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class ExactIKParams:
-    """Parameters of :class:`ExactIKFn`: the inner IK's, the character, limits and weights.
+    """Settings of :class:`ExactIKFn`: the inner IK's params, the character, and the solve's
+    weights, temporal filters, trust region and step counts.
 
-    Each weight multiplies a residual (its square enters the cost). docs/precision.md,
-    *The exact IK's settings and how their defaults were chosen*, gives the measurements
-    behind every default; the lines here say what each setting does and why it exists.
+    Each weight multiplies a residual, so its square enters the least-squares cost. The
+    positions weigh most; every other term only chooses among the poses that reach them.
 
-    Attributes:
-      inner: the inner ``ik_fn``'s params (a :class:`~bezmotion.ik.protores.ProtoResModel`,
-        a :class:`~bezmotion.ik.rig.Rig`, …).
+    Model:
+      inner: the inner ``ik_fn``'s params (a :class:`~bezmotion.ik.protores.ProtoResModel`, a
+        :class:`~bezmotion.ik.rig.Rig`, …).
       character: the skeleton and its six characteristic joints.
-      limits: :class:`JointLimits` (:meth:`JointLimits.unlimited` for none).
-      position_weight: per cm of a characteristic joint's position error: large, so the
-        positions are as hard as float32 allows and the other terms only choose among the
-        poses that reach them.
-      hips_position_scale: the hips' position weight relative to the others'.
-      handle_weight: the position weight of pinned targets (``IKTargets.pinned``: handles)
-        relative to the others'. Where the six targets cannot all be met, least squares
-        splits the miss in proportion to the inverse squared weights: at 25 the handle keeps
-        about 0.2 % of it against an unpinned joint, 2.5 % against a planted foot.
-      plant_weight: in the window solve, the position weight of a foot whose target stands
-        (nearly) still, relative to the others' (1: like any target): where a handle cannot
-        be met with the feet where the curves put them, the feet would otherwise give way
-        and slide. A trade against the handles: on Bandai-Namco's OOD handles 4 misses them
-        by 0.46 cm and skates 0.011 more than ``refined``, 50 by 1.14 cm and 0.006 more
-        (docs/precision.md, *Feet against handles*; both before ``plant_height_scale``).
-      plant_height_scale: a planted foot's height weighs ``plant_weight`` times this (1: the
-        same as its horizontal position), above its target only: below it, the foot weighs as
-        horizontally and does not sink into the floor. Below 1, a foot that the body pulls out
-        of its leg's reach rises (a heel lifting) rather than slides: the curves' foot lock
-        holds a planted foot in X and Z only, and the skating metric counts horizontal speed.
-        At 0.25 the Bandai-Namco OOD skating above ``refined``'s fell from 0.0100 to 0.0034,
-        with less MPJPE and handle miss; lighter raises MPJPE (docs/precision.md, *Planted
-        feet rise rather than slide*).
-      plant_step: cm per frame: a foot target moving less than this horizontally to the next
-        frame stands still (0.25: 7.5 cm/s at 30 fps, the skating metric's speed).
-      rotation_weight: per unit of ortho6D difference of the six joints' orientations (≈ per rad).
-      prior_weight: per radian of a joint's rotation away from its start (inner IK) pose.
-        Frames are solved independently, so this is also what keeps neighbouring frames
-        alike (at 1 an arm flipped 173° between frames).
-      root_weight: per cm of the hips' position away from its start.
-      limit_weight: per radian beyond a joint's limits.
-      key_hold_weight: with keys (:meth:`ExactIKFn.solve_window`), per radian of a joint's
-        turn away from its start pose (the inner IK's, joined to the key) at the frame next
-        to a key: where the curves near a key are hard to reach exactly, the frames next to
-        it stay near the key instead of swinging every joint for the last centimetres (a
-        pop). Pinned handles there still win. A trade: held frames leave the curves, and
-        the body catches up later.
+      limits: soft joint limits (:class:`JointLimits`; :meth:`JointLimits.unlimited` for none).
+
+    Target weights:
+      position_weight: per cm of a characteristic joint's position miss (≥ 0; large, so the
+        positions are as hard as float32 allows).
+      hips_position_scale: the hips' position weight relative to the other joints' (≥ 0).
+      handle_weight: a pinned target's (a handle's) position weight relative to the others' (≥ 0):
+        least squares splits a miss by inverse squared weight, so unpinned joints give way.
+      handle_spread: how far a handle's weight reaches into its neighbouring frames, so they follow
+        the curve through it: ``d`` frames away, ``handle_weight^(handle_spread^d)`` (0 … 1; 0: off).
+      robust_cm: an unpinned, unplanted joint's position miss beyond which Huber's loss replaces the
+        square, so one unreachable target does not bend the body (cm, ≥ 0; 0: least squares).
+      rotation_weight: per unit of ortho6D difference of the six joints' orientations (≈ per rad, ≥ 0).
+
+    Planted feet (window solve):
+      plant_weight: a standing foot's position weight relative to the others', so it does not slide
+        where a handle pulls the body (≥ 0; 1: like any target).
+      plant_height_scale: a planted foot's miss above its target weighs ``plant_weight`` times this,
+        so a foot pulled out of reach lifts rather than slides (≥ 0; 1: like its horizontal miss).
+      plant_step: horizontal motion to the next frame under which a foot target stands still (cm per
+        frame, ≥ 0).
+
+    Pose regularisation and keys:
+      prior_weight: per radian of a joint's rotation away from its start (inner IK) pose; it also
+        keeps independently solved neighbouring frames alike (≥ 0).
+      root_weight: per cm of the hips' position away from its start (≥ 0).
+      limit_weight: per radian beyond a joint's limits (≥ 0).
+      key_hold_weight: per radian of a joint's turn away from its start pose at the frame next to a
+        key, so reaching the last centimetres there does not swing the body into a pop (≥ 0).
       key_hold_decay: the hold ``d`` frames from the nearest key is ``key_hold_weight ·
-        key_hold_decay^(d − 1)``: a slow decay spreads the catch-up over many frames (a
-        hold that ends within a few frames makes the body catch up in one or two).
-      max_turn: the trust region, rad: the most any joint turns in one step; it shrinks
-        4× after a refused step and grows back 2× after a taken one. Each step tries it two
-        ways (the whole step shortened, and each joint clipped) and keeps the better. Long
-        steps suit a close start (a learned IK's); from a far start (the rig's) use 0.2.
-      smoothing: weight of each neighbouring frame in the window solve's temporal filter
-        (:func:`~bezmotion.ik.temporal.smooth`; 0: none, 0.5 at most).
-      key_smoothing: the same filter's weight on the frames within the key blend's frames of
-        a key (:meth:`ExactIKFn.solve_window`'s ``key_blend_frames``), where an inner IK that
-        spins a joint fast makes the key pop; 0 … 0.5 (``smoothing``'s 0.25 was the default
-        before: docs/precision.md, 0.5 takes both corpora's key pops under the mocap's with
-        handles and skating unchanged).
-      spike_turn: rad: in the window solve, the inner IK's one-frame flips beyond this are
-        replaced by their neighbours (:func:`~bezmotion.ik.temporal.remove_spikes`), and
-        lasting flips become ramps turning at most this much a frame
-        (:func:`~bezmotion.ik.temporal.limit_turns`); 0: off. 0.75 rad (43°) is the LaFAN1
-        mocap's largest turn in one frame.
-      robust_cm: cm: an unpinned, unplanted joint's position miss beyond this costs Huber's
-        loss (linear in the distance) instead of its square, so a curve point far out of
-        reach does not bend the whole body towards it; 0: least squares throughout.
-      handle_spread: in the window solve, how far a handle's weight reaches into the frames
-        next to it: ``d`` frames from a handle, the same joint's position weighs
-        ``handle_weight^(handle_spread^d)`` (from 0.05 of the exponent down: 1), so the frames
-        around an OOD handle follow the curve through it too instead of leaving the handle's
-        frame to bend alone; 0: off. At 0.25 (2.2× next to the handle, 1.2× two frames
-        away, nothing from three) a third of the Bandai-Namco OOD windows turning a joint
-        more than 45° a frame go (LaFAN1: 9 → 5 of 1,000), with less skating, for 0.13 cm
-        (LaFAN1 0.03) more OOD MPJPE (docs/precision.md, *Ramps into handle frames*).
-      finish_turn: rad: after the window solve's last pass, a joint turning more than this
-        in one frame is ramped into the turn (:func:`~bezmotion.ik.temporal.limit_turns`),
-        the keys' and the handles' frames kept, so those frames still meet their targets and
-        the frames next to them leave their curves instead; 0: off. An OOD handle can make
-        its frame bend alone (93° a frame on Bandai-Namco); at ``FLIP_TURN`` (43°, the
-        default) no Bandai-Namco window turns a joint faster, for +0.001 cm of curve error
-        (docs/precision.md, *The exact IK's last turns*); a joint that cannot ramp within the
-        limits between two kept frames keeps its turns there (one LaFAN1 window, 53.6°).
-      key_turn: rad: with keys joined (``key_blend_frames > 0``), the finish's limit on the
-        steps that touch a key, easing to ``finish_turn`` over the key blend's frames
-        (:func:`~bezmotion.ik.temporal.turn_out_of_keys`, as the per-frame IKs' in
-        :func:`~bezmotion.ik.protocol.solve_frames`); 0: ``finish_turn`` there too.
-      iterations: Levenberg–Marquardt steps per frame and pass (static).
-      window_passes: how many times the window solve smooths the poses over time and
-        solves again from them (static; the first smooths the inner IK's poses). Each pass
-        costs one solve: 1 halves the time for a little more jitter.
+        key_hold_decay^(d − 1)`` (0 … 1).
+
+    Temporal filters (window solve):
+      smoothing: weight of each neighbouring frame in the ``[w, 1 − 2w, w]`` filter
+        (:func:`~bezmotion.ik.temporal.smooth`; 0 … 0.5; 0: none).
+      key_smoothing: the same filter's weight within ``key_blend_frames`` of a key, where an inner
+        IK that spins a joint fast makes the key pop (0 … 0.5).
+      spike_turn: the inner IK's one-frame flips beyond this are replaced by their neighbours and
+        lasting ones become ramps (rad, ≥ 0; 0: off).
+      finish_turn: after the last pass, the most a joint turns in one frame, the keys' and handles'
+        frames kept (rad, ≥ 0; 0: off).
+      key_turn: with keys joined, the finish's limit on the steps that touch a key, easing to
+        ``finish_turn`` (rad, ≥ 0; 0: ``finish_turn`` there too).
+
+    Trust region and iterations:
+      max_turn: the most any joint turns in one step; shrinks 4× after a refused step and grows 2×
+        after a taken one (rad, > 0; a far start, such as the rig's, wants 0.2).
+      iterations: Levenberg–Marquardt steps per frame and pass (static, ≥ 0).
+      window_passes: how many times the window solve filters the poses over time and solves again
+        from them (static, ≥ 1; each pass costs one solve).
     """
 
     inner: Any
@@ -386,7 +351,7 @@ def _step(params: ExactIKParams, problem: _Problem, delta: Array, root_delta: Ar
     # d(q ⊗ exp(δ)) turns the joint's subtree about the world axis G·J_r(δ)·dδ: a point p
     # moves by axis × (p − joint), a frame column c by axis × c. The Jacobian is built
     # transposed, ``(free joint, k, row)``, the layout every product below reads without a
-    # copy (built rows first, its transposes took about a quarter of the step).
+    # copy.
     axes = jnp.swapaxes(rot[free] @ right_jacobian(delta), -1, -2)  # (free, k, xyz)
     mask = jnp.asarray(_ancestry(character).T, dtype)[:, None, :, None]  # (free, 1, 6, 1)
     lever = pos[idx][None, :, :] - pos[free][:, None, :]  # (free, 6, xyz)
@@ -451,9 +416,8 @@ def _levenberg_marquardt(params: ExactIKParams, problems: _Problem, iterations: 
     The frames run in lock step (the loop over steps outside the map over frames) so that a
     step evaluates its second trust-region candidate only where some frame needs one: where
     no joint's turn exceeds its frame's radius, both candidates are the whole step, and one
-    evaluation gives the very numbers two would (a third of a step's time; the benchmark's
-    window never needs the second). Under an outer ``vmap`` the branch becomes a select and
-    both are evaluated, as before.
+    evaluation gives the very numbers two would. Under an outer ``vmap`` the branch becomes a
+    select and both are evaluated.
     """
     n_free = len(_free_joints(params.character))
     frames, dtype = problems.start.root_pos.shape[0], problems.start.root_pos.dtype
@@ -532,8 +496,7 @@ def _problem(
     dtype = start.root_pos.dtype
     scale = _position_scale(params, pinned, planted, dtype, near)
     # Handles and planted feet stay least squares: under Huber's loss a planted foot pulled
-    # several cm gives way much further (demo frames 10–17 with the head pinned 12 cm up, at
-    # plant_weight 10 and robust_cm 2: the feet 6.1 cm off their targets against least squares' 3.4).
+    # several cm gives way much further.
     robust = jnp.where(pinned | planted, 0.0, jnp.asarray(params.robust_cm, dtype))[:, None]
     return _Problem(start, targets.position, quat_from_rot6d(targets.rot6d), scale, jnp.asarray(hold, dtype), robust)
 

@@ -48,7 +48,7 @@ def blend_to_keys(pose: Pose, start: Pose, end: Pose, frames: int) -> Pose:
       pose: the IK's poses of the whole window, keys included.
       start, end: the key poses (unbatched) that replace the first and last frame.
       frames: how many frames the key's correction takes to fade out (0: the keys replace
-        the first and last frame alone, the old behaviour).
+        the first and last frame alone).
     Returns:
       The blended poses: exactly ``start`` and ``end`` at the first and last frame.
     """

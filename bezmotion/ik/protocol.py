@@ -206,9 +206,8 @@ def solve_frames(
         (:func:`~bezmotion.ik.key_blend.blend_to_chain_keys`); ``None``: the IK's own poses there.
       flip_turn: rad, a per-frame IK's largest turn of a joint in one frame before it counts
         as a flip (:data:`~bezmotion.ik.temporal.FLIP_TURN`, 43°, the LaFAN1 mocap's largest;
-        0: the IK's poses as they are, the paper's). On 1,500 Bandai-Namco
-        windows it took ``refined``'s largest turn in one frame from 174° to 44° for +0.006 cm
-        of handle error (docs/precision.md, *Flips of the per-frame IKs*).
+        0: the IK's poses as they are, the paper's). Removing the flips costs next to no
+        handle error.
       key_turn: rad, a per-frame IK's largest turn of a joint on the step next to a key,
         easing to ``flip_turn`` over the ``key_blend_frames`` frames from it
         (:data:`~bezmotion.ik.temporal.KEY_TURN`, 23°, under both corpora's mocap's largest
@@ -222,7 +221,7 @@ def solve_frames(
         return window(params, targets, keys=keys, key_blend_frames=key_blend_frames)
     pose = jax.vmap(ik_fn, in_axes=(None, 0))(params, targets)
     # The keys' frames are kept (chains: every key's); handle frames are not: kept, a flip there
-    # would pop the keys (LaFAN1's rig: 66° → 99°), and ramped, they move 0.006 cm on average.
+    # would pop the keys, and ramped, they move next to nothing.
     if keys is None:
         return remove_flips(pose, flip_turn)
     distance = distances_to_keys(pose.root_pos.shape[0], keys)

@@ -346,8 +346,8 @@ def make_rig(
         zero rotation. The solved joints start from it too: the spine from its spine (the
         turn to the targets' hips-to-head rotation spread along it), each limb's elbow /
         knee and wrist / ankle with its rotations about their bones (twist), which no
-        target fixes (from the zero rotation, Bandai-Namco's first spine joint came out
-        69° from the mocap's on average: docs/precision.md), and a bent knee says which
+        target fixes (from the zero rotation, the first spine joint comes out far from the
+        mocap's), and a bent knee says which
         way the knees bend (without one, toes pointing along the leg can flip them).
         Joints above the hips must be identity (a :class:`~bezmotion.ik.protocol.Pose`
         holds them there).

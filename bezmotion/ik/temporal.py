@@ -31,7 +31,7 @@ if TYPE_CHECKING:  # protocol.solve_frames removes flips: no import cycle at run
 # beyond it is a flip (the default of remove_flips in solve_frames and of the exact IK's spike_turn).
 FLIP_TURN = 0.75
 # rad: a per-frame IK's largest turn of a joint on the step next to a key (solve_frames), easing to
-# FLIP_TURN over the key blend's frames. Under both corpora's mocap key pops (29.0° Bandai-Namco, 36.1° LaFAN1).
+# FLIP_TURN over the key blend's frames. Under both corpora's mocap key pops.
 KEY_TURN = 0.4
 _SLACK = 1e-4  # rad: a ramped step may measure this much over its limit after rounding; not ramped again
 _SKIP_MARGIN = 1e-5  # rad: limit_turns skips its ramps only where every step is this far within its limit
@@ -45,16 +45,14 @@ def planted_feet(position: Float[Array, "*batch frames 6 3"], plant_step: Float[
     hands never.
 
     Both frames: the last frame of a foot's still run is still against the frame before it.
-    Marked by the step to the next frame only, it was not planted, and the exact IK, its foot
-    weighing ``plant_weight`` on the frame before and 1 on it, let the foot jump about 0.5 cm
-    off its still target there, a one-frame slide at the end of nearly every stance on
-    Bandai-Namco's walks (docs/precision.md, *The last frame of a still foot*).
+    Marked by the step to the next frame only, it would not be planted, and the exact IK, its
+    foot weighing ``plant_weight`` on the frame before and 1 on it, would let the foot jump off
+    its still target there: a one-frame slide at the end of a stance.
 
     Horizontally, like the foot-skating metric (:func:`~bezmotion.metrics.foot_skating_ratio`)
     and the curves' foot lock (:func:`~bezmotion.bmm.foot_lock.lock_feet`, which holds X and Z
-    only): a locked foot whose heel rises is still planted. Counting height too left 43 % of
-    the still feet at the frames where the exact IK skated more than ``refined`` unplanted
-    (docs/precision.md, *Feet against handles*).
+    only): a locked foot whose heel rises is still planted. Counting height too would leave
+    unplanted many still feet at the frames where the exact IK skates most.
     """
     still_next = foot_contacts(position * _HORIZONTAL, FEET, threshold=jnp.square(plant_step))  # (…, frames, 2)
     still_before = jnp.concatenate([jnp.zeros_like(still_next[..., :1, :]), still_next[..., :-1, :]], axis=-2)
@@ -127,9 +125,9 @@ def limit_turns(
     ends = jnp.zeros(frames, bool).at[jnp.asarray([0, frames - 1])].set(True)
     kept = ends if anchors is None else ends | anchors
     # Most windows turn no joint that fast, and the ramps below (six loops over the frames)
-    # would return them unchanged: skip them then (a third of the exact IK's time outside its
-    # steps). Steps within _SKIP_MARGIN of their limit, either way round, take the ramps, so the
-    # skip never depends on rounding. (Under vmap both branches run, as before.)
+    # would return them unchanged: skip them then. Steps within _SKIP_MARGIN of their limit,
+    # either way round, take the ramps, so the skip never depends on rounding. (Under vmap both
+    # branches run.)
     limit = turns[:, None] - _SKIP_MARGIN
     fast = (turns[:, None] > 0.0) & ((quat_angle(q[:-1], q[1:]) > limit) | (quat_angle(q[1:], q[:-1]) > limit))
     return jax.lax.cond(jnp.any(fast), lambda: pose._replace(quat_local=_ramped(q, turns, kept)), lambda: pose)

@@ -1,10 +1,11 @@
 """In-betweening end to end: poses and handles in, a full-body motion of any character out.
 
-    start pose, end pose, handles ──▶ BMM curves of the six characteristic joints
+    key poses, handles ──▶ BMM curves of the six characteristic joints
         ──▶ dense trajectories ──▶ ik_fn per frame ──▶ full-body poses ──▶ BVH
 
-:mod:`~bezmotion.pipeline.inbetweening` (the jit-compiled :func:`inbetween`, and
-:func:`inbetween_chain` through several keys),
+:mod:`~bezmotion.pipeline.model` (the model object, :class:`Inbetweener`),
+:mod:`~bezmotion.pipeline.inbetweening` (the jit-compiled :func:`inbetween` through any
+number of keys),
 :mod:`~bezmotion.pipeline.transfer` (driving one skeleton with another's BMM),
 :mod:`~bezmotion.pipeline.export` (BVH), :mod:`~bezmotion.pipeline.gltf` (glTF: skeleton
 and curves), :mod:`~bezmotion.pipeline.preview` (animated GIF), :mod:`~bezmotion.pipeline.evaluation` (the
@@ -27,21 +28,19 @@ from bezmotion.pipeline.gltf import GlbContents, read_glb, validate_glb, write_g
 from bezmotion.pipeline.preview import write_preview
 from bezmotion.data.windows import join_windows, split_windows
 from bezmotion.pipeline.inbetweening import (
-    ChainResult,
+    InbetweenOptions,
     InbetweenResult,
     WindowCurves,
-    chain_curves_traced,
     chain_key_velocities,
+    curves_traced,
     inbetween,
-    inbetween_chain,
-    inbetween_chain_traced,
     inbetween_traced,
     join_chain_curves,
     key_velocities,
-    pose_from_chain_curves,
     pose_from_curves,
-    window_curves_traced,
+    window_handles,
 )
+from bezmotion.pipeline.model import Inbetweener, pretrained
 from bezmotion.pipeline.transfer import (
     CharacterProfile,
     Placement,
@@ -58,18 +57,19 @@ from bezmotion.pipeline.transfer import (
 )
 
 __all__ = [
-    "ChainResult",
     "CharacterProfile",
     "GlbContents",
+    "InbetweenOptions",
     "InbetweenResult",
+    "Inbetweener",
     "PipelineMetricsConfig",
     "Placement",
     "Transfer",
     "WindowCurves",
-    "chain_curves_traced",
     "chain_key_velocities",
     "anatomical_frames",
     "curves_to_target",
+    "curves_traced",
     "default_channels",
     "evaluate_pipeline",
     "facing_yaw",
@@ -77,8 +77,6 @@ __all__ = [
     "full_body_handles_error",
     "ground_truth_pose_metrics",
     "inbetween",
-    "inbetween_chain",
-    "inbetween_chain_traced",
     "inbetween_traced",
     "join_chain_curves",
     "join_windows",
@@ -87,17 +85,17 @@ __all__ = [
     "mpjpe",
     "orientations_to_source_space",
     "placement",
-    "pose_from_chain_curves",
     "pose_from_curves",
     "pose_metrics",
     "pose_to_bvh",
+    "pretrained",
     "read_glb",
     "run_pipeline",
     "split_windows",
     "to_source_space",
     "transfer_curve_dataset",
     "validate_glb",
-    "window_curves_traced",
+    "window_handles",
     "window_poses",
     "write_glb",
     "write_preview",

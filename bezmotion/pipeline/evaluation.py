@@ -37,13 +37,11 @@ from bezmotion.ik.rig import with_rest_pose
 from bezmotion.metrics import foot_skating_ratio, handles_error, key_pop_deg, mean_position_error, rotation_change_deg
 from bezmotion.pipeline.inbetweening import (
     KEY_BLEND_FRAMES,
+    InbetweenOptions,
     WindowCurves,
-    chain_curves_traced,
     chain_key_velocities,
-    inbetween_traced,
-    pose_from_chain_curves,
+    curves_traced,
     pose_from_curves,
-    window_curves_traced,
 )
 from bezmotion.pipeline.transfer import Transfer
 from bezmotion.pipeline.window_figures import PipelineMetricsConfig
@@ -133,18 +131,21 @@ def ground_truth_pose_metrics(
     return out
 
 
-@functools.partial(jax.jit, static_argnames=("ik_fn", "steps", "foot_lock", "key_blend_frames", "key_orientations"))
-def _run_chunk(bmm, ik_params, character, transfer, inputs, key, *, ik_fn, steps, foot_lock, key_blend_frames, key_orientations) -> Pose:
-    """:func:`~bezmotion.pipeline.inbetweening.inbetween` of a chunk of windows; one compilation per IK,
-    settings and shapes, shared by every call (evaluate_pipeline's in-distribution and OOD runs)."""
-    one = functools.partial(
-        inbetween_traced, ik_fn=ik_fn, steps=steps, guidance=1.0, foot_lock=foot_lock, keep_keyframes=True,
-        key_blend_frames=key_blend_frames, key_orientations=key_orientations,
-    )  # fmt: skip
+@functools.partial(jax.jit, static_argnames=("ik_fn", "options"))
+def _run_chunk(bmm, ik_params, character, transfer, inputs, key, *, ik_fn, options) -> Pose:
+    """The in-between of a chunk of windows (each a chain of two keys); one compilation per
+    IK, options and shapes, shared by every call (evaluate_pipeline's in-distribution and OOD runs)."""
     start, end, handles = inputs
-    keys = jax.random.split(key, start.root_pos.shape[0])
-    run = lambda s, e, h, k: one(bmm, ik_params, character, s, e, h, transfer, k).pose  # noqa: E731
-    return jax.vmap(run)(start, end, handles, keys)
+
+    def run(s, e, h, k):
+        keys = jax.tree.map(lambda a, b: jnp.stack([a, b]), s, e)
+        h = jax.tree.map(lambda a: a[None], h)  # one window
+        windows = curves_traced(bmm, character, keys, h, transfer, k, options)
+        return pose_from_curves(
+            ik_fn, ik_params, windows, keys, keep_keyframes=True, key_blend_frames=options.key_blend_frames, handles=h
+        )
+
+    return jax.vmap(run)(start, end, handles, jax.random.split(key, start.root_pos.shape[0]))
 
 
 def run_pipeline(
@@ -158,17 +159,15 @@ def run_pipeline(
     key: jax.Array,
     transfer: Transfer | None = None,
     steps: int = 10,
-    foot_lock: bool | str = False,
+    foot_lock: bool = False,
     chunk: int = 128,
     key_blend_frames: int = KEY_BLEND_FRAMES,
     key_orientations: bool = True,
 ) -> Pose:
     """In-between every window (start and end from ``truth``) through ``handles``; poses ``(windows, frames, …)``."""
     transfer = Transfer.identity() if transfer is None else transfer
-    batch = functools.partial(
-        _run_chunk, bmm, ik_params, character, transfer, ik_fn=ik_fn, steps=steps, foot_lock=foot_lock,
-        key_blend_frames=key_blend_frames, key_orientations=key_orientations,
-    )  # fmt: skip
+    options = InbetweenOptions(steps=steps, foot_lock=bool(foot_lock), key_blend_frames=key_blend_frames, key_orientations=key_orientations)
+    batch = functools.partial(_run_chunk, bmm, ik_params, character, transfer, ik_fn=ik_fn, options=options)
     first = jax.tree.map(lambda x: x[:, 0], truth)
     last = jax.tree.map(lambda x: x[:, -1], truth)
     return map_in_chunks(batch, (first, last, handles), key=key, chunk=chunk)
@@ -185,7 +184,7 @@ def evaluate_pipeline(
     *,
     key: jax.Array,
     transfer: Transfer | None = None,
-    foot_lock: bool | str = False,
+    foot_lock: bool = False,
     key_blend_frames: int = KEY_BLEND_FRAMES,
     key_orientations: bool = True,
     chunk: int = 128,
@@ -226,15 +225,6 @@ def _chunked(fn, inputs: Any, chunk: int) -> tuple[Any, list[float], int]:
     return jax.tree.map(lambda *xs: jnp.asarray(np.concatenate(xs)), *parts), seconds, chunk * len(seconds)
 
 
-@functools.partial(jax.jit, static_argnames=("steps", "foot_lock", "key_orientations"))
-def _curves_chunk(bmm, character, transfer, inputs, *, steps, foot_lock, key_orientations) -> WindowCurves:
-    start, end, handles, keys, velocity = inputs
-    one = functools.partial(
-        window_curves_traced, steps=steps, guidance=1.0, foot_lock=foot_lock, key_orientations=key_orientations
-    )
-    return jax.vmap(lambda s, e, h, k, v: one(bmm, character, s, e, h, transfer, k, key_velocity=v))(start, end, handles, keys, velocity)
-
-
 def window_key_velocities(character: Character, truth: Pose) -> Float[Array, "windows 2 6 3"]:
     """The six joints' velocities at each window's start and end key (cm/frame) from the
     motion itself (a window is a chain of one:
@@ -254,7 +244,7 @@ def sample_window_curves(
     *,
     transfer: Transfer | None = None,
     steps: int = 10,
-    foot_lock: bool | str = False,
+    foot_lock: bool = False,
     key_orientations: bool = True,
     with_key_velocities: bool = False,
     chunk: int = 128,
@@ -264,26 +254,16 @@ def sample_window_curves(
     :class:`~bezmotion.pipeline.inbetweening.WindowCurves`, which :func:`solve_window_curves`
     hands to any number of IKs. ``with_key_velocities``: the curves are also given the
     keys' velocities (:func:`window_key_velocities`)."""
-    transfer = Transfer.identity() if transfer is None else transfer
-    first = jax.tree.map(lambda x: x[:, 0], truth)
-    last = jax.tree.map(lambda x: x[:, -1], truth)
-    velocity = window_key_velocities(character, truth) if with_key_velocities else None
-    run = functools.partial(
-        _curves_chunk, bmm, character, transfer, steps=steps, foot_lock=foot_lock, key_orientations=key_orientations
-    )
-    return _chunked(run, (first, last, handles, keys, velocity), chunk)[0]
+    curves = sample_chain_curves(
+        bmm, character, truth, _one_window(handles), keys, coupled=False, transfer=transfer, steps=steps, foot_lock=foot_lock,
+        key_orientations=key_orientations, chunk=chunk, with_key_velocities=with_key_velocities,
+    )  # fmt: skip
+    return jax.tree.map(lambda a: a[:, 0], curves)
 
 
-@functools.partial(jax.jit, static_argnames=("ik_fn", "key_blend_frames", "rest_from_keys"))
-def _ik_chunk(ik_params, inputs, *, ik_fn, key_blend_frames, rest_from_keys) -> Pose:
-    positions, rot6d, start, end, handles = inputs
-
-    def one(p, r, s, e, h):
-        window = WindowCurves(None, p, r)  # pose_from_curves reads the dense trajectories only
-        params = with_rest_pose(ik_params, s.quat_local) if rest_from_keys else ik_params
-        return pose_from_curves(ik_fn, params, window, s, e, keep_keyframes=True, key_blend_frames=key_blend_frames, handles=h)
-
-    return jax.vmap(one)(positions, rot6d, start, end, handles)
+def _one_window(handles: Handles | None) -> Handles | None:
+    """Each window's handles ``(windows, slots)`` as chains of one window ``(windows, 1, slots)``."""
+    return None if handles is None else jax.tree.map(lambda a: a[:, None], handles)
 
 
 class IKTiming(NamedTuple):
@@ -327,11 +307,11 @@ def solve_window_curves(
     A warm-up call on the first chunk compiles the chunked IK (``compile_s``: compiling and
     one call; about the call alone when this IK, chunk and settings were compiled before),
     so ``run_s`` is its steady-state time."""
-    first = jax.tree.map(lambda x: x[:, 0], truth)
-    last = jax.tree.map(lambda x: x[:, -1], truth)
-    inputs = (curves.positions, curves.rot6d, first, last, handles)
-    run = functools.partial(_ik_chunk, ik_params, ik_fn=ik_fn, key_blend_frames=key_blend_frames, rest_from_keys=rest_from_keys)
-    return _timed(run, inputs, chunk)
+    chains = WindowCurves(None, curves.positions[:, None], curves.rot6d[:, None])
+    return solve_chain_curves(
+        ik_fn, ik_params, chains, truth, handles=_one_window(handles), key_blend_frames=key_blend_frames, chunk=chunk,
+        rest_from_keys=rest_from_keys,
+    )  # fmt: skip
 
 
 def _timed(run, inputs: Any, chunk: int) -> tuple[Pose, IKTiming]:
@@ -398,13 +378,10 @@ def chain_frame_handles(handles: Handles, window_frames: int) -> Handles:
     return Handles(flat(handles.joint), flat(frame), flat(handles.position), flat(handles.valid))
 
 
-@functools.partial(jax.jit, static_argnames=("steps", "foot_lock", "coupled", "key_orientations"))
-def _chain_curves_chunk(bmm, character, transfer, inputs, *, steps, foot_lock, coupled, key_orientations) -> WindowCurves:
+@functools.partial(jax.jit, static_argnames=("options",))
+def _chain_curves_chunk(bmm, character, transfer, inputs, *, options) -> WindowCurves:
     keys, handles, rng, velocity = inputs
-    one = functools.partial(
-        chain_curves_traced, steps=steps, guidance=1.0, foot_lock=foot_lock, coupled=coupled, key_orientations=key_orientations
-    )
-    return jax.vmap(lambda k, h, r, v: one(bmm, character, k, h, transfer, r, key_velocity=v))(keys, handles, rng, velocity)
+    return jax.vmap(lambda k, h, r, v: curves_traced(bmm, character, k, h, transfer, r, options, v))(keys, handles, rng, velocity)
 
 
 def chain_keys(truth: Pose, windows: int) -> Pose:
@@ -424,13 +401,13 @@ def sample_chain_curves(
     coupled: bool = True,
     transfer: Transfer | None = None,
     steps: int = 10,
-    foot_lock: bool | str = False,
+    foot_lock: bool = False,
     key_orientations: bool = True,
     chunk: int = 128,
     with_key_velocities: bool = False,
 ) -> WindowCurves:
     """:func:`sample_window_curves` for chains: the curves stage of every chain
-    (:func:`~bezmotion.pipeline.inbetweening.chain_curves_traced`, its windows sampled in
+    (:func:`~bezmotion.pipeline.inbetweening.curves_traced`, its windows sampled in
     one :func:`~bezmotion.bmm.sampling.sample_chained_curves` call), ``chunk`` chains per
     compiled call. ``with_key_velocities``: the curves are also given the keys' velocities,
     from the chain's own motion (:func:`~bezmotion.pipeline.inbetweening.chain_key_velocities`).
@@ -447,10 +424,8 @@ def sample_chain_curves(
       (per window; :func:`~bezmotion.data.windows.join_windows` joins a chain).
     """
     transfer = Transfer.identity() if transfer is None else transfer
-    run = functools.partial(
-        _chain_curves_chunk, bmm, character, transfer, steps=steps, foot_lock=foot_lock, coupled=coupled,
-        key_orientations=key_orientations,
-    )  # fmt: skip
+    options = InbetweenOptions(steps=steps, foot_lock=bool(foot_lock), key_orientations=key_orientations, coupled=coupled)
+    run = functools.partial(_chain_curves_chunk, bmm, character, transfer, options=options)
     windows = handles.frame.shape[1]
     velocity = chain_key_velocities(character, truth, (truth.root_pos.shape[1] - 1) // windows) if with_key_velocities else None
     return _chunked(run, (chain_keys(truth, windows), handles, keys, velocity), chunk)[0]
@@ -461,9 +436,9 @@ def _chain_ik_chunk(ik_params, inputs, *, ik_fn, key_blend_frames, rest_from_key
     positions, rot6d, keys, handles = inputs
 
     def one(p, r, k, h):
-        windows = WindowCurves(None, p, r)  # pose_from_chain_curves reads the dense trajectories only
+        windows = WindowCurves(None, p, r)  # pose_from_curves reads the dense trajectories only
         params = with_rest_pose(ik_params, k.quat_local[0]) if rest_from_keys else ik_params
-        return pose_from_chain_curves(ik_fn, params, windows, k, keep_keyframes=True, key_blend_frames=key_blend_frames, handles=h)
+        return pose_from_curves(ik_fn, params, windows, k, keep_keyframes=True, key_blend_frames=key_blend_frames, handles=h)
 
     return jax.vmap(one)(positions, rot6d, keys, handles)
 

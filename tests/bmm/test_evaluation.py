@@ -310,7 +310,7 @@ def test_bmm_lafan1_experiment_smoke(tmp_path, experiment):
 
 @requires_shared
 def test_bmm_lafan1_levers_held_out_contents_and_learning_curve(tmp_path, experiment):
-    """Issue 12's protocol end to end on the real LaFAN1 subset: the push sequences held out,
+    """The training levers' protocol end to end on the real LaFAN1 subset: the push sequences held out,
     warm-up + cosine, yaw and mirror augmentation, a learning curve every 2 steps with the
     stopping rule; then the same command resumes with nothing to train and keeps the curve."""
     out = tmp_path / "levers.json"

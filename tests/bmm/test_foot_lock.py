@@ -154,7 +154,7 @@ def test_a_held_foot_stays_within_reach_of_the_hips(rng):
     np.testing.assert_allclose(p[[2, 3], left], pos[[2, 3], left], atol=1e-5)  # out of reach held: their own
     np.testing.assert_allclose(t[[2, 3], left], tangent[[2, 3], left], atol=1e-6)
     assert np.linalg.norm(p[:, left] - hips, axis=-1).max() <= MAX_STRETCH * 90.0 + 1e-3
-    # Without the limit (the rule before), every point is held at the nearer key.
+    # Without the limit (max_stretch=None), every point is held at the nearer key.
     unlimited = np.asarray(lock_feet(*args, max_stretch=None)[0])
     np.testing.assert_allclose(unlimited[1:5, left][:, [0, 2]], pos[[0, 0, -1, -1], left][:, [0, 2]], atol=1e-5)
     with pytest.raises(ValueError, match="max_stretch must be a factor of at least 1"):

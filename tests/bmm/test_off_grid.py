@@ -1,4 +1,4 @@
-"""Handles at any frame (issue 15 item 4): the minimum-norm projection onto off-grid
+"""Handles at any frame: the minimum-norm projection onto off-grid
 point constraints (``bezmotion.diffusion.projection``), ``Handles.from_frames`` at any
 frame, the sampler hitting them, one compilation for any mix, and training and
 evaluation drawing them.
@@ -221,7 +221,7 @@ def test_sampler_hits_off_grid_handles_through_bezier_evaluate(model, motion):
 
 
 def _old_sampler(model, start, end, control, joint, position, valid, key, steps):
-    """The sampler as it was before off-grid handles: overwrite of control positions only."""
+    """A sampler without off-grid handles: overwrite of control positions only."""
     cfg, stats = model.config, model.stats
     translation = start[HIPS] * jnp.asarray([1.0, 0.0, 1.0], start.dtype)
     world = inbetween_conditions(cfg.num_frames, start, end, control * cfg.stride, joint, position, valid)

@@ -58,12 +58,12 @@ def reference_in_between(experiment, reference, tmp_path_factory):
 def test_the_in_between_is_the_same_whatever_the_files_conventions(experiment, reference, reference_in_between, tmp_path, name):
     """Daz lower-case names, random bone axes, fingers, a jaw, twist joints and CMU's 5.6 cm unit
     all at once; the clip turned a quarter about the vertical; Z up: the in-between, brought back,
-    is the reference's to within the issue's 0.5 cm."""
+    is the reference's to within 0.5 cm."""
     ours = reference_in_between
     variant = experiment.variants(reference)[name]
     write_bvh(tmp_path / "variant.bvh", variant.make(reference), precision=9)
     theirs = experiment.in_reference_frame(variant, experiment.run(tmp_path / "variant.bvh", [0, 30], 0, tmp_path / "variant_out.bvh"), reference.skeleton.names)
-    assert np.nanmax(np.linalg.norm(theirs - ours, axis=-1)) < 0.5  # the issue's bound; measured 0.145 / 0.003 / 0.006 cm
+    assert np.nanmax(np.linalg.norm(theirs - ours, axis=-1)) < 0.5  # measured 0.145 / 0.003 / 0.006 cm
 
 
 def test_a_spine_joint_fewer_keeps_every_other_joint(reference):

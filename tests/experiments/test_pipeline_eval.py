@@ -86,7 +86,7 @@ def test_every_ik_on_the_same_curves_and_windows_independent_of_their_count(expe
     four = experiment.main(["--out", str(out), "--windows", "4", "--ik", "learned", "rig", *common])
     assert json.loads(out.read_text()) == four and out.with_suffix(".md").exists()
     assert four["windows"] == 4 and set(four) >= {"ik", "curves", "mocap", "labels", "settings"}
-    assert "id" not in four  # several IKs: the id / ood per IK
+    assert "id" not in four  # several IKs: id / ood per IK
     for name in ("learned", "rig"):
         section = four["ik"][name]
         assert section["compile_s"] > 0.0
@@ -136,7 +136,7 @@ def test_every_ik_on_the_same_curves_and_windows_independent_of_their_count(expe
     recorded["sampled"].clear()
     two = experiment.main(["--out", str(tmp_path / "two.json"), "--windows", "2", "--ik", "rig", *common])
     assert two["settings"]["rows"] == four["settings"]["rows"][:2]
-    assert two["id"] == two["ik"]["rig"]["id"] and two["ood"] == two["ik"]["rig"]["ood"]  # one IK: the shape
+    assert two["id"] == two["ik"]["rig"]["id"] and two["ood"] == two["ik"]["rig"]["ood"]  # one IK: also at the top level
     for small, large in zip(recorded["sampled"], sampled):
         jax.tree.map(lambda a, b: np.testing.assert_allclose(a, np.asarray(b)[:2], atol=1e-3), small, large)
 

@@ -261,14 +261,14 @@ def test_pinned_target_moves_the_hips_when_the_limbs_cannot_reach(bandai):
 
 def test_zero_rotation_weight_solves_positions_only(bandai):
     """``rotation_weight=0`` drops the orientation rows (a 1/0 on the dual system's diagonal
-    used to make every step NaN, so the solve silently returned the inner IK's pose)."""
+    would make every step NaN, so the solve would silently return the inner IK's pose)."""
     targets = _no_handles(targets_from_pose(bandai.character, bandai.truth))  # at the default steps: the test above's compiled solve
     fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, rotation_weight=0.0)
     result = _with_residual(fn)(params, targets)
     start = jax.vmap(protores_ik_fn, in_axes=(None, 0))(params.inner, targets)
     assert np.all(np.isfinite(result.pose.quat_local))
-    # Met to within issue 15's 0.05 cm in the default 6 steps (0.021 cm; the inner IK's pose, which the
-    # NaN steps returned, misses by ~11 cm).
+    # Met to within 0.05 cm in the default 6 steps; the inner IK's pose, which NaN steps would
+    # return, misses by over 1 cm.
     assert float(jnp.max(result.position_error)) < 0.05
     assert float(jnp.max(exact_module._errors(bandai.character, start, targets)[0])) > 1.0
 

@@ -137,10 +137,9 @@ def test_limit_turns_spreads_a_step_over_both_sides(before, after):
 def test_limit_turns_puts_a_centred_ramp_on_the_same_side_whatever_the_rounding():
     """A joint turning 120° in two steps centred in its window (frames 14 → 16 of 0 … 30): the
     passes from both kept frames are back on the poses 2 frames either side of the middle, a
-    tie that the passes' float rounding used to break. A rotation of 1e-6 rad on every frame,
-    or compiling the filter, then put the ramp on the other side (the joint 43° apart over
-    three frames; an elbow 25 cm apart between a clip in cm and the same clip in metres).
-    Now every such input gives the noiseless result to rounding, the ramp on the earlier side."""
+    tie that float rounding could break either way: a rotation of 1e-6 rad on every frame, or
+    compiling the filter, could put the ramp on the other side. Every such input gives the
+    noiseless result to rounding, the ramp on the earlier side."""
     frames, limit = 31, np.radians(43.0)
     z = jnp.broadcast_to(jnp.asarray([0.0, 0.0, 1.0]), (frames, 3))
     angle = np.select([np.arange(frames) <= 14, np.arange(frames) == 15], [0.0, 60.0], 120.0).astype(np.float32)

@@ -13,7 +13,7 @@ from bmm.common import TINY  # the BMM tests' tiny configuration (width 32, one 
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.geometry.rotations import quat_from_rot6d
 from bezmotion.ik.protocol import Character, IKTargets, Pose
-from bezmotion.pipeline import full_body_handles_error
+from bezmotion.pipeline import Inbetweener, full_body_handles_error
 
 FRAMES, STRIDE, K = TINY.num_frames, TINY.stride, TINY.num_controls  # 31, 6, 6
 STEPS = 2  # DDIM steps: plumbing, not quality
@@ -37,3 +37,12 @@ def hips_only_ik(character: Character):
 
 def identity_quats(joints: int) -> jax.Array:
     return jnp.zeros((joints, 4), jnp.float32).at[:, 0].set(1.0)
+
+
+def two_keys(start: Pose, end: Pose) -> Pose:
+    """A window's start and end pose as the keys ``(2, …)`` of an in-between."""
+    return jax.tree.map(lambda a, b: jnp.stack([a, b]), start, end)
+
+
+def model_of(bmm, ik, params, character: Character, transfer=None) -> Inbetweener:
+    return Inbetweener(bmm, ik, params, character, transfer)

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 from ik.demo_poses import clip, fk, frame  # noqa: F401  (clip: a fixture, shared with tests/ik)
-from pipeline.common import FRAMES, LEFT_HAND, STEPS, STRIDE, TINY, hips_only_ik, identity_quats
+from pipeline.common import FRAMES, LEFT_HAND, STEPS, STRIDE, TINY, hips_only_ik, identity_quats, model_of, two_keys
 
 from bezmotion.bmm.denoiser import init_denoiser
 from bezmotion.bmm.features import FeatureStats
@@ -23,7 +23,7 @@ from bezmotion.bmm.sampling import BezierMotionModel, Handles
 from bezmotion.data.characteristic import HIPS
 from bezmotion.data.corpus import MotionClips
 from bezmotion.data.curves import build_curve_dataset
-from bezmotion.pipeline import inbetween
+from bezmotion.pipeline import InbetweenOptions, inbetween
 
 
 @pytest.fixture(scope="session")
@@ -64,7 +64,9 @@ def run(clip, bmm) -> SimpleNamespace:
         valid=jnp.asarray([True, True, False]),
     )
     key = jax.random.key(7)
-    result = inbetween(bmm, ik, rest, character, start, end, handles, key=key, steps=STEPS, key_blend_frames=0)  # the IK's own frames
+    model = model_of(bmm, ik, rest, character)
+    keys = two_keys(start, end)
+    result = inbetween(model, keys, handles, key=key, options=InbetweenOptions(steps=STEPS, key_blend_frames=0))  # the IK's own frames
     return SimpleNamespace(
-        character=character, ik=ik, rest=rest, start=start, end=end, handles=handles, result=result, key=key
+        character=character, ik=ik, rest=rest, start=start, end=end, keys=keys, model=model, handles=handles, result=result, key=key
     )

@@ -22,6 +22,7 @@ from bezmotion.data.characteristic import HIPS
 from bezmotion.geometry.rotations import quat_from_rot6d
 from bezmotion.bezier import BezierLayout, tangent_from_velocity
 from bezmotion.ik.protocol import Character, IKTargets, Pose, pose_from_motion, targets_from_pose
+from bezmotion.pipeline import InbetweenOptions, Inbetweener
 from bezmotion.pipeline.inbetweening import inbetween, key_velocities
 
 TINY = BMMConfig.cpu(width=32, ff_width=64, num_heads=2, num_layers=1, dropout=0.0)
@@ -52,16 +53,18 @@ def nan_at(pose: Pose) -> Pose:
     return pose._replace(root_pos=pose.root_pos.at[1].set(jnp.nan))
 
 
-def run(case, start, end):
+def run(case, start, end, key_velocity=None):
     bmm, character, rest, _, _ = case
-    return inbetween(bmm, hips_only_ik, rest, character, start, end, Handles.empty(), key=jax.random.key(1), steps=STEPS)
+    keys = jax.tree.map(lambda a, b: jnp.stack([a, b]), start, end)
+    model = Inbetweener(bmm, hips_only_ik, rest, character)
+    return inbetween(model, keys, Handles.empty(), key=jax.random.key(1), options=InbetweenOptions(steps=STEPS), key_velocity=key_velocity)
 
 
 @pytest.mark.parametrize("which", ["start", "end"])
-def test_a_non_finite_pose_raises_a_value_error_naming_it_before_compiling(case, which):
+def test_a_non_finite_pose_raises_a_value_error_naming_it(case, which):
     _, _, _, start, end = case
     start, end = (nan_at(start), end) if which == "start" else (start, nan_at(end))
-    with pytest.raises(ValueError, match=f"the {which} pose contains non-finite values"):
+    with pytest.raises(ValueError, match=f"key {0 if which == 'start' else 1} contains non-finite values"):
         run(case, start, end)
 
 
@@ -72,7 +75,7 @@ def test_inside_a_callers_jit_a_non_finite_start_pose_raises_when_it_runs(case):
     assert np.isfinite(np.asarray(finite.quat_local)).all()
     # eqx.error_if raises equinox.EquinoxRuntimeError; plain jax.jit re-wraps it in a
     # runtime error whose type depends on JAX's dispatch path. The message survives.
-    with pytest.raises((eqx.EquinoxRuntimeError, RuntimeError, ValueError), match="the start pose contains non-finite values"):
+    with pytest.raises((eqx.EquinoxRuntimeError, RuntimeError, ValueError), match="key 0 contains non-finite values"):
         jax.block_until_ready(jitted(nan_at(start), end))
 
 
@@ -85,10 +88,10 @@ def test_key_velocities_are_met_exactly_and_bad_ones_raise(case):
     velocity = key_velocities(character, around)
     position = targets_from_pose(character, around).position
     np.testing.assert_allclose(velocity, jnp.stack([position[1] - position[0], position[3] - position[2]]), atol=1e-5)
-    result = inbetween(bmm, hips_only_ik, rest, character, start, end, Handles.empty(), key=jax.random.key(1), steps=STEPS, key_velocity=velocity)
+    result = run(case, start, end, velocity)
     layout = BezierLayout.from_controls(TINY.num_controls, TINY.stride)
-    np.testing.assert_array_equal(result.curves.ctrl_tangent[jnp.asarray([0, -1])], tangent_from_velocity(layout, velocity))
-    run_with = lambda v: inbetween(bmm, hips_only_ik, rest, character, start, end, Handles.empty(), key=jax.random.key(1), steps=STEPS, key_velocity=v)  # noqa: E731
+    np.testing.assert_array_equal(result.joined_curves().ctrl_tangent[jnp.asarray([0, -1])], tangent_from_velocity(layout, velocity))
+    run_with = lambda v: run(case, start, end, v)  # noqa: E731
     # The type checks of the test session may catch this one first (as for sample_curves).
     with pytest.raises((ValueError, TypeError), match="key_velocity"):
         run_with(velocity[0])

@@ -1,6 +1,6 @@
-"""``inbetween`` (``bezmotion.pipeline.inbetweening``): BMM curves → dense trajectories →
-``ik_fn`` per frame, with the handles and keyframes hit, any plain function as an IK, and
-the input checks.
+"""``inbetween`` (``bezmotion.pipeline.inbetweening``) of one window (two keys): BMM curves
+→ dense trajectories → ``ik_fn`` per frame, with the handles and keyframes hit, any plain
+function as an IK, and the input checks.
 """
 
 from __future__ import annotations
@@ -11,19 +11,20 @@ import numpy as np
 import pytest
 
 from ik.demo_poses import fk, np_rot6d, targets_of
-from pipeline.common import FRAMES, K, LEFT_HAND, STEPS, STRIDE, handles_error
+from pipeline.common import FRAMES, K, LEFT_HAND, STEPS, STRIDE, handles_error, model_of
 
 from bezmotion.data.characteristic import HIPS
 from bezmotion.ik.protocol import IKTargets, Pose
-from bezmotion.pipeline import inbetween
+from bezmotion.pipeline import InbetweenOptions, inbetween
 
 
 def test_inbetween_curves_pass_through_the_handles_and_the_keyframes(run):
     r, h = run.result, run.handles
     assert r.positions.shape == (FRAMES, 6, 3) and r.rot6d.shape == (FRAMES, 6, 6)
     assert r.pose.root_pos.shape == (FRAMES, 3) and r.pose.quat_local.shape == (FRAMES, 22, 4)
-    assert r.curves.ctrl_pos.shape == (K, 6, 3) and all(np.isfinite(np.asarray(a)).all() for a in (*r.curves, *r.pose))
-    ctrl = np.asarray(r.curves.ctrl_pos)
+    assert r.curves.ctrl_pos.shape == (1, K, 6, 3) and all(np.isfinite(np.asarray(a)).all() for a in (*r.curves, *r.pose))
+    curves = r.joined_curves()
+    ctrl = np.asarray(curves.ctrl_pos)
     # Bit for bit at the handles' control points; the padding slot (NaN) is no constraint.
     np.testing.assert_array_equal(ctrl[2, HIPS], np.asarray(h.position[0]))
     np.testing.assert_array_equal(ctrl[3, LEFT_HAND], np.asarray(h.position[1]))
@@ -31,7 +32,7 @@ def test_inbetween_curves_pass_through_the_handles_and_the_keyframes(run):
     for pose, k in ((run.start, 0), (run.end, K - 1)):
         t = targets_of(run.character, pose)
         np.testing.assert_allclose(ctrl[k], t.position, atol=1e-3)
-        np.testing.assert_allclose(r.curves.ctrl_rot6d[k], t.rot6d, atol=1e-5)
+        np.testing.assert_allclose(curves.ctrl_rot6d[k], t.rot6d, atol=1e-5)
     # The dense trajectories IK receives go through all of them.
     np.testing.assert_allclose(r.positions[12, HIPS], h.position[0], atol=1e-3)
     np.testing.assert_allclose(r.positions[18, LEFT_HAND], h.position[1], atol=1e-3)
@@ -70,9 +71,10 @@ def test_any_plain_function_is_an_ik_and_compiles_once(clip, bmm, run):
         return Pose(targets.position[HIPS] + params["shift"], params["rest"])
 
     params = {"shift": jnp.asarray([0.0, 2.0, 0.0]), "rest": clip.pose.quat_local[20]}
-    args = (bmm, translated_rest, params, run.character, run.start, run.end, run.handles)
-    first = inbetween(*args, key=jax.random.key(0), steps=STEPS, keep_keyframes=False)
-    second = inbetween(*args, key=jax.random.key(1), steps=STEPS, keep_keyframes=False)
+    model = model_of(bmm, translated_rest, params, run.character)
+    options = InbetweenOptions(steps=STEPS, keep_keyframes=False)
+    first = inbetween(model, run.keys, run.handles, key=jax.random.key(0), options=options)
+    second = inbetween(model, run.keys, run.handles, key=jax.random.key(1), options=options)
     assert len(traces) == 1, "a second call with the same shapes must not retrace"
     for r in (first, second):
         np.testing.assert_allclose(r.pose.root_pos, r.positions[:, HIPS] + np.array([0.0, 2.0, 0.0]), atol=1e-4)
@@ -81,18 +83,47 @@ def test_any_plain_function_is_an_ik_and_compiles_once(clip, bmm, run):
     assert not np.allclose(first.curves.ctrl_tangent, second.curves.ctrl_tangent)
 
 
-def test_inbetween_rejects_bad_inputs(bmm, run):
-    def call(start=run.start, end=run.end, handles=run.handles):
-        return inbetween(bmm, run.ik, run.rest, run.character, start, end, handles, key=run.key, steps=STEPS)
+def test_inbetween_rejects_bad_inputs(run):
+    def call(keys=run.keys, handles=run.handles, **kwargs):
+        return inbetween(run.model, keys, handles, key=run.key, options=InbetweenOptions(steps=STEPS), **kwargs)
 
-    batched = jax.tree.map(lambda x: x[None], run.start)
-    with pytest.raises(ValueError, match=r"single poses of bandai_namco \(22 joints\).*\(1, 22, 4\), \(22, 4\)"):
-        call(start=batched)
-    with pytest.raises(ValueError, match=r"\(22, 4\), \(21, 4\)"):
-        call(end=run.end._replace(quat_local=run.end.quat_local[:21]))
-    with pytest.raises(ValueError, match="the start pose contains non-finite values"):
-        call(start=run.start._replace(root_pos=run.start.root_pos.at[1].set(jnp.nan)))
-    with pytest.raises(ValueError, match="the end pose contains non-finite values"):
-        call(end=run.end._replace(quat_local=run.end.quat_local.at[3, 0].set(jnp.inf)))
-    with pytest.raises(ValueError, match=r"one motion.*got \(1, 3, 3\)"):
+    with pytest.raises(ValueError, match=r"poses of bandai_namco batched \(K, …\).*got \(3,\), \(22, 4\)"):
+        call(keys=run.start)
+    with pytest.raises(ValueError, match=r"at least 2 keys, got 1"):
+        call(keys=jax.tree.map(lambda x: x[:1], run.keys))
+    with pytest.raises(ValueError, match=r"\(K, 22, 4\); got \(2, 3\), \(2, 21, 4\)"):
+        call(keys=run.keys._replace(quat_local=run.keys.quat_local[:, :21]))
+    with pytest.raises(ValueError, match="key 0 contains non-finite values"):
+        call(keys=run.keys._replace(root_pos=run.keys.root_pos.at[0, 1].set(jnp.nan)))
+    with pytest.raises(ValueError, match="key 1 contains non-finite values"):
+        call(keys=run.keys._replace(quat_local=run.keys.quat_local.at[1, 3, 0].set(jnp.inf)))
+    with pytest.raises(ValueError, match=r"handles must be \(slots, 3\).*got \(1, 3, 3\)"):
         call(handles=jax.tree.map(lambda x: x[None], run.handles))
+    with pytest.raises(ValueError, match=r"on a key: handles go on frames 1 … 29, not on the keys' frames \[0, 30\]"):
+        call(handles=run.handles._replace(frame=run.handles.frame.at[1].set(30)))
+    with pytest.raises(ValueError, match="a handle's position is not finite"):
+        call(handles=run.handles._replace(position=run.handles.position.at[0, 2].set(jnp.nan)))
+    with pytest.raises(ValueError, match=r"key_velocity must be \(2, 6, 3\)"):
+        call(key_velocity=np.zeros((3, 6, 3)))
+
+
+def test_inbetween_checks_values_inside_a_callers_jit_too(run):
+    """The checks are one path: inside a caller's ``jax.jit`` they run with the computation."""
+
+    @jax.jit
+    def mine(keys):
+        return inbetween(run.model, keys, run.handles, key=run.key, options=InbetweenOptions(steps=STEPS)).pose.root_pos
+
+    assert np.isfinite(np.asarray(mine(run.keys))).all()
+    with pytest.raises(Exception, match="key 1 contains non-finite values"):
+        jax.block_until_ready(mine(run.keys._replace(root_pos=run.keys.root_pos.at[1, 0].set(jnp.nan))))
+
+
+def test_inbetween_options_are_hashable_and_checked():
+    assert hash(InbetweenOptions()) == hash(InbetweenOptions())
+    for bad in (dict(steps=0), dict(key_blend_frames=-1), dict(guidance=float("nan"))):
+        with pytest.raises(ValueError, match="InbetweenOptions"):
+            InbetweenOptions(**bad)
+    for bad in (dict(steps=2.5), dict(foot_lock="mean")):  # TypeError where the test session checks annotations
+        with pytest.raises((ValueError, TypeError)):
+            InbetweenOptions(**bad)

@@ -4,6 +4,7 @@ and the in-betweening with a transfer.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import jax
@@ -30,6 +31,7 @@ from bezmotion.data.bvh import read_bvh
 from bezmotion.evaluation import skeleton_zoo as zoo
 from bezmotion.pipeline import (
     CharacterProfile,
+    InbetweenOptions,
     Transfer,
     curves_to_target,
     facing_yaw,
@@ -62,10 +64,8 @@ def again(bmm, run, **kwargs):
     conftest's, ``key_blend_frames=0`` included: no recompilation, comparable frames)."""
     args = dict(handles=run.handles, transfer=None, key=run.key)
     args.update(kwargs)
-    return inbetween(
-        bmm, run.ik, run.rest, run.character, run.start, run.end, args["handles"], key=args["key"],
-        transfer=args["transfer"], steps=STEPS, key_blend_frames=0,
-    )  # fmt: skip
+    model = dataclasses.replace(run.model, bmm=bmm, transfer=args["transfer"])
+    return inbetween(model, run.keys, args["handles"], key=args["key"], options=InbetweenOptions(steps=STEPS, key_blend_frames=0))
 
 
 @pytest.fixture(scope="module")
@@ -114,13 +114,13 @@ def test_a_scaled_transfer_keeps_handles_and_keyframes_exact(bmm, run):
     """Also when a padding slot sits on a handle's control point (the ``run`` handles' third slot)."""
     t = Transfer(jnp.asarray(SCALED, jnp.float32), Transfer.identity().rot_offset)
     r = again(bmm, run, transfer=t)
-    ctrl = np.asarray(r.curves.ctrl_pos)
+    ctrl = np.asarray(r.joined_curves().ctrl_pos)
     np.testing.assert_array_equal(ctrl[2, HIPS], np.asarray(run.handles.position[0]))
     np.testing.assert_array_equal(ctrl[3, LEFT_HAND], np.asarray(run.handles.position[1]))
-    np.testing.assert_array_equal(ctrl[[0, -1]], np.asarray(run.result.curves.ctrl_pos)[[0, -1]])
+    np.testing.assert_array_equal(ctrl[[0, -1]], np.asarray(run.result.joined_curves().ctrl_pos)[[0, -1]])
     free = np.ones(K, bool)
     free[[0, -1]] = False
-    assert np.abs(ctrl[free] - np.asarray(run.result.curves.ctrl_pos)[free]).max() > 1.0  # the scale does act
+    assert np.abs(ctrl[free] - np.asarray(run.result.joined_curves().ctrl_pos)[free]).max() > 1.0  # the scale does act
 
 
 def test_character_profile_is_invariant_to_the_facing(clip, profile):
