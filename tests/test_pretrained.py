@@ -17,13 +17,15 @@ from bezmotion.assets.registry import (
     REGISTRY,
     ChecksumError,
     folder_digest,
+    load_pretrained,
     model_folder,
-    pretrained,
     read_manifest,
     write_manifest,
 )
 from bezmotion.cli import main
+from bezmotion.ik.protocol import pose_fk
 from bezmotion.pipeline.authoring import resolve_bmm, resolve_ik_model
+from bezmotion.pipeline.transfer import CharacterProfile
 
 
 def test_the_manifest_matches_the_bundled_files():
@@ -46,25 +48,26 @@ def test_write_manifest_reproduces_the_committed_one(tmp_path):
     assert json.loads((tmp_path / "models" / MANIFEST).read_text()) == json.loads((MODELS_DIR / MANIFEST).read_text())
 
 
-def test_pretrained_loads_working_models():
-    pt = bm.pretrained("bandai_namco")
-    assert isinstance(pt, bm.Pretrained)
-    assert pt.character is pt.ik.character and pt.character.name == "bandai_namco" and pt.character.num_joints == 22
-    assert pt.joint_limits is not None and pt.entry.bundled and "CC BY-NC 4.0" in pt.entry.licence
-    profile = bm.CharacterProfile.load(PROFILES_DIR / "bandai_namco.json")
-    assert pt.profile.height == profile.height and np.array_equal(pt.profile.mean_orientation, profile.mean_orientation)
+def test_load_pretrained_loads_working_parts():
+    parts = load_pretrained("bandai_namco")
+    assert parts.character is parts.ik.character and parts.character.name == "bandai_namco" and parts.character.num_joints == 22
+    assert parts.joint_limits is not None and parts.entry.bundled and "CC BY-NC 4.0" in parts.entry.licence
+    profile = CharacterProfile.load(PROFILES_DIR / "bandai_namco.json")
+    assert parts.profile.height == profile.height and np.array_equal(parts.profile.mean_orientation, profile.mean_orientation)
+
+
+def test_pretrained_is_a_model_that_hits_a_handle():
+    """``bm.pretrained`` gives the model object: its curves pass through the handle exactly
+    and its exact IK puts the hand there."""
+    model = bm.pretrained("bandai_namco")
+    assert isinstance(model, bm.Inbetweener) and model.character.name == "bandai_namco"
     clip = bm.read_bvh(bm.DEMO_CLIP)
-    poses = bm.pose_from_motion(pt.character, clip.quat_local[:31], clip.pos_local[:31])
-    targets = bm.targets_from_pose(pt.character, poses)
-    hand = targets.position[12, 3] + np.array([0.0, 20.0, 0.0], np.float32)
-    handles = bm.Handles.from_frames(["right_hand"], [12], hand[None], config=pt.bmm.config)
-    curves = bm.sample_curves(pt.bmm, targets.position[0], targets.position[30], handles, key=jax.random.key(0), steps=2)
-    np.testing.assert_array_equal(curves.ctrl_pos[2, 3], hand)  # the handle, exactly
-    assert np.isfinite(np.asarray(curves.ctrl_pos)).all()
-    # The learned IK poses the character from the six joints' targets.
-    pose = bm.protores_ik_fn(pt.ik, jax.tree.map(lambda x: x[12], targets))
-    _, positions = bm.pose_fk(pt.character, pose)
-    assert float(np.abs(np.asarray(positions)[pt.character.hips] - np.asarray(targets.position[12, 0])).max()) < 5.0
+    keys = model.poses(clip, [0, 30])
+    handles = model.handles({"right_hand": (12, (0.0, 20.0, 0.0))}, relative_to=keys)
+    result = model.inbetween(keys, handles, key=jax.random.key(0), options=bm.InbetweenOptions(steps=2))
+    np.testing.assert_array_equal(result.joined_curves().ctrl_pos[2, 3], handles.position[0])  # the handle, exactly
+    _, positions = pose_fk(model.character, result.pose)
+    assert float(np.linalg.norm(np.asarray(positions)[12, model.character.characteristic[3]] - np.asarray(handles.position[0]))) < 0.05
 
 
 def test_a_corrupted_copy_fails_its_checksum(tmp_path):
@@ -77,7 +80,7 @@ def test_a_corrupted_copy_fails_its_checksum(tmp_path):
     data[len(data) // 2] ^= 0xFF
     victim.write_bytes(bytes(data))
     with pytest.raises(ChecksumError) as error:
-        pretrained("bandai_namco", root=root)
+        load_pretrained("bandai_namco", root=root)
     message = str(error.value)
     assert str(root / "bmm_bandai_namco") in message and expected in message
     assert folder_digest(root / "bmm_bandai_namco") in message and "checksum mismatch" in message
@@ -95,7 +98,7 @@ def test_an_unknown_name_lists_the_known_ones():
 def test_a_model_not_trained_here_names_its_command(tmp_path, monkeypatch):
     monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path / "cache"))
     with pytest.raises(FileNotFoundError) as error:
-        pretrained("lafan1")
+        load_pretrained("lafan1")
     message = str(error.value)
     assert "not bundled" in message and "CC BY-NC-ND 4.0" in message and str(tmp_path / "cache" / "runs") in message
     assert "retrain with: python experiments/bmm_lafan1.py" in message and "python experiments/train_ik.py --corpus lafan1" in message

@@ -53,6 +53,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
+from jaxtyping import ArrayLike
 
 from bezmotion.bezier import DEFAULT_STRIDE, BezierLayout, checked_controls
 from bezmotion.data.bvh import POSITION_CHANNELS, BvhMotion
@@ -178,8 +179,8 @@ class _Blob:
 def write_glb(
     path: str | os.PathLike,
     motion: BvhMotion,
-    ctrl_pos: np.ndarray | None = None,
-    ctrl_tangent: np.ndarray | None = None,
+    ctrl_pos: ArrayLike | None = None,
+    ctrl_tangent: ArrayLike | None = None,
     *,
     stride: int = DEFAULT_STRIDE,
     interpolation: str = "LINEAR",
