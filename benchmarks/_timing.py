@@ -19,7 +19,7 @@ import jax
 import jaxlib
 import numpy as np
 
-from bezmotion.io import atomic_write_text
+from bezmotion._src.io import atomic_write_text
 
 
 def _cpu_model() -> str:

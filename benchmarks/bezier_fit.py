@@ -28,7 +28,7 @@ from bezmotion.bezier import BezierLayout, fit_curves
 from bezmotion.data.corpus import SPLITS, motion_clips
 from bezmotion.data.curves import DEFAULT_OFFSET, DEFAULT_WINDOW, CurveDataset, build_curve_dataset, characteristic_windows
 from bezmotion.data.sources import default_source, load_corpus
-from bezmotion.options import option, options, parse_options
+from bezmotion._src.options import option, options, parse_options
 
 
 @options

@@ -7,7 +7,7 @@ XLA compilation separately), steady-state latency of one motion at batch 1 (star
 and two intermediate handles; no guidance, as in the paper's timing), and throughput in
 motions per second at ``--batch``. Weights are random: latency does not depend on them.
 Everything is compiled with the options ``sample_curves`` itself uses
-(:func:`bezmotion.xla_options.inference_compiler_options`); ``"xla_defaults"`` repeats the
+(:func:`bezmotion._src.xla_options.inference_compiler_options`); ``"xla_defaults"`` repeats the
 single-motion figures with XLA's default options, to show what they are worth.
 Writes ``{"paper": {"params", "compile_s", "latency_s", "motions_per_s", …}, "default": {…}}``;
 latency is the median of ``--repeats`` runs, ``latency_min_s`` the fastest (this CPU is a
@@ -24,12 +24,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from _timing import machine_info, report, time_jitted
-from bezmotion.xla_options import inference_compiler_options
+from bezmotion._src.xla_options import inference_compiler_options
 from bezmotion.bmm.denoiser import BMMConfig, init_denoiser
 from bezmotion.training import count_parameters
 from bezmotion.bmm.features import FeatureStats
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, sample_curves
-from bezmotion.options import option, options, parse_options
+from bezmotion._src.options import option, options, parse_options
 
 PAPER_LATENCY_S = 0.08  # BMM §6: 10 steps on an RTX 3090
 

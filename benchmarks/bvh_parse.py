@@ -33,7 +33,7 @@ from bezmotion.data.anidance import load_anidance
 from bezmotion.data.bandai_namco import load_bandai_namco
 from bezmotion.data.bvh import read_bvh
 from bezmotion.data.cache import CACHE_ENV
-from bezmotion.options import option, options, parse_options
+from bezmotion._src.options import option, options, parse_options
 from bezmotion.data.sources import data_dir
 
 SHARED_DATA = data_dir()

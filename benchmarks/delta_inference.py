@@ -8,7 +8,7 @@ separately), steady-state latency of one transition at batch 1 (10 past frames a
 target, ``--gap`` missing frames; the benchmark's layout) and throughput in transitions
 per second at ``--batch``. The parameters are an argument of the timed function, not
 constants baked into it. Weights are random: latency does not depend on them.
-Everything is compiled with :func:`bezmotion.xla_options.inference_compiler_options` (as the BMM
+Everything is compiled with :func:`bezmotion._src.xla_options.inference_compiler_options` (as the BMM
 benchmark); ``"xla_defaults"`` repeats the batch-1 figures with XLA's default options.
 Latency is the median of ``--repeats`` runs, ``latency_min_s`` the fastest.
 """
@@ -22,11 +22,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from _timing import machine_info, report, time_jitted
-from bezmotion.xla_options import inference_compiler_options
+from bezmotion._src.xla_options import inference_compiler_options
 from bezmotion.data.lafan1 import JOINT_NAMES, N_PAST, PARENTS
 from bezmotion.delta.model import DeltaConfig, delta_inbetweener, init_delta
 from bezmotion.geometry import Skeleton
-from bezmotion.options import option, options, parse_options, presets
+from bezmotion._src.options import option, options, parse_options, presets
 from bezmotion.training import count_parameters
 
 CONFIGS = presets(DeltaConfig, parents=PARENTS)  # LaFAN1's skeleton, the paper's

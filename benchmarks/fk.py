@@ -16,7 +16,7 @@ import numpy as np
 
 from _timing import machine_info, report, time_jitted
 from bezmotion.geometry.skeleton import Skeleton
-from bezmotion.options import option, options, parse_options
+from bezmotion._src.options import option, options, parse_options
 
 # LaFAN1 joint order (Hips, legs, spine/head, arms).
 LAFAN1_PARENTS = (-1, 0, 1, 2, 3, 0, 5, 6, 7, 0, 9, 10, 11, 12, 11, 14, 15, 16, 11, 18, 19, 20)

@@ -51,9 +51,9 @@ from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.protocol import Character, IKTargets, Pose, pose_from_motion, solve_frames, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik
-from bezmotion.options import option, options, parse_options
+from bezmotion._src.options import option, options, parse_options
 from bezmotion.pipeline.inbetweening import KEY_BLEND_FRAMES
-from bezmotion.xla_options import inference_compiler_options
+from bezmotion._src.xla_options import inference_compiler_options
 
 
 @options

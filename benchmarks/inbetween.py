@@ -32,11 +32,11 @@ from bezmotion.ik.exact import exact_ik
 from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.protocol import Character, pose_from_motion, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn
-from bezmotion.options import option, options, parse_options
+from bezmotion._src.options import option, options, parse_options
 from bezmotion.pipeline.inbetweening import InbetweenOptions, inbetween_traced
 from bezmotion.pipeline.model import Inbetweener
 from bezmotion.pipeline.transfer import Transfer
-from bezmotion.xla_options import inference_compiler_options
+from bezmotion._src.xla_options import inference_compiler_options
 
 
 @options

@@ -34,7 +34,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from bezmotion.geometry.rotations import quat_from_rot6d, rot6d_from_quat, slerp
-from bezmotion.linalg import exact_einsum, exact_matmul
+from bezmotion._src.linalg import exact_einsum, exact_matmul
 
 DEFAULT_STRIDE = 6  # frames between control points (BMM appendix A.2)
 

@@ -1,7 +1,7 @@
 """What the experiment scripts share beyond the package: which corpus, where trainings live.
 
-Each script declares its options once, as an options class (:mod:`bezmotion.options`),
-and writes its results with :func:`bezmotion.io.write_results` (JSON and a Markdown
+Each script declares its options once, as an options class (:mod:`bezmotion._src.options`),
+and writes its results with :func:`bezmotion._src.io.write_results` (JSON and a Markdown
 report beside it).
 """
 

@@ -16,7 +16,7 @@ import numpy as np
 from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.delta.train import DeltaTrainConfig, init_delta_train_states, make_delta_train_step, run_delta_training
 from bezmotion.delta.model import DeltaConfig
-from bezmotion.options import option, options, presets
+from bezmotion._src.options import option, options, presets
 from bezmotion.training import compile_train_step
 from _common import runs_dir
 

@@ -68,9 +68,9 @@ from bezmotion.data.characteristic import FEET
 from bezmotion.data.corpus import motion_clips
 from bezmotion.data.curves import curve_dataset, skeleton_windows
 from bezmotion.data.sources import default_source, load_corpus
-from bezmotion.io import write_results
+from bezmotion._src.io import write_results
 from bezmotion.metrics import mean_position_error
-from bezmotion.options import option, options, parse_options, presets
+from bezmotion._src.options import option, options, parse_options, presets
 from bezmotion.training import CheckpointStore, compile_train_step, count_parameters, data_mesh, run_training
 from _common import PARAMETER_CHOICES, PARAMETERS_HELP, runs_dir, trained_parameters
 

@@ -21,13 +21,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bezmotion.io import save_figure, write_results
+from bezmotion._src.io import save_figure, write_results
 from bezmotion.bezier import BezierLayout, evaluate, fit_curves
 from bezmotion.data import lafan1
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.data.corpus import motion_clips
 from bezmotion.data.curves import DEFAULT_OFFSET, DEFAULT_WINDOW, characteristic_windows
-from bezmotion.options import option, options, parse_options
+from bezmotion._src.options import option, options, parse_options
 
 VARIANTS = {"pinned": True, "free": False}  # name -> pin_positions
 

@@ -47,7 +47,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bezmotion.io import write_results
+from bezmotion._src.io import write_results
 from bezmotion.assets import BUNDLED_BMM, PROFILES_DIR
 from bezmotion.bmm.evaluation import (
     HANDLE_FRAMES,
@@ -71,7 +71,7 @@ from bezmotion.bmm.augmentation import rest_reflections
 from bezmotion.bmm.train import LR_SCHEDULES, CurveArrays, BMMTrainConfig, init_bmm_train_states, make_bmm_train_step
 from bezmotion.data.characteristic import SKELETON_MAPS
 from bezmotion.pipeline.transfer import CharacterProfile, Transfer, transfer_curve_dataset
-from bezmotion.options import option, options, parse_options, presets
+from bezmotion._src.options import option, options, parse_options, presets
 from bezmotion.training import StoppingRule, compile_train_step, count_parameters, data_mesh, run_training, train_with_learning_curve
 from bezmotion.training.distributed import DistributedOptions, is_coordinator, leave_group
 from _common import PARAMETER_CHOICES, PARAMETERS_HELP, matches_any, runs_dir, trained_parameters, window_labels
@@ -255,7 +255,7 @@ def plot_learning_curve(curve: dict, references: dict, path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from bezmotion.io import save_figure
+    from bezmotion._src.io import save_figure
 
     points = curve["points"]
     steps = [p["step"] for p in points]

@@ -34,9 +34,9 @@ from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.data.corpus import motion_clips
 from bezmotion.data.curves import characteristic_windows
 from bezmotion.data.sources import load_corpus
-from bezmotion.io import write_results
+from bezmotion._src.io import write_results
 from bezmotion.metrics import chain_velocity_jumps, distribution_summary
-from bezmotion.options import option, options, parse_options
+from bezmotion._src.options import option, options, parse_options
 from bezmotion.data.windows import join_windows
 
 

@@ -14,12 +14,12 @@ from pathlib import Path
 
 import jax.numpy as jnp
 
-from bezmotion.io import atomic_write_text
+from bezmotion._src.io import atomic_write_text
 from bezmotion.data.corpus import motion_clips
 from bezmotion.data.sources import load_corpus
 from bezmotion.geometry.skeleton import Skeleton
 from bezmotion.ik.protocol import Character, pose_from_motion
-from bezmotion.options import option, options, parse_options
+from bezmotion._src.options import option, options, parse_options
 from bezmotion.pipeline import CharacterProfile
 
 SOURCES = ("lafan1", "bandai_namco")

@@ -21,8 +21,8 @@ from bezmotion.data.bvh import BvhMotion, parse_bvh
 from bezmotion.data.clip_frame import ClipFrame, detect_clip_frame
 from bezmotion.data.sources import default_source
 from bezmotion.ik.protocol import Character
-from bezmotion.io import atomic_write_text
-from bezmotion.options import option, options, parse_options
+from bezmotion._src.io import atomic_write_text
+from bezmotion._src.options import option, options, parse_options
 
 CORPORA = ("lafan1", "bandai_namco")
 

@@ -30,8 +30,8 @@ from pathlib import Path
 
 import pipeline_eval
 from bezmotion.assets.registry import REGISTRY
-from bezmotion.io import write_results
-from bezmotion.options import option, options, options_from, options_parser, parse_options
+from bezmotion._src.io import write_results
+from bezmotion._src.options import option, options, options_from, options_parser, parse_options
 
 CORPORA = ("lafan1", "bandai_namco")
 PAPER_LAFAN1 = {"handles_error_cm": 0.8914, "ood_handles_error_cm": 1.7090, "foot_skating_ratio": 0.2176, "gt_foot_skating_ratio": 0.1209}

@@ -51,7 +51,7 @@ from typing import ClassVar, Literal
 
 import jax
 
-from bezmotion.io import write_results
+from bezmotion._src.io import write_results
 from bezmotion.evaluation.anidance import (
     ANIDANCE_LENGTHS,
     KEYFRAME_PERIOD,
@@ -69,7 +69,7 @@ from _delta import MODE_NAMES, DeltaOptions, ModeRun, mean_over_seeds, mode_labe
 from bezmotion.delta.train import DeltaPositionArrays, DeltaTrainConfig
 from bezmotion.delta.model import TABLE3_MODES, DeltaConfig, delta_position_inbetweener
 from bezmotion.training import count_parameters
-from bezmotion.options import option, options, parse_options, presets
+from bezmotion._src.options import option, options, parse_options, presets
 
 DEFAULT_DATA = default_source("anidance")
 TRAIN_WINDOW = 128

@@ -30,7 +30,7 @@ from typing import ClassVar, Literal
 
 import jax
 
-from bezmotion.io import write_results
+from bezmotion._src.io import write_results
 from bezmotion.data.lafan1 import JOINT_NAMES, PARENTS, TEST_SUBJECTS, TRAIN_SUBJECTS, lafan1_statistics, lafan1_windows, load_lafan1
 from bezmotion.data.sources import default_source
 from _delta import MODE_NAMES, DeltaOptions, ModeRun, mean_over_seeds, mode_label, train_delta_mode
@@ -48,7 +48,7 @@ from bezmotion.evaluation.lafan1 import (
 from bezmotion.delta.model import TABLE3_MODES, DeltaConfig, delta_inbetweener
 from bezmotion.geometry import Skeleton
 from bezmotion.training import count_parameters
-from bezmotion.options import option, options, parse_options, presets
+from bezmotion._src.options import option, options, parse_options, presets
 
 DEFAULT_DATA = default_source("lafan1")
 TRAIN_WINDOW, TRAIN_OFFSET = 50, 20

@@ -17,7 +17,7 @@
 #   OUT=results/gpu bash experiments/gpu_lafan1.sh LAFAN1_ZIP [TRAIN_SECONDS] [KILL_AFTER_S]
 #   JOBS="paper_cosine cpu_cosine ik_paper" PAPER_STEPS=5000 OUT=… bash experiments/gpu_lafan1.sh …
 #
-# Precision: the curve fit asks for full float32 products itself (bezmotion.linalg), so
+# Precision: the curve fit asks for full float32 products itself (bezmotion._src.linalg), so
 # the networks may use the GPU's fast default (TF32). The script fits the datasets first
 # with the default and says whether that converged; if it did not, it sets
 # JAX_DEFAULT_MATMUL_PRECISION=highest for everything.

@@ -34,7 +34,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bezmotion.io import save_figure, write_results
+from bezmotion._src.io import save_figure, write_results
 from bezmotion.bezier import BezierLayout, fit_curves, reconstruct_dense
 from bezmotion.data.lafan1 import TEST_SUBJECTS
 from bezmotion.data.sources import default_source, load_corpus
@@ -44,7 +44,7 @@ from bezmotion.ik.protocol import IKTargets, Pose, pose_fk, targets_from_pose
 from bezmotion.ik.protores import ProtoResModel, load_ik_model, protores_ik_fn
 from bezmotion.training import count_parameters
 from bezmotion.ik.training import CHARACTERISTIC, TABLE2, body_joints, effector_configurations, effector_mpjpe
-from bezmotion.options import option, options, parse_options
+from bezmotion._src.options import option, options, parse_options
 from _common import runs_dir
 
 WINDOW = 31

@@ -17,7 +17,7 @@ from bezmotion.data.sources import load_corpus
 from bezmotion.ik.joint_limits import joint_limits_from_motion
 from bezmotion.ik.protocol import Character, pose_from_motion
 from bezmotion.geometry.skeleton import Skeleton
-from bezmotion.options import option, options, parse_options
+from bezmotion._src.options import option, options, parse_options
 
 
 @options

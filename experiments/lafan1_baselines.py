@@ -16,9 +16,9 @@ import json
 import time
 from typing import Literal
 
-from bezmotion.io import atomic_write_text
+from bezmotion._src.io import atomic_write_text
 from bezmotion.evaluation.lafan1 import TRANSITION_LENGTHS, evaluate_baselines, format_table, lafan1_benchmark
-from bezmotion.options import option, options, parse_options
+from bezmotion._src.options import option, options, parse_options
 
 
 @options

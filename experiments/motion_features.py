@@ -61,8 +61,8 @@ from bezmotion.evaluation.motion_features import (
     save_motion_features,
 )
 from bezmotion.evaluation.naturalness import diversity, frechet_distance, gaussian_fit
-from bezmotion.io import atomic_write_text, write_results
-from bezmotion.options import option, options, parse_options, presets
+from bezmotion._src.io import atomic_write_text, write_results
+from bezmotion._src.options import option, options, parse_options, presets
 from bezmotion.pipeline.transfer import CharacterProfile
 from bezmotion.training import CheckpointStore, compile_train_step, count_parameters, run_training
 from _common import runs_dir

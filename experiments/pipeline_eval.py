@@ -182,9 +182,9 @@ from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.protocol import Character, Pose, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik
-from bezmotion.io import atomic_path, write_results
+from bezmotion._src.io import atomic_path, write_results
 from bezmotion.metrics import chain_velocity_jumps, distribution_summary
-from bezmotion.options import option, options, parse_options
+from bezmotion._src.options import option, options, parse_options
 from bezmotion.pipeline.evaluation import (
     chain_frame_handles,
     chain_rows,

@@ -43,10 +43,10 @@ from bezmotion.data.resample import TRAINED_FPS, resample_motion
 from bezmotion.evaluation import skeleton_zoo as zoo
 from bezmotion.geometry.rotations import quat_conjugate
 from bezmotion.geometry.skeleton import forward_kinematics
-from bezmotion.inbetween_command import InbetweenCommand, run_inbetween
-from bezmotion.io import write_results
+from bezmotion.cli.inbetween import InbetweenCommand, run_inbetween
+from bezmotion._src.io import write_results
 from bezmotion.ik.rig import derive_rig_spec
-from bezmotion.options import option, options, parse_options
+from bezmotion._src.options import option, options, parse_options
 from bezmotion.pipeline.authoring import motion_window, recognise_character
 
 PREFIX = "ref:"  # the reference's namespace: no preset's names, read as a user's own skeleton

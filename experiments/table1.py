@@ -79,8 +79,8 @@ from bezmotion.evaluation.naturalness import diversity, frechet_distance, gaussi
 from bezmotion.ik.exact import exact_ik, exact_settings
 from bezmotion.ik.protocol import Pose, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn
-from bezmotion.io import write_results
-from bezmotion.options import option, options, parse_options
+from bezmotion._src.io import write_results
+from bezmotion._src.options import option, options, parse_options
 from bezmotion.pipeline.evaluation import sample_window_curves, solve_window_curves, window_keys, window_poses
 from bezmotion.pipeline.window_figures import PipelineMetricsConfig, summarize_windows, window_curve_metrics, window_pose_metrics
 from bezmotion.pipeline.authoring import ik_model_joint_limits

@@ -28,7 +28,7 @@ from typing import Literal
 import jax
 import numpy as np
 
-from bezmotion.io import atomic_write_text
+from bezmotion._src.io import atomic_write_text
 from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.data.corpus import Corpus
 from bezmotion.ik.frames import corpus_frame_starts, corpus_frames
@@ -42,7 +42,7 @@ from bezmotion.ik.training import (
     init_ik_train_state,
     make_ik_train_step,
 )
-from bezmotion.options import option, options, parse_options, presets
+from bezmotion._src.options import option, options, parse_options, presets
 from bezmotion.training import compile_train_step, count_parameters, run_training
 from _common import CHARACTERISTIC_HELP, CORPUS_HELP, clip_label, corpus_label, matches_any, open_corpus, runs_dir
 

@@ -310,7 +310,7 @@ def without_key_bias(tree):
 
 def lapack_calls(fn: Callable, *args, **kwargs) -> set[str]:
     """The LAPACK kernels ``jax.jit(fn)(*args, **kwargs)`` would call (from its lowering,
-    nothing is compiled). Our code must call none: see :mod:`bezmotion.linalg` for the
+    nothing is compiled). Our code must call none: see :mod:`bezmotion._src.linalg` for the
     deadlock jaxlib's batched CPU kernels cause."""
     text = jax.jit(fn).lower(*args, **kwargs).as_text()
     return {name for name in re.findall(r"custom_call @(\w+)", text) if "lapack" in name.lower()}

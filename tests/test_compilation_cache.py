@@ -1,11 +1,11 @@
-"""The command line's persistent XLA compilation cache (``bezmotion.compilation_cache``)."""
+"""The command line's persistent XLA compilation cache (``bezmotion._src.compilation_cache``)."""
 
 from __future__ import annotations
 
 import jax
 import pytest
 
-from bezmotion.compilation_cache import MIN_COMPILE_SECONDS, SWITCH_ENV, use_compilation_cache
+from bezmotion._src.compilation_cache import MIN_COMPILE_SECONDS, SWITCH_ENV, use_compilation_cache
 
 
 @pytest.fixture

@@ -1,4 +1,4 @@
-"""Atomic writes (``bezmotion.io``): ordinary file permissions, no half-written files; output folders checked before work."""
+"""Atomic writes (``bezmotion._src.io``): ordinary file permissions, no half-written files; output folders checked before work."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import stat
 
 import pytest
 
-from bezmotion.io import _umask, atomic_path, atomic_write_bytes, atomic_write_text, check_writable_folder
+from bezmotion._src.io import _umask, atomic_path, atomic_write_bytes, atomic_write_text, check_writable_folder
 
 
 @pytest.fixture

@@ -1,4 +1,4 @@
-"""LAPACK-free small solves (``bezmotion.linalg``) against numpy's LAPACK, and the
+"""LAPACK-free small solves (``bezmotion._src.linalg``) against numpy's LAPACK, and the
 library's jitted paths free of LAPACK calls (the sampler's and the exact IK's are checked
 beside their other tests: ``tests/bmm/test_off_grid.py``, ``tests/ik/test_exact.py``)."""
 
@@ -14,7 +14,7 @@ import pytest
 from helpers import lapack_calls, np_matrix_from_quat, np_quat_from_axis_angle, np_quat_mul, random_quat
 
 from bezmotion.bezier import BezierLayout, evaluate, fit_curves
-from bezmotion.linalg import cholesky_solve, inverse_3x3, min_norm_solve, top_eigenvector
+from bezmotion._src.linalg import cholesky_solve, inverse_3x3, min_norm_solve, top_eigenvector
 from bezmotion.pipeline.transfer import mean_rotation
 
 

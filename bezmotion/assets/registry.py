@@ -39,7 +39,7 @@ from bezmotion.data.cache import cache_dir
 from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.protocol import Character
 from bezmotion.ik.protores import ProtoResModel, load_ik_model
-from bezmotion.io import atomic_write_text
+from bezmotion._src.io import atomic_write_text
 from bezmotion.pipeline.transfer import CharacterProfile
 
 MANIFEST = "MANIFEST.json"

@@ -102,7 +102,7 @@ from bezmotion.training.checkpoint import CheckpointStore, save_model_folder
 from bezmotion.training.loop import shard_batch
 from bezmotion.training.state import TrainState, fresh_train_state
 from bezmotion.training.step import apply_gradients
-from bezmotion.xla_options import inference_jit
+from bezmotion._src.xla_options import inference_jit
 
 ABLATIONS = ("minus_b", "minus_ik_b", "condmdi_g")
 """``minus_b``: BMM⁻ᴮ, dense six-joint trajectories; ``minus_ik_b``: BMM⁻ᴵᴷ⁻ᴮ, the dense full skeleton;

@@ -17,7 +17,7 @@ import numpy as np
 from jaxtyping import Array, Bool, Float, Int
 
 from bezmotion.bezier import BezierLayout, basis
-from bezmotion.linalg import exact_einsum
+from bezmotion._src.linalg import exact_einsum
 from bezmotion.data.curves import CurveDataset
 from bezmotion.diffusion.projection import on_control_frame
 from bezmotion.baselines import interpolation_through_points

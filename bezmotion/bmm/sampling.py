@@ -27,7 +27,7 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from bezmotion.xla_options import inference_jit
+from bezmotion._src.xla_options import inference_jit
 from bezmotion.training.checkpoint import CheckpointStore, cast_floating, save_model_folder
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.bezier import BezierLayout
@@ -519,7 +519,7 @@ def sample_curves(
       tangents) equal their targets exactly when ``overwrite``.
 
     Compiled once per input shape and static argument, with the backend's inference
-    compiler options (:mod:`bezmotion.xla_options`); inside a caller's own ``jax.jit`` it is
+    compiler options (:mod:`bezmotion._src.xla_options`); inside a caller's own ``jax.jit`` it is
     simply traced into that computation. One window is a chain of two keys
     (:func:`sample_chained_curves`).
     """

@@ -23,7 +23,7 @@ from pathlib import Path
 import jax
 import numpy as np
 
-from bezmotion.io import atomic_write_text
+from bezmotion._src.io import atomic_write_text
 from bezmotion.geometry.rotations import euler_from_quat, quat_fix_continuity, quat_from_euler
 from bezmotion.geometry.skeleton import Skeleton
 

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bezmotion.io import atomic_path
+from bezmotion._src.io import atomic_path
 
 CACHE_ENV = "BEZMOTION_CACHE"
 

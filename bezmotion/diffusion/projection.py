@@ -28,7 +28,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from bezmotion.bezier import BezierLayout, basis
-from bezmotion.linalg import exact_einsum, min_norm_solve, spd_inverse
+from bezmotion._src.linalg import exact_einsum, min_norm_solve, spd_inverse
 
 
 def on_control_frame(layout: BezierLayout, frame: Int[ArrayLike, "*shape"]) -> tuple[Bool[Array, "*shape"], Int[Array, "*shape"]]:
@@ -98,7 +98,7 @@ def project_off_grid(
       fixed_tangent: ``(controls, joints)`` control tangents that must not change either
         (e.g. a tangent shared with the next window of a chain); default none. A joint whose
         handles then outnumber its free variables in a stride meets them in slot order as
-        far as the variables allow (:func:`bezmotion.linalg.min_norm_solve`).
+        far as the variables allow (:func:`bezmotion._src.linalg.min_norm_solve`).
       metric: which correction is smallest: ``"variables"`` (default), the
         Euclidean norm of the variables' change (in the model's normalised space when they
         are normalised); ``"curve"``, the change of the curve itself, summed over every frame
@@ -176,7 +176,7 @@ def curve_metric(
     fixed_tangent: Bool[Array, "controls joints"] | None = None,
 ) -> CurveMetric:
     """The smallest change of the curve over every frame as :func:`project_off_grid`'s
-    ``metric``. Plain XLA solves (:mod:`bezmotion.linalg`), no LAPACK."""
+    ``metric``. Plain XLA solves (:mod:`bezmotion._src.linalg`), no LAPACK."""
     k, dtype = fixed.shape[0], pos_std.dtype
     fixed_tangent = jnp.zeros_like(fixed) if fixed_tangent is None else fixed_tangent
     every_pos, every_tan = (w.astype(dtype)[None, None] for w in basis(layout))  # (1, 1, F, K)

@@ -88,7 +88,7 @@ from bezmotion.ik.key_blend import blend_to_chain_keys, distances_to_keys, key_c
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, pose_fk
 from bezmotion.ik.rig import Rig, elbows_from_keys
 from bezmotion.ik.temporal import FLIP_TURN, KEY_TURN, limit_turns, planted_feet, remove_flips, smooth, turn_out_of_keys
-from bezmotion.linalg import cholesky_solve, inverse_3x3
+from bezmotion._src.linalg import cholesky_solve, inverse_3x3
 
 # Levenberg–Marquardt damping, relative to each unknown's own curvature (the diagonal of
 # JᵀW²J: a hand's position rows weigh a shoulder turn by its ~50 cm lever, the hips' by a
@@ -630,14 +630,14 @@ class ExactIKFn:
         return ExactIKResult(pose, *_errors(params.character, pose, targets))
 
 
-def exact_settings(items: tuple[str, ...] | list[str], flag: str = "--exact") -> dict[str, float | int]:
-    """``NAME=VALUE`` strings (a command line's ``--exact`` options) as :func:`exact_ik`
-    keyword arguments: floats, ints for the static counts.
+def exact_settings(items: tuple[str, ...] | list[str], label: str = "exact setting") -> dict[str, float | int]:
+    """``NAME=VALUE`` strings (e.g. from a command line) as :func:`exact_ik` keyword
+    arguments: floats, ints for the static counts.
 
     Raises:
-      ValueError: naming the item, for a malformed one, an unknown NAME, a non-number, a
-        fractional step count or a value out of the setting's range (:func:`exact_ik`'s checks,
-        so a command line's mistake names the flag it came with).
+      ValueError: ``"{label} {item}: …"``, for a malformed item, an unknown NAME, a
+        non-number, a fractional step count or a value out of the setting's range
+        (:func:`exact_ik`'s checks).
     """
     fields = {f.name: f for f in dataclasses.fields(ExactIKParams)}
     settable = sorted(set(fields) - {"inner", "character", "limits"})
@@ -645,18 +645,18 @@ def exact_settings(items: tuple[str, ...] | list[str], flag: str = "--exact") ->
     for item in items:
         name, sep, value = item.partition("=")
         if not sep or name not in settable:
-            raise ValueError(f"{flag} {item}: expected NAME=VALUE with NAME one of {settable}")
+            raise ValueError(f"{label} {item}: expected NAME=VALUE with NAME one of {settable}")
         try:
             number = float(value)
         except ValueError:
-            raise ValueError(f"{flag} {item}: {value!r} is not a number") from None
+            raise ValueError(f"{label} {item}: {value!r} is not a number") from None
         if fields[name].metadata.get("static"):
             if not number.is_integer():
-                raise ValueError(f"{flag} {item}: {name} is a count, a whole number")
+                raise ValueError(f"{label} {item}: {name} is a count, a whole number")
             number = int(number)
         problem = _setting_problem(name, number)
         if problem:
-            raise ValueError(f"{flag} {item}: {problem}")
+            raise ValueError(f"{label} {item}: {problem}")
         settings[name] = number
     return settings
 

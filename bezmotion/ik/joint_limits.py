@@ -22,7 +22,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from bezmotion.geometry.rotations import quat_conjugate, quat_log, quat_mul
-from bezmotion.io import atomic_write_text
+from bezmotion._src.io import atomic_write_text
 from bezmotion.ik.protocol import Character
 
 # A joint without limits: a range wider than any rotation's logarithm (|log| ≤ π).

@@ -370,12 +370,12 @@ def make_ik(
         raise ValueError(f"must be one of {IK_CHOICES}, got {kind!r}")
     if exact_settings and kind not in EXACT_IK_CHOICES:
         shown = " ".join(f"{k}={v}" for k, v in exact_settings.items())
-        raise ValueError(f"--exact {shown}: the settings of the exact IK, not of --ik {kind}")
+        raise ValueError(f"exact settings {shown}: the settings of the exact IKs ({', '.join(EXACT_IK_CHOICES)}), not of the {kind} IK")
     character = recognised.character
     settings = dict(exact_settings or {})
     if kind in LEARNED_IK_CHOICES:
         if ik_model is None:
-            raise ValueError(f"--ik {kind} needs a learned IK model")
+            raise ValueError(f"the {kind} IK needs a learned IK model")
         check_ik_model(ik_model, character)
         if kind == "learned":
             return protores_ik_fn, ik_model

@@ -59,7 +59,7 @@ from bezmotion.bezier import DEFAULT_STRIDE, BezierLayout, checked_controls
 from bezmotion.data.bvh import POSITION_CHANNELS, BvhMotion
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.geometry.skeleton import Skeleton
-from bezmotion.io import atomic_write_bytes
+from bezmotion._src.io import atomic_write_bytes
 
 METRES_PER_CM = 0.01  # glTF's unit is the metre; ours the centimetre
 INTERPOLATIONS = ("LINEAR", "STEP")

@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
-from bezmotion.xla_options import inference_jit
+from bezmotion._src.xla_options import inference_jit
 from bezmotion.bezier import BezierLayout, reconstruct_dense, tangent_from_velocity
 from bezmotion.bmm.sampling import (
     BezierMotionModel,

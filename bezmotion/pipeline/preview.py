@@ -20,7 +20,7 @@ from bezmotion.bezier import DEFAULT_STRIDE, BezierLayout, checked_controls
 from bezmotion.data.bvh import BvhMotion
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.ik.protocol import Character
-from bezmotion.io import atomic_path
+from bezmotion._src.io import atomic_path
 
 
 def _fk(motion: BvhMotion) -> np.ndarray:

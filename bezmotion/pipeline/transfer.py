@@ -38,7 +38,7 @@ from bezmotion.data.curves import CurveDataset
 from bezmotion.geometry.rotations import quat_conjugate, quat_from_matrix, quat_from_rot6d, quat_mul, quat_rotate, rot6d_from_quat
 from bezmotion.ik.protocol import Character, Pose, pose_fk, targets_from_pose
 from bezmotion.ik.rig import derive_rig_spec
-from bezmotion.linalg import top_eigenvector
+from bezmotion._src.linalg import top_eigenvector
 
 ORIENTATION_CHOICES = ("anatomical", "facing")
 """How :meth:`Transfer.between` aligns two skeletons' joint orientations (see the module docstring)."""
@@ -67,7 +67,7 @@ def mean_rotation(quat: Float[Array, "samples 4"]) -> Float[Array, "4"]:
 
     ``tr(R(q)ᵀ R(qᵢ)) = 4 (q·qᵢ)² − 1``, so that rotation is the top eigenvector of the mean
     quaternion outer product (Markley's average; the same as an SVD of the mean matrix,
-    without LAPACK: :mod:`bezmotion.linalg`). Returned with ``w ≥ 0``.
+    without LAPACK: :mod:`bezmotion._src.linalg`). Returned with ``w ≥ 0``.
     """
     mean = top_eigenvector(jnp.einsum("si,sj->ij", quat, quat) / quat.shape[0])
     return jnp.where(mean[:1] < 0, -mean, mean)

@@ -22,7 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 import orbax.checkpoint as ocp
 
-from bezmotion.io import atomic_write_text
+from bezmotion._src.io import atomic_write_text
 from bezmotion.training.distributed import checkpoint_processes, in_group
 
 CONFIG_FILE = "config.json"

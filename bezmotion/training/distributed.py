@@ -26,7 +26,7 @@ import jax
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 
-from bezmotion.options import option, options
+from bezmotion._src.options import option, options
 
 
 @options

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from bezmotion.io import atomic_write_text
+from bezmotion._src.io import atomic_write_text
 from bezmotion.training.loop import run_training
 from bezmotion.training.state import TrainState
 

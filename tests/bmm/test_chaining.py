@@ -168,7 +168,7 @@ def test_batched_chains_compile_once_and_match_single_chains(model, chain):
 
 
 def test_the_coupled_chain_has_no_lapack_calls(model, chain):
-    """Its handles are met over the whole chain (plain XLA solves, :mod:`bezmotion.linalg`)."""
+    """Its handles are met over the whole chain (plain XLA solves, :mod:`bezmotion._src.linalg`)."""
     sample = lambda k, h: sample_chained_curves(model, k, h, key=jax.random.key(0), steps=1, foot_lock=True)  # noqa: E731
     assert lapack_calls(sample, chain.key_pos, chain.handles) == set()
 

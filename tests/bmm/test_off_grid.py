@@ -241,7 +241,7 @@ def _old_sampler(model, start, end, control, joint, position, valid, key, steps)
 
 
 def test_sampler_has_no_lapack_calls(model, motion):
-    """The projection at every DDIM step stays in plain XLA ops (``bezmotion.linalg``):
+    """The projection at every DDIM step stays in plain XLA ops (``bezmotion._src.linalg``):
     jaxlib's batched LAPACK kernels can deadlock each other on a 2-core CPU."""
     start, end, pos = motion
     handles = Handles(

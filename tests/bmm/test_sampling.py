@@ -18,7 +18,7 @@ from bezmotion.bmm.denoiser import apply_denoiser, init_denoiser
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, held_key_tangents, load_model, sample_curves, save_model
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.metrics import handles_error
-from bezmotion.xla_options import inference_compiler_options
+from bezmotion._src.xla_options import inference_compiler_options
 
 
 def test_sampling_hits_start_end_and_handles_exactly(model, motions, sampled):

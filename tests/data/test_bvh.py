@@ -374,7 +374,7 @@ def test_failed_write_leaves_the_old_file_and_no_temp_file(fixture_motion: BvhMo
 
 
 def test_write_interrupted_mid_file_leaves_the_old_file(fixture_motion: BvhMotion, tmp_path: Path, monkeypatch):
-    import bezmotion.io
+    import bezmotion._src.io
 
     path = tmp_path / "out.bvh"
     path.write_text("old contents\n")
@@ -382,7 +382,7 @@ def test_write_interrupted_mid_file_leaves_the_old_file(fixture_motion: BvhMotio
     def disk_full(fd):
         raise OSError(28, "No space left on device")
 
-    monkeypatch.setattr(bezmotion.io.os, "fsync", disk_full)
+    monkeypatch.setattr(bezmotion._src.io.os, "fsync", disk_full)
     with pytest.raises(OSError, match="No space left"):
         write_bvh(path, fixture_motion)
     assert path.read_text() == "old contents\n"

@@ -1,4 +1,4 @@
-"""Options classes turned into command lines (:mod:`bezmotion.options`), and every
+"""Options classes turned into command lines (:mod:`bezmotion._src.options`), and every
 experiment and benchmark script's command line built from its options class."""
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import pytest
 from bezmotion.bmm.denoiser import BMMConfig
 from bezmotion.delta.model import DeltaConfig
 from bezmotion.ik.protores import ProtoResConfig
-from bezmotion.options import PRESET_NAMES, option, options, options_parser, parse_options, presets
+from bezmotion._src.options import PRESET_NAMES, option, options, options_parser, parse_options, presets
 
 REPO_ROOT = Path(__file__).resolve().parents[2]
 
@@ -138,7 +138,7 @@ def test_a_script_loaded_by_path_declares_its_options(tmp_path, capsys):
         "from __future__ import annotations\n"
         "from pathlib import Path\n"
         "from typing import Literal\n"
-        "from bezmotion.options import option, options, parse_options\n\n"
+        "from bezmotion._src.options import option, options, parse_options\n\n"
         "@options\n"
         "class Options:\n"
         "    data: Path = option(help='corpus')\n"

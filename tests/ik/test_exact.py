@@ -182,7 +182,7 @@ def test_analytic_limit_jacobian_is_the_derivative_of_the_excess(bandai):
 
 
 def test_no_lapack_calls(bandai):
-    """The solve stays in plain XLA ops (``bezmotion.linalg``): jaxlib's batched LAPACK
+    """The solve stays in plain XLA ops (``bezmotion._src.linalg``): jaxlib's batched LAPACK
     kernels can deadlock each other on a 2-core CPU."""
     targets = targets_from_pose(bandai.character, bandai.truth)
     assert lapack_calls(lambda t: bandai.solve(bandai.params, t), targets) == set()

@@ -89,8 +89,8 @@ from bezmotion.ik.exact import exact_settings
 from bezmotion.ik.protocol import Character, Pose, pose_fk, targets_from_pose
 from bezmotion.ik.protores import load_ik_model
 from bezmotion.ik.rig import make_rig
-from bezmotion.io import atomic_write_text, check_writable_folder
-from bezmotion.options import option, options
+from bezmotion._src.io import atomic_write_text, check_writable_folder
+from bezmotion._src.options import option, options
 from bezmotion.pipeline import InbetweenOptions, Inbetweener, inbetween, pose_to_bvh
 from bezmotion.pipeline.window_figures import (
     HANDLE_MISS_CM,
@@ -628,7 +628,7 @@ def plan(args: InbetweenCommand) -> Plan:
         target = target_profile(recognised, list({id(m): m for _, _, _, m, _ in keys}.values())) if transferred else None
         transfer = make_transfer(source, target, orientation=args.orientation, facing=args.facing)
 
-    settings = exact_settings(args.exact)  # its errors name the item
+    settings = exact_settings(args.exact, "--exact")  # its errors name the item
     ik = args.ik
     ik_model = ik_folder = None
     if ik == "auto" or ik in LEARNED_IK_CHOICES:
@@ -934,7 +934,7 @@ def run_inbetween(args: InbetweenCommand, *, say: Callable[[str], None] | None =
         "models": p.models,
         "steps": args.steps,
         "foot_lock": args.foot_lock,
-        "exact": exact_settings(args.exact),
+        "exact": exact_settings(args.exact, "--exact"),
         "seed": args.seed,
         "transfer": p.transferred,
         "facing": args.facing,

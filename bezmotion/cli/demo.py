@@ -26,7 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bezmotion.io import atomic_write_text, check_writable_folder, save_figure
+from bezmotion._src.io import atomic_write_text, check_writable_folder, save_figure
 from bezmotion.assets import DEMO_CLIP, DEMO_CLIP_ATTRIBUTION
 from bezmotion.data.bvh import read_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, FEET
@@ -36,6 +36,7 @@ from bezmotion.pipeline import InbetweenOptions, InbetweenResult, Inbetweener, f
 from bezmotion.pipeline.window_figures import curve_miss, largest_turn
 from bezmotion.pipeline.authoring import (
     CHANNEL_CHOICES,
+    EXACT_IK_CHOICES,
     IK_CHOICES,
     LEARNED_IK_CHOICES,
     ResultFiles,
@@ -171,6 +172,9 @@ def demo(
         raise ValueError(f"--joint must be one of {list(CHARACTERISTIC_JOINTS)}, got {joint!r}")
     if channels not in CHANNEL_CHOICES:
         raise ValueError(f"--channels must be one of {CHANNEL_CHOICES}, got {channels!r}")
+    if exact_settings and ik not in EXACT_IK_CHOICES:
+        shown = " ".join(f"{k}={v}" for k, v in exact_settings.items())
+        raise ValueError(f"--exact {shown}: the settings of the exact IK, not of --ik {ik}")
     if not (steps >= 1):
         raise ValueError(f"--steps must be at least 1, got {steps}")
     if bmm_corpus is not None and bmm_corpus not in profile_names():

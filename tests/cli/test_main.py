@@ -12,10 +12,10 @@ import pytest
 from bezmotion.assets import DEMO_CLIP
 from bezmotion.cli import main
 from bezmotion.data.bvh import read_bvh
-from bezmotion.demo import demo
+from bezmotion.cli.demo import demo
 from bezmotion.geometry.rotations import quat_from_axis_angle
 from bezmotion.ik.protocol import Character
-from bezmotion.io import _umask
+from bezmotion._src.io import _umask
 from bezmotion.pipeline.window_figures import largest_turn
 
 
@@ -152,7 +152,7 @@ def test_demo_rejects_an_unknown_channel_layout(tmp_path):
 
 
 def test_ground_slide_counts_only_travel_near_the_ground():
-    from bezmotion.demo import ground_slide_cm
+    from bezmotion.cli.demo import ground_slide_cm
 
     # Left foot: 1 cm per frame along X on the ground, then lifted 10 cm and moved on;
     # right foot: still on the ground, then 2 cm along Z at 4 cm height (within 5 cm).

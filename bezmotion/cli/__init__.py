@@ -18,11 +18,11 @@ import sys
 from pathlib import Path
 
 from bezmotion.assets.registry import check_manifest, models_table, write_manifest
-from bezmotion.compilation_cache import use_compilation_cache
+from bezmotion._src.compilation_cache import use_compilation_cache
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
-from bezmotion.demo import demo
-from bezmotion.inbetween_command import InbetweenCommand, run_inbetween
-from bezmotion.options import add_options, option, options, options_from
+from bezmotion.cli.demo import demo
+from bezmotion.cli.inbetween import InbetweenCommand, run_inbetween
+from bezmotion._src.options import add_options, option, options, options_from
 from bezmotion.ik.exact import exact_settings
 from bezmotion.pipeline.authoring import CHANNEL_CHOICES, EXACT_HELP, FOOT_LOCK_HELP, IK_CHOICES
 
@@ -107,7 +107,7 @@ def main(argv: list[str] | None = None) -> int:
             demo(
                 args.out, joint=args.joint, frame=args.frame, offset=tuple(args.offset), ik=args.ik, steps=args.steps,
                 seed=args.seed, bmm_dir=args.bmm, bmm_corpus=args.bmm_corpus, ik_dir=args.ik_model,
-                channels=args.channels, foot_lock=args.foot_lock, exact_settings=exact_settings(args.exact),
+                channels=args.channels, foot_lock=args.foot_lock, exact_settings=exact_settings(args.exact, "--exact"),
             )  # fmt: skip
         elif parsed.command == "inbetween":
             run_inbetween(options_from(p_inbetween, InbetweenCommand, parsed))

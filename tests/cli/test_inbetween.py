@@ -29,9 +29,9 @@ from bezmotion.cli import main
 from bezmotion.data.bvh import read_bvh, write_bvh
 from bezmotion.data.clip_frame import ClipFrame
 from bezmotion.data.resample import resample_motion
-from bezmotion.inbetween_command import HandleRequest, InbetweenCommand, bvh_frame_rate, parse_handle, plan, read_handles_file
+from bezmotion.cli.inbetween import HandleRequest, InbetweenCommand, bvh_frame_rate, parse_handle, plan, read_handles_file
 from bezmotion.ik.protocol import targets_from_pose
-from bezmotion.options import parse_options
+from bezmotion._src.options import parse_options
 from bezmotion.pipeline.authoring import RigSpec, derive_rig_spec, read_mapping, recognise_character
 
 FAST = ["--ik", "rig", "--steps", "2", "--no-progress"]
@@ -420,7 +420,7 @@ def test_models_default_to_those_of_the_clips_skeleton_trained_here(tmp_path, mo
     from bezmotion.data.bvh import BvhMotion
     from bezmotion.ik.protocol import Character
     from bezmotion.ik.protores import ProtoResConfig, ProtoResModel, init_protores, save_ik_model
-    from bezmotion.inbetween_command import default_models
+    from bezmotion.cli.inbetween import default_models
 
     monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path / "cache"))
     skeleton, quat, root = synthetic_clip(40, seed=3)
@@ -686,7 +686,7 @@ def test_key_velocities_come_from_the_frames_around_the_keys(tmp_path):
 @pytest.mark.parametrize("flag, locked", [([], True), (["--no-foot-lock"], False), (["--foot-lock"], True)])
 def test_foot_lock_reaches_the_pipeline(flag, locked, tmp_path, monkeypatch):
     """``--foot-lock`` (the default) and ``--no-foot-lock`` (the paper's curves) reach :func:`inbetween`."""
-    import bezmotion.inbetween_command as command
+    import bezmotion.cli.inbetween as command
 
     class Called(Exception):
         pass
