@@ -283,7 +283,7 @@ class Options:
             raise ValueError("--windows must be ≥ 0, --chunk and --steps ≥ 1")
         if self.segments < 1:
             raise ValueError(f"--segments {self.segments}: must be ≥ 1 (windows per chain; 1 = single windows)")
-        exact_settings(self.exact)  # raises on a malformed or unknown setting
+        exact_settings(self.exact, "--exact")  # raises on a malformed or unknown setting
         if self.trained_on is not None:
             try:
                 load_profile(self.trained_on)

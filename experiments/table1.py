@@ -138,7 +138,7 @@ class Options:
             per_corpus(self, name)  # raises on a malformed or unknown CORPUS=PATH
         if self.windows < 0 or self.steps < 1 or self.chunk < 1 or self.exact_chunk < 1:
             raise ValueError("--windows must be ≥ 0, --steps, --chunk and --exact-chunk ≥ 1")
-        exact_settings(self.exact)  # raises on a malformed or unknown setting
+        exact_settings(self.exact, "--exact")  # raises on a malformed or unknown setting
         if any(s < 1 for s in self.table6_steps):
             raise ValueError(f"--table6-steps must be ≥ 1, got {list(self.table6_steps)}")
         if self.mm_conditions < 1 or self.mm_samples < 2 or self.diversity_pairs < 1:
