@@ -16,13 +16,13 @@ BMM (start and end of the six joints, 0–4 handles) and trained with its optimi
 weights and defaults (``--steps``, ``--batch-size``, ``--learning-rate``, ``--min-snr-gamma``,
 ``--lr-schedule``: bmm_lafan1.py's), checkpointing into ``--run-dir`` (default
 ``<cache>/runs/ablation_<ablation>_<corpus>_<config>``; it resumes there, and a finished run
-only evaluates). See :mod:`bezmotion.bmm.ablations` for what differs from the BMM and why.
+only evaluates). See :mod:`bezmotion.evaluation.ablations` for what differs from the BMM and why.
 
 Evaluation is bmm_lafan1.py's, so the figures sit beside the BMM's (before IK): the same
 validation windows and handles (``make_eval_set`` with key 1234; LaFAN1 subject 5 or
 Bandai-Namco's validation takes), in distribution and OOD (±16 cm), at ``--eval-steps`` DDIM
 steps; handles error, dense six-joint error, foot-skating ratio and contact accuracy of the
-six joints' trajectories (:func:`~bezmotion.bmm.evaluation.trajectory_metrics`), per
+six joints' trajectories (:func:`~bezmotion.evaluation.curves.trajectory_metrics`), per
 ``--overwrite`` mode (``keys``: start and end written in, the paper's setting for the
 ablation; ``all``: the handles too, at their own frame), beside the mocap and the
 non-learned reference. BMM⁻ᴵᴷ⁻ᴮ and CondMDIᴳ also report the dense error of the whole skeleton.
@@ -40,7 +40,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bezmotion.bezier import BezierLayout
-from bezmotion.bmm.ablations import (
+from bezmotion.evaluation.ablations import (
     ABLATIONS,
     OVERWRITE_MODES,
     DenseArrays,
@@ -53,7 +53,7 @@ from bezmotion.bmm.ablations import (
     save_dense_model,
 )
 from bezmotion.bmm.denoiser import BMMConfig
-from bezmotion.bmm.evaluation import (
+from bezmotion.evaluation.curves import (
     CurveMetricsConfig,
     curve_metrics,
     ground_truth_metrics,
@@ -69,7 +69,7 @@ from bezmotion.data.corpus import motion_clips
 from bezmotion.data.curves import curve_dataset, skeleton_windows
 from bezmotion.data.sources import default_source, load_corpus
 from bezmotion._src.io import write_results
-from bezmotion.metrics import mean_position_error
+from bezmotion.evaluation.metrics import mean_position_error
 from bezmotion._src.options import option, options, parse_options, presets
 from bezmotion.training import CheckpointStore, compile_train_step, count_parameters, data_mesh, run_training
 from _common import PARAMETER_CHOICES, PARAMETERS_HELP, runs_dir, trained_parameters

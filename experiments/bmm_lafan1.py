@@ -49,7 +49,7 @@ import numpy as np
 
 from bezmotion._src.io import write_results
 from bezmotion.assets import BUNDLED_BMM, PROFILES_DIR
-from bezmotion.bmm.evaluation import (
+from bezmotion.evaluation.curves import (
     HANDLE_FRAMES,
     CurveMetricsConfig,
     curve_metrics,
@@ -63,7 +63,7 @@ from bezmotion.bezier import BezierLayout
 from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.data.curves import CurveDataset, curve_dataset
 from bezmotion.data.sources import default_source, load_corpus
-from bezmotion.baselines import OFF_GRID_REFERENCES
+from bezmotion.evaluation.baselines import OFF_GRID_REFERENCES
 from bezmotion.bmm.denoiser import PREDICTIONS, BMMConfig
 from bezmotion.bmm.features import FeatureStats
 from bezmotion.bmm.sampling import BezierMotionModel, load_model, sample_curves, save_model

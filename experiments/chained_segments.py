@@ -12,7 +12,7 @@ contact at each shared key) and independent (BMM Appendix D.1) from the same noi
 the keys' orientations as conditions (``--key-positions-only``: the paper's positions only).
 
 Reported, for the six characteristic joints' dense curves (cm/frame;
-:func:`~bezmotion.metrics.boundary_velocity_jump`, ``‖(p[b+1] − p[b]) − (p[b] − p[b−1])‖``):
+:func:`~bezmotion.evaluation.metrics.boundary_velocity_jump`, ``‖(p[b+1] − p[b]) − (p[b] − p[b−1])‖``):
 the jump at the shared keys for both variants; the same quantity at the curves' other
 frames; and the mocap's own frame-to-frame velocity change over the same chains' frames
 (all of them, and at the key frames alone). Mean, 95th percentile and max; per joint means.
@@ -35,7 +35,7 @@ from bezmotion.data.corpus import motion_clips
 from bezmotion.data.curves import characteristic_windows
 from bezmotion.data.sources import load_corpus
 from bezmotion._src.io import write_results
-from bezmotion.metrics import chain_velocity_jumps, distribution_summary
+from bezmotion.evaluation.metrics import chain_velocity_jumps, distribution_summary
 from bezmotion._src.options import option, options, parse_options
 from bezmotion.data.windows import join_windows
 

@@ -13,7 +13,7 @@ every ``--checkpoint-every`` steps; the same command resumes; the extractor is s
 Default ``--out-dir``: ``~/.cache/bezmotion/runs/motion_features_<corpora>``.
 
 Then, per corpus, with ``--eval-windows`` validation windows (a prefix of one
-permutation, :func:`~bezmotion.bmm.evaluation.make_eval_set` ``per_window``, so the
+permutation, :func:`~bezmotion.evaluation.curves.make_eval_set` ``per_window``, so the
 handles are the BMM evaluation's) and the training windows as the ground truth (a
 random subset of the same size), FID against the training windows of:
 
@@ -24,7 +24,7 @@ random subset of the same size), FID against the training windows of:
 - ``fitted_curves``: the Bézier curves fitted to the validation mocap, evaluated densely
   (what the representation itself costs);
 - ``reference`` / ``reference_ood``: the non-learned interpolation reference
-  (:func:`~bezmotion.bmm.evaluation.reference_curves`) through the start, end and the
+  (:func:`~bezmotion.evaluation.curves.reference_curves`) through the start, end and the
   in-distribution / ±16 cm handles (should be far worse than the mocap);
 
 and the diversity (``--diversity-pairs`` pairs) of each set, plus the extractor's
@@ -45,7 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bezmotion.assets import PROFILES_DIR
-from bezmotion.bmm.evaluation import dense_positions, make_eval_set, reference_curves
+from bezmotion.evaluation.curves import dense_positions, make_eval_set, reference_curves
 from bezmotion.data.curves import CurveDataset, curve_dataset
 from bezmotion.data.sources import CORPORA, load_corpus
 from bezmotion.evaluation.motion_features import (

@@ -11,7 +11,7 @@
 **Windows.** The validation split of the corpus (Bandai-Namco: every 10th take; LaFAN1:
 subject 5), or with ``--bvh-dir`` every ``*.bvh`` of a folder of the corpus's skeleton (a
 user's own clips; all of them are evaluated). Windows and handles are
-:func:`~bezmotion.bmm.evaluation.make_eval_set`'s draws with ``per_window=True`` (key
+:func:`~bezmotion.evaluation.curves.make_eval_set`'s draws with ``per_window=True`` (key
 ``--seed``): the windows are a prefix of one fixed permutation and each window's 1–4
 handles and OOD noise (±16 cm per axis) come from ``fold_in(key, window row)``, so a
 window's handles depend on the window alone and the first ``n`` windows of a larger run
@@ -45,18 +45,18 @@ field of every exact IK, e.g. ``--exact iterations=20 --exact hips_position_scal
 **Chained segments.** ``--segments K`` (K > 1) evaluates chains instead of windows: K
 windows of one clip, each starting 30 frames after the previous, so consecutive windows
 share a key and a chain covers ``30·K + 1`` frames
-(:func:`~bezmotion.pipeline.evaluation.chain_rows`; ``--windows`` then counts chains, a
+(:func:`~bezmotion.evaluation.pipeline.chain_rows`; ``--windows`` then counts chains, a
 prefix of one permutation of every chain, key ``--seed``). Each window keeps the handles
 and OOD noise it has in a single-window run (``make_eval_set(rows=…)``), moved into the
 chain's frame; the keys are the mocap's poses at frames 0, 30, …, 30·K. The curves are
-sampled once per chain (:func:`~bezmotion.pipeline.evaluation.sample_chain_curves`, one
+sampled once per chain (:func:`~bezmotion.evaluation.pipeline.sample_chain_curves`, one
 ``sample_chained_curves`` call, key ``fold_in(--sample-seed, first window's row)``),
 coupled C¹ at the shared keys, and every IK runs once over the chain's joined frames, each
 window blended to its two keys (:func:`~bezmotion.pipeline.inbetweening.pose_from_curves`,
 as :func:`~bezmotion.pipeline.inbetweening.inbetween` does); ``--chunk`` windows per
 call become ``--chunk // K`` chains (at least one). The same curves are also sampled
 independently (BMM Appendix D.1, same noise) for the velocity jump at the shared keys
-(:func:`~bezmotion.metrics.chain_velocity_jumps`, six joints, cm/frame), beside the mocap's
+(:func:`~bezmotion.evaluation.metrics.chain_velocity_jumps`, six joints, cm/frame), beside the mocap's
 own frame-to-frame change over the same chains (as ``experiments/chained_segments.py``)
 and the jump of the mocap's own per-window curve fits there, joined as they are and coupled
 as the sampler couples (``mocap_fits``: what a model that drew each window's training
@@ -107,13 +107,13 @@ shared key, which both its windows take).
 
 ``curves``: the curves before IK, ``bmm`` (the sampled curves given to every IK) and
 ``reference`` (interpolation through the same start, end and handles,
-:func:`~bezmotion.bmm.evaluation.reference_curves`), each ``id`` / ``ood`` with
+:func:`~bezmotion.evaluation.curves.reference_curves`), each ``id`` / ``ood`` with
 ``handles_error_cm`` (≈ 0: the curves pass through every handle), ``dense_error_cm`` and
 per joint, ``foot_skating_ratio``, and for the BMM the orientation error (degrees between
 the curves' and the mocap's global orientation of each joint, mean and per joint).
 Every mean over windows (``dense_error_cm``, ``curve_error_cm``, ``mpjpe_cm``,
 ``foot_skating_ratio``) has its standard error over the windows beside it (``…_se``;
-:func:`~bezmotion.pipeline.window_figures.standard_error`), so two runs can be told apart from
+:func:`~bezmotion.evaluation.window_figures.standard_error`), so two runs can be told apart from
 the windows' own spread: the report prints them as ``mean ± se``.
 ``mocap``: the mocap's own foot skating, key pop and largest per-frame rotation change.
 ``labels``: the same figures per content / action label (Bandai-Namco ``content``; LaFAN1
@@ -130,7 +130,7 @@ without trailing digits).
      "labels": {"<label>": {"windows": k, "ik": {"<ik>": {"id", "ood"}}, "curves": {…}, "mocap": {…}, "paired": {…}}}}
 
 ``paired``: for every two IKs ``a`` before ``b`` in ``--ik``, b minus a window by window on
-the same curves (:func:`~bezmotion.pipeline.window_figures.paired_differences`: ``mpjpe_cm``,
+the same curves (:func:`~bezmotion.evaluation.window_figures.paired_differences`: ``mpjpe_cm``,
 ``foot_skating_ratio``, ``foot_sliding_ratio``, ``curve_error_cm``). The windows' figures move together between two
 IKs, so the difference's standard error is much smaller than either mean's: this, not two
 means ± their own se, tells whether one IK beats another. Every per-window figure the
@@ -168,10 +168,10 @@ import numpy as np
 
 from bezmotion.assets.registry import REGISTRY, resolve_folder
 from bezmotion.bezier import BezierLayout
-from bezmotion.bmm.evaluation import EvalSet, dense_positions, floor_height_from, make_eval_set, reference_curves
+from bezmotion.evaluation.curves import EvalSet, dense_positions, floor_height_from, make_eval_set, reference_curves
 from bezmotion.bmm.features import HANDLE_FRAMES
 from bezmotion.bmm.foot_lock import ANCHORS
-from bezmotion.baselines import OFF_GRID_REFERENCES
+from bezmotion.evaluation.baselines import OFF_GRID_REFERENCES
 from bezmotion.bmm.sampling import Handles, load_model, share_boundaries, with_off_grid_prior
 from bezmotion.data.corpus import Corpus, motion_clips
 from bezmotion.data.curves import CurveDataset, curve_dataset
@@ -183,9 +183,9 @@ from bezmotion.ik.protocol import Character, Pose, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn, protores_refined_ik_fn
 from bezmotion.ik.rig import make_rig, rig_ik
 from bezmotion._src.io import atomic_path, write_results
-from bezmotion.metrics import chain_velocity_jumps, distribution_summary
+from bezmotion.evaluation.metrics import chain_velocity_jumps, distribution_summary
 from bezmotion._src.options import option, options, parse_options
-from bezmotion.pipeline.evaluation import (
+from bezmotion.evaluation.pipeline import (
     chain_frame_handles,
     chain_rows,
     sample_chain_curves,
@@ -196,7 +196,7 @@ from bezmotion.pipeline.evaluation import (
     window_poses,
     window_shifts,
 )
-from bezmotion.pipeline.window_figures import (
+from bezmotion.evaluation.window_figures import (
     PipelineMetricsConfig,
     paired_differences,
     reach_chains,
@@ -489,7 +489,7 @@ def jumps_at_keys(positions: jax.Array, k: int, mocap_at_keys: np.ndarray) -> di
 
 
 def summarize_jumps_at_keys(at_keys: jax.Array, mocap_at_keys: np.ndarray) -> dict:
-    """:func:`~bezmotion.metrics.distribution_summary` of the jumps at the shared keys
+    """:func:`~bezmotion.evaluation.metrics.distribution_summary` of the jumps at the shared keys
     ``(chains, keys − 1, 6)`` (cm/frame), and ``minus_mocap``: the jumps minus the mocap's at
     the same keys and joints, its mean and the mean's standard error over the chains (each
     chain's mean one sample). A pairwise difference: the chains' own spread (some motions

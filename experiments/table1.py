@@ -10,7 +10,7 @@ diversity and multimodality; and its Table 6 / Figure 12 (FID against DDIM steps
 - ``mocap``: the validation mocap itself (handles errors ``null``: the handles are drawn
   from it, as the paper's "–"; multimodality ``null``: one motion per condition);
 - ``reference``: the non-learned interpolation through start, end and handles
-  (:func:`~bezmotion.bmm.evaluation.reference_curves`), the six joints' curves themselves
+  (:func:`~bezmotion.evaluation.curves.reference_curves`), the six joints' curves themselves
   (no orientations, so no IK: its handles error is 0 by construction; multimodality 0,
   it is deterministic);
 - ``bmm``: the BMM's curves after the learned IK (``--bmm``, ``--ik-model``; bundled for
@@ -30,7 +30,7 @@ cpu``); ``--bmm CORPUS=PATH`` (and ``--ik-model``, ``--minus-b``, ``--minus-ik-b
 
 **Windows.** ``--windows`` validation windows (LaFAN1 subject 5, Bandai-Namco's validation
 takes) and their 1–4 handles on control frames, in distribution and OOD (±16 cm):
-:func:`~bezmotion.bmm.evaluation.make_eval_set` ``per_window`` with key ``--seed`` (1234,
+:func:`~bezmotion.evaluation.curves.make_eval_set` ``per_window`` with key ``--seed`` (1234,
 as ``pipeline_eval.py`` and ``ablations.py``). Every model samples the same windows and
 handles, key ``fold_in(--sample-seed, window row)``, ``--steps`` DDIM steps.
 
@@ -40,7 +40,7 @@ handles, key ``fold_in(--sample-seed, window row)``, ``--steps`` DDIM steps.
   intermediate handle and its joint at its frame in the final motion (after IK where the
   row has one);
 - ``foot_skating_ratio``: of the final motion's feet (the characteristic ankles), at the
-  validation curves' floor height (:func:`~bezmotion.bmm.evaluation.floor_height_from`);
+  validation curves' floor height (:func:`~bezmotion.evaluation.curves.floor_height_from`);
 - ``fid``: Fréchet distance (BMM eq. 5) between our motion feature extractor's embeddings
   (``--features``, :mod:`bezmotion.evaluation.motion_features`; trained by
   ``experiments/motion_features.py`` on both corpora, character-agnostic) of the row's
@@ -68,8 +68,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from bezmotion.assets import BUNDLED_BMM, BUNDLED_IK, PROFILES_DIR
-from bezmotion.bmm.ablations import DenseMotion, load_dense_model, sample_dense
-from bezmotion.bmm.evaluation import EvalSet, dense_positions, floor_height_from, make_eval_set, map_in_chunks, reference_curves
+from bezmotion.evaluation.ablations import DenseMotion, load_dense_model, sample_dense
+from bezmotion.evaluation.curves import EvalSet, dense_positions, floor_height_from, make_eval_set, map_in_chunks, reference_curves
 from bezmotion.bmm.sampling import Handles, load_model
 from bezmotion.data.corpus import motion_clips
 from bezmotion.data.curves import CurveDataset, curve_dataset
@@ -81,8 +81,8 @@ from bezmotion.ik.protocol import Pose, targets_from_pose
 from bezmotion.ik.protores import load_ik_model, protores_ik_fn
 from bezmotion._src.io import write_results
 from bezmotion._src.options import option, options, parse_options
-from bezmotion.pipeline.evaluation import sample_window_curves, solve_window_curves, window_keys, window_poses
-from bezmotion.pipeline.window_figures import PipelineMetricsConfig, summarize_windows, window_curve_metrics, window_pose_metrics
+from bezmotion.evaluation.pipeline import sample_window_curves, solve_window_curves, window_keys, window_poses
+from bezmotion.evaluation.window_figures import PipelineMetricsConfig, summarize_windows, window_curve_metrics, window_pose_metrics
 from bezmotion.pipeline.authoring import ik_model_joint_limits
 from bezmotion.pipeline.inbetweening import WindowCurves
 from bezmotion.pipeline.transfer import CharacterProfile

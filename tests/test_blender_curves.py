@@ -1,4 +1,4 @@
-"""The Blender round trip (``bezmotion/blender_curves.py``).
+"""The Blender round trip (``bezmotion/integrations/blender_curves.py``).
 
 Without Blender: the script imports with the standard library alone; its GLB parser reads
 what :func:`bezmotion.pipeline.gltf.read_glb` reads; the Blender keyframes it makes draw our
@@ -34,7 +34,7 @@ from bezmotion.data.bvh import read_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, characteristic_indices
 from bezmotion.pipeline.gltf import read_glb, write_glb
 
-SCRIPT = Path(__file__).resolve().parents[1] / "bezmotion" / "blender_curves.py"
+SCRIPT = Path(__file__).resolve().parents[1] / "bezmotion" / "integrations" / "blender_curves.py"
 
 
 def load_script():

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from bezmotion.geometry import quat_from_axis_angle, quat_mul
-from bezmotion.metrics import align_to_context, l2p, l2q, npss
-from bezmotion.baselines import interpolation, transition_weights, zero_velocity
+from bezmotion.evaluation.metrics import align_to_context, l2p, l2q, npss
+from bezmotion.evaluation.baselines import interpolation, transition_weights, zero_velocity
 
 
 def test_l2q_by_hand():

@@ -46,3 +46,33 @@ def test_no_module_inside_the_package_imports_the_top_level_package():
             elif isinstance(node, ast.Import) and any(alias.name == "bezmotion" for alias in node.names):
                 offenders.append(f"{path.relative_to(PACKAGE)}:{node.lineno}")
     assert not offenders, f"modules importing the top-level bezmotion package: {offenders}"
+
+
+def test_the_library_imports_no_research_code():
+    """``import bezmotion`` and its CLI load nothing of :mod:`bezmotion.evaluation` (metrics,
+    baselines, ablations, evaluations): the core stands without the research code."""
+    import subprocess
+    import sys
+
+    code = "import sys, bezmotion, bezmotion.pipeline, bezmotion.bmm, bezmotion.delta, bezmotion.ik; print(sorted(m for m in sys.modules if m.startswith('bezmotion.evaluation')))"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
+    assert out == "[]", out
+
+
+def test_no_library_error_names_a_command_line_flag():
+    """Outside ``bezmotion/cli/`` no error is about a ``--flag`` (its message does not start
+    with one, the way the commands' do); naming a whole command to run is fine."""
+    offenders = []
+    for path in PACKAGE.rglob("*.py"):
+        rel = path.relative_to(PACKAGE)
+        if rel.parts[0] in ("cli", "_src") or rel.name == "blender_curves.py":  # the commands, the options parser, Blender's own script
+            continue
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Raise) and isinstance(node.exc, ast.Call) and node.exc.args and _starts_with_a_flag(node.exc.args[0]):
+                offenders.append(f"{rel}:{node.lineno}")
+    assert not offenders, offenders
+
+
+def _starts_with_a_flag(message: ast.expr) -> bool:
+    first = message.values[0] if isinstance(message, ast.JoinedStr) and message.values else message
+    return isinstance(first, ast.Constant) and isinstance(first.value, str) and first.value.lstrip().startswith("--")

@@ -4,9 +4,8 @@ six characteristic joints, with handles hit exactly.
 :mod:`~bezmotion.bmm.denoiser` (the transformer), :mod:`~bezmotion.bmm.features` (curves
 ↔ normalised tokens, conditions), :mod:`~bezmotion.bmm.losses`, :mod:`~bezmotion.bmm.train`
 (its jitted step; the loop is :mod:`bezmotion.training`), :mod:`~bezmotion.bmm.sampling`
-(DDIM with overwrite, save/load), :mod:`~bezmotion.bmm.foot_lock`,
-:mod:`~bezmotion.bmm.evaluation` (curve metrics before IK), :mod:`~bezmotion.bmm.ablations`
-(the paper's BMM⁻ᴮ and BMM⁻ᴵᴷ⁻ᴮ: the same denoiser over dense frames).
+(DDIM with overwrite, save/load), :mod:`~bezmotion.bmm.foot_lock`. Its evaluation and
+the paper's ablations are research code, in :mod:`bezmotion.evaluation`.
 """
 
 from bezmotion.bmm.denoiser import BMMConfig, BMMDenoiser, init_denoiser

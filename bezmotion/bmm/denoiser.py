@@ -21,7 +21,7 @@ outputs are decoded to x̂₀ (x₀-prediction) and two foot-contact logits per 
 
 What a frame token is, is the config's: ``frame_features`` numbers per token, one token
 per ``stride`` frames. :class:`BMMConfig` is the BMM's (a control point of the six
-joints); :class:`~bezmotion.bmm.ablations.DenseBMMConfig` makes a token one frame of 6 or
+joints); :class:`~bezmotion.evaluation.ablations.DenseBMMConfig` makes a token one frame of 6 or
 of all ``J`` joints (the paper's ablations BMM⁻ᴮ and BMM⁻ᴵᴷ⁻ᴮ) with this same module.
 
 The model is written for one motion; ``jax.vmap`` it over a batch. It is a flax NNX
@@ -41,7 +41,7 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
-from bezmotion.baselines import OFF_GRID_REFERENCES
+from bezmotion.interpolation import OFF_GRID_REFERENCES
 from bezmotion.bezier import BezierLayout
 from bezmotion.diffusion.projection import grid_conditions
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
@@ -69,7 +69,7 @@ class BMMConfig:
         (:func:`~bezmotion.bmm.features.interpolation_prior`), with the decoder
         zero-initialised so training starts from the reference.
       off_grid_prior: with ``"residual"``, how the reference curves reach conditions between
-        control frames (:func:`~bezmotion.baselines.interpolation_through_points`):
+        control frames (:func:`~bezmotion.interpolation.interpolation_through_points`):
         ``"linear"`` (default) interpolates through them in frame, ``"projection"`` bends
         the curve at the condition alone. Models whose saved config has no such field
         learned their residual over ``"projection"`` and load as ``"linear"``: sampled over

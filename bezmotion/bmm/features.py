@@ -20,7 +20,7 @@ from bezmotion.bezier import BezierLayout, basis
 from bezmotion._src.linalg import exact_einsum
 from bezmotion.data.curves import CurveDataset
 from bezmotion.diffusion.projection import on_control_frame
-from bezmotion.baselines import interpolation_through_points
+from bezmotion.interpolation import interpolation_through_points
 from bezmotion.bmm.denoiser import FEATURES_PER_JOINT, BMMDenoiser, Conditions
 from bezmotion.bmm.unet import CondUNet1D
 
@@ -50,7 +50,7 @@ class FeatureStats:
     def from_features(cls, features: Float[Array | np.ndarray, "*batch joints features"]) -> FeatureStats:
         """Mean and floored std per (joint, feature) over every leading axis (float64
         accumulation), e.g. ``(windows, controls, 6, 12)`` control features or the dense
-        ``(windows, frames, joints, features)`` of :mod:`bezmotion.bmm.ablations`."""
+        ``(windows, frames, joints, features)`` of :mod:`bezmotion.evaluation.ablations`."""
         feats = np.asarray(features, np.float64)
         flat = feats.reshape(-1, *feats.shape[-2:])
         return cls(
@@ -215,7 +215,7 @@ def interpolation_prior(
 ) -> Float[Array, "controls features"]:
     """The reference curves through the conditions, as normalised frame tokens (one motion).
 
-    Positions and tangents are :func:`~bezmotion.baselines.interpolation_through_points` of
+    Positions and tangents are :func:`~bezmotion.interpolation.interpolation_through_points` of
     the conditions (``off_grid``: how it reaches conditions between control frames;
     ``"linear"`` interpolates through them, ``"projection"``, the prior that models saved
     without ``off_grid_prior`` learned their residual over, bends the curve at such a condition alone);
@@ -226,7 +226,7 @@ def interpolation_prior(
     Args:
       conditions: normalised condition slots (:func:`normalize_conditions`).
       layout: the curves' layout (control points and stride).
-      off_grid: ``"projection"`` or ``"linear"`` (:data:`~bezmotion.baselines.OFF_GRID_REFERENCES`).
+      off_grid: ``"projection"`` or ``"linear"`` (:data:`~bezmotion.interpolation.OFF_GRID_REFERENCES`).
     Returns:
       ``(controls, joints·12)`` normalised features.
     """

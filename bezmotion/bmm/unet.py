@@ -36,7 +36,7 @@ import jax.numpy as jnp
 from flax import nnx
 from jaxtyping import Array, Float, Int
 
-# Configs are typed as BMMConfig: CondMDIConfig (bezmotion.bmm.ablations) subclasses it and imports this module.
+# Configs are typed as BMMConfig: CondMDIConfig (bezmotion.evaluation.ablations) subclasses it and imports this module.
 from bezmotion.bmm.denoiser import NUM_CONTACTS, BMMConfig, Conditions, sinusoidal_encoding
 
 GROUPS = 8  # GroupNorm groups (Diffuser / GMD)
@@ -83,7 +83,7 @@ def condition_channels(
     layout ``(frames, token_joints · features_per_joint)``.
 
     Args:
-      config: the model's :class:`~bezmotion.bmm.ablations.CondMDIConfig` (its frames, token
+      config: the model's :class:`~bezmotion.evaluation.ablations.CondMDIConfig` (its frames, token
         joints and characteristic joints).
       conditions: normalised condition slots (joint 0…5 a characteristic joint); padding
         and dropped slots leave no trace, whatever they hold.

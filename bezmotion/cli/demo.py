@@ -32,8 +32,9 @@ from bezmotion.data.bvh import read_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, FEET
 from bezmotion.ik.protocol import Character, Pose, pose_fk
 from bezmotion.ik.protores import load_ik_model
-from bezmotion.pipeline import InbetweenOptions, InbetweenResult, Inbetweener, full_body_handles_error, inbetween, pose_to_bvh
-from bezmotion.pipeline.window_figures import curve_miss, largest_turn
+from bezmotion.evaluation.pipeline import full_body_handles_error
+from bezmotion.pipeline import InbetweenOptions, InbetweenResult, Inbetweener, inbetween, pose_to_bvh
+from bezmotion.evaluation.window_figures import curve_miss, largest_turn
 from bezmotion.pipeline.authoring import (
     CHANNEL_CHOICES,
     EXACT_IK_CHOICES,

@@ -33,7 +33,7 @@ through K + 1 keys; a frame between two keys, not on one):
   between the joint's positions in the start and end poses, at that frame — the one
   reference that exists for any two poses (``right_hand@12=+0,25,0``: 25 cm above it; in a
   chain, the line between the two keys around the frame);
-- ``--handles FILE``: a JSON list (the format ``bezmotion/blender_curves.py`` exports)
+- ``--handles FILE``: a JSON list (the format ``bezmotion/integrations/blender_curves.py`` exports)
   ``[{"joint": "right_hand", "frame": 12, "position": [x, y, z]}, …]``, or ``{"handles":
   […]}``, or a TOML file of ``[[handles]]`` tables; ``"offset"`` instead of
   ``"position"`` is relative as above.
@@ -92,7 +92,7 @@ from bezmotion.ik.rig import make_rig
 from bezmotion._src.io import atomic_write_text, check_writable_folder
 from bezmotion._src.options import option, options
 from bezmotion.pipeline import InbetweenOptions, Inbetweener, inbetween, pose_to_bvh
-from bezmotion.pipeline.window_figures import (
+from bezmotion.evaluation.window_figures import (
     HANDLE_MISS_CM,
     ReachChains,
     beyond_reach,
@@ -386,7 +386,7 @@ def _records_as_handles(records: Sequence[dict[str, Any]], slots: int | None = N
         joint=jnp.asarray([CHARACTERISTIC_JOINTS.index(r["joint"]) for r in records] + [0] * pad, jnp.int32),
         frame=jnp.asarray([r["frame"] for r in records] + [0] * pad, jnp.int32),
         position=jnp.asarray(np.reshape([r["position"] for r in records] + [[0.0] * 3] * pad, (-1, 3)), jnp.float32),
-        valid=jnp.asarray([True] * len(records) + [False] * pad),
+        valid=jnp.asarray([True] * len(records) + [False] * pad, bool),
     )
 
 
@@ -397,7 +397,7 @@ def _label(record: dict[str, Any]) -> str:
 def handle_conflicts(records: Sequence[dict[str, Any]], conflict: np.ndarray, reach: ReachChains) -> list[str]:
     """A warning for each pair of handles on one frame that no pose meets together:
     ``conflict`` ``(handles, handles)``, from
-    :func:`~bezmotion.pipeline.window_figures.conflicting_handles`."""
+    :func:`~bezmotion.evaluation.window_figures.conflicting_handles`."""
     warnings = []
     for i, j in zip(*np.nonzero(np.triu(conflict, 1))):
         a, b = records[i], records[j]
@@ -413,7 +413,7 @@ def handle_conflicts(records: Sequence[dict[str, Any]], conflict: np.ndarray, re
 def handle_misses(records: Sequence[dict[str, Any]], errors: Sequence[float], beyond: np.ndarray, paired: np.ndarray) -> list[str]:
     """A line for each handle missed by more than :data:`HANDLE_MISS_CM`, with why where it is
     known: ``beyond`` its limb's reach from where the IK put the limb's root
-    (:func:`~bezmotion.pipeline.window_figures.beyond_reach`), or ``paired`` with another
+    (:func:`~bezmotion.evaluation.window_figures.beyond_reach`), or ``paired`` with another
     handle of its frame that no pose meets together with it (both ``(handles,)``)."""
     lines = []
     for record, error, out_of_reach, conflict in zip(records, errors, beyond, paired):

@@ -160,7 +160,7 @@ def skeleton_windows(
     offset: int = DEFAULT_OFFSET,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Aligned positions of *every* joint of the skeleton in every window, without fitting
-    (the data of the full-skeleton ablation, :mod:`bezmotion.bmm.ablations`).
+    (the data of the full-skeleton ablation, :mod:`bezmotion.evaluation.ablations`).
 
     The windows and their alignment are :func:`characteristic_windows`' (the same
     ``clip_index``/``start_frame`` for the same ``window`` and ``offset``, translated so

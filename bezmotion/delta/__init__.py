@@ -4,7 +4,7 @@ that predicts residuals over SLERP and linear interpolation.
 :mod:`~bezmotion.delta.model` (the network and in-betweeners for any skeleton: the
 config holds its parents), :mod:`~bezmotion.delta.train` (its data as plain arrays,
 losses and jitted step; the loop is :mod:`bezmotion.training`). The non-learned
-baselines it predicts residuals over are :mod:`bezmotion.baselines`.
+baselines it predicts residuals over are :mod:`bezmotion.interpolation`.
 """
 
 from bezmotion.delta.model import DeltaConfig, DeltaInterpolator, delta_inbetweener, delta_position_inbetweener, init_delta

@@ -37,7 +37,7 @@ calls it, and :func:`delta_inbetweener` wraps trained parameters as an in-betwee
 (saved with the config) fixes the joints, the heads' sizes and the FK; the offsets come
 with the data (each training window's, or the :class:`~bezmotion.geometry.Skeleton`
 given to :func:`delta_inbetweener`, which must have the same parents). The non-learned
-bases the residuals are added to live in :mod:`bezmotion.baselines`.
+bases the residuals are added to live in :mod:`bezmotion.interpolation`.
 
 **Positions only** (``representation="positions"``, for corpora without rotations such as
 Anidance, the paper's §5): a key-frame token holds the ``P × 3`` global
@@ -62,7 +62,7 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
-from bezmotion.baselines import KeyFrames, KeyPositions, keyframe_interpolation, keyframe_position_interpolation
+from bezmotion.interpolation import KeyFrames, KeyPositions, keyframe_interpolation, keyframe_position_interpolation
 from bezmotion.geometry.rotations import quat_fix_continuity, quat_from_rot6d, rot6d_from_quat
 from bezmotion.geometry.skeleton import Skeleton, forward_kinematics
 
@@ -435,7 +435,7 @@ class DeltaInterpolator(nnx.Module):
 
 def _baselines(config: DeltaConfig, keys: KeyFrames, missing_frame):
     """``(6D (keys + missing, J, 6), root (keys + missing, 3))``, key slots first: what the
-    heads' outputs are added to (:func:`bezmotion.baselines.keyframe_interpolation`, the
+    heads' outputs are added to (:func:`bezmotion.interpolation.keyframe_interpolation`, the
     last past frame, or zeros; known frames are their own interpolation baseline)."""
     n_keys, n_missing, j = keys.frame.shape[0], missing_frame.shape[0], config.num_joints
     dtype = keys.root_pos.dtype

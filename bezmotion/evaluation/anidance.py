@@ -16,7 +16,7 @@ github.com/boreshkinai/delta-interpolator ``src/evaluation/anidance_benchmark.py
   frames ``6, 12, … < n`` are key frames too and the others of ``1 … n−1`` are predicted
   (the reference's ``PeriodicFramesRemover(1, 1, n-1, period=6)``). For ``n = 5`` both
   protocols are the same.
-- **L2P** (:func:`bezmotion.metrics.l2p`, in float64): mean over (window, predicted
+- **L2P** (:func:`bezmotion.evaluation.metrics.l2p`, in float64): mean over (window, predicted
   frame) of ``‖(p̂ − p) / x_std‖₂`` over the 72 coordinates (the mean cancels).
 
 An in-betweener is ``inbetween(key_pos, key_frame, missing_frame) -> pos``: ``key_pos``
@@ -53,8 +53,8 @@ from bezmotion.data.anidance import (
     anidance_windows,
     load_anidance,
 )
-from bezmotion.metrics import l2p
-from bezmotion.baselines import PositionInBetweener, interpolation_position_inbetweener, zero_velocity_position_inbetweener
+from bezmotion.evaluation.metrics import l2p
+from bezmotion.evaluation.baselines import PositionInBetweener, interpolation_position_inbetweener, zero_velocity_position_inbetweener
 
 ANIDANCE_LENGTHS: tuple[int, ...] = (5, 15, 30)
 KEYFRAME_PERIOD = 6
@@ -168,7 +168,7 @@ _l2p_jit = jax.jit(l2p)
 
 
 def evaluate_anidance_baselines(bench: AnidanceBenchmark, lengths: Sequence[int] = ANIDANCE_LENGTHS) -> dict:
-    """Zero-velocity and LERP (:mod:`bezmotion.baselines`) under both protocols: ``{protocol: {"zerov": …, "interp": …}}``."""
+    """Zero-velocity and LERP (:mod:`bezmotion.evaluation.baselines`) under both protocols: ``{protocol: {"zerov": …, "interp": …}}``."""
     return {
         protocol: {
             "zerov": evaluate_anidance(bench, zero_velocity_position_inbetweener, lengths, protocol=protocol),

@@ -32,8 +32,8 @@ from bezmotion.data.lafan1 import (
     load_lafan1,
 )
 from bezmotion.geometry.skeleton import forward_kinematics
-from bezmotion.metrics import align_to_context, l2p, l2q, npss
-from bezmotion.baselines import interpolation_inbetweener, zero_velocity_inbetweener
+from bezmotion.evaluation.metrics import align_to_context, l2p, l2q, npss
+from bezmotion.evaluation.baselines import interpolation_inbetweener, zero_velocity_inbetweener
 
 TRANSITION_LENGTHS: tuple[int, ...] = (5, 15, 30, 45)
 TEST_WINDOW, TEST_OFFSET = 65, 40
@@ -131,7 +131,7 @@ def evaluate_transitions(
 def evaluate_baselines(
     bench: Lafan1Benchmark, lengths: Sequence[int] = TRANSITION_LENGTHS, *, variant: str = "official"
 ) -> dict:
-    """Both baselines (:mod:`bezmotion.baselines`) on the benchmark, in the experiment's JSON layout."""
+    """Both baselines (:mod:`bezmotion.evaluation.baselines`) on the benchmark, in the experiment's JSON layout."""
     return {
         "n_windows": bench.num_windows,
         "zerov": evaluate_transitions(bench, zero_velocity_inbetweener, lengths, variant=variant),

@@ -49,7 +49,7 @@ def planted_feet(position: Float[Array, "*batch frames 6 3"], plant_step: Float[
     foot weighing ``plant_weight`` on the frame before and 1 on it, would let the foot jump off
     its still target there: a one-frame slide at the end of a stance.
 
-    Horizontally, like the foot-skating metric (:func:`~bezmotion.metrics.foot_skating_ratio`)
+    Horizontally, like the foot-skating metric (:func:`~bezmotion.evaluation.metrics.foot_skating_ratio`)
     and the curves' foot lock (:func:`~bezmotion.bmm.foot_lock.lock_feet`, which holds X and Z
     only): a locked foot whose heel rises is still planted. Counting height too would leave
     unplanted many still feet at the frames where the exact IK skates most.

@@ -203,7 +203,7 @@ class Inbetweener:
             joint=jnp.asarray(roles + [0] * pad, jnp.int32),
             frame=jnp.asarray(frames + [0] * pad, jnp.int32),
             position=jnp.asarray(np.reshape(positions + [np.zeros(3)] * pad, (slots, 3)), jnp.float32),
-            valid=jnp.asarray([True] * len(roles) + [False] * pad),
+            valid=jnp.asarray([True] * len(roles) + [False] * pad, bool),
         )
 
     def _offsets_to_positions(self, keys: Pose, roles: list[int], frames: list[int], offsets: list[np.ndarray]) -> list[np.ndarray]:

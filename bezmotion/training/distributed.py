@@ -43,7 +43,7 @@ class DistributedOptions:
         if self.coordinator is None:
             if self.num_processes != 1 or self.process_id != 0:
                 raise ValueError(
-                    f"--num-processes {self.num_processes} / --process-id {self.process_id} need --coordinator HOST:PORT"
+                    f"num_processes {self.num_processes} / process_id {self.process_id} need a coordinator HOST:PORT"
                 )
             return
         check_process_layout(self.coordinator, self.num_processes, self.process_id)

@@ -1,5 +1,5 @@
 """The dense ablations BMM⁻ᴮ and BMM⁻ᴵᴷ⁻ᴮ and the CondMDIᴳ baseline
-(``bezmotion.bmm.ablations``, its UNet ``bezmotion.bmm.unet``): configs, data, training
+(``bezmotion.evaluation.ablations``, its UNet ``bezmotion.bmm.unet``): configs, data, training
 through ``bezmotion.training``, DDIM sampling with overwrite and classifier-free guidance,
 storage, and the errors of bad inputs. Real data: the bundled ``DEMO_CLIP`` (10 windows of
 31 frames).
@@ -18,7 +18,7 @@ import pytest
 from flax import nnx
 
 from bezmotion.assets import DEMO_CLIP
-from bezmotion.bmm.ablations import (
+from bezmotion.evaluation.ablations import (
     CondMDIConfig,
     DenseArrays,
     DenseBMMConfig,

@@ -18,7 +18,7 @@ from bmm.common import J, K, TINY
 
 from bezmotion.bezier import BezierLayout, evaluate
 from bezmotion.bmm.sampling import Handles, sample_chained_curves, sample_curves, share_boundaries, shared_key_mask
-from bezmotion.metrics import boundary_velocity_jump, chain_velocity_jumps, distribution_summary
+from bezmotion.evaluation.metrics import boundary_velocity_jump, chain_velocity_jumps, distribution_summary
 
 LAYOUT = BezierLayout.from_controls(K, TINY.stride)
 KEYS = 4  # three windows

@@ -1,5 +1,5 @@
-"""The BMM's curve-level evaluation (``bezmotion.bmm.evaluation``) and the reference and
-metrics it reports (``bezmotion.baselines``, ``bezmotion.metrics``), worked out by hand;
+"""The BMM's curve-level evaluation (``bezmotion.evaluation.curves``) and the reference and
+metrics it reports (``bezmotion.evaluation.baselines``, ``bezmotion.evaluation.metrics``), worked out by hand;
 the LaFAN1 experiment end to end.
 """
 
@@ -15,10 +15,10 @@ import pytest
 from helpers import SHARED_DATA, assert_trees_identical, load_experiment, requires_shared
 from bmm.common import J, K
 
-from bezmotion.baselines import handle_interpolation, interpolation_through_points
+from bezmotion.evaluation.baselines import handle_interpolation, interpolation_through_points
 from bezmotion.bezier import BezierLayout
 from bezmotion.bmm.features import inbetween_conditions
-from bezmotion.bmm.evaluation import (
+from bezmotion.evaluation.curves import (
     CurveMetricsConfig,
     curve_metrics,
     dense_positions,
@@ -28,7 +28,7 @@ from bezmotion.bmm.evaluation import (
 )
 from bezmotion.bmm.sampling import SampledCurves
 from bezmotion.data.characteristic import FEET
-from bezmotion.metrics import contact_accuracy, foot_skating_ratio, handles_error, mean_position_error
+from bezmotion.evaluation.metrics import contact_accuracy, foot_skating_ratio, handles_error, mean_position_error
 
 
 LAYOUT = BezierLayout.from_controls(K, 6)
@@ -160,7 +160,7 @@ def test_contact_accuracy_and_mean_position_error():
 
 
 def test_ground_truth_metrics_report_the_mocap_and_its_fitted_curves(demo_dataset, eval_set):
-    from bezmotion.bmm.evaluation import ground_truth_metrics
+    from bezmotion.evaluation.curves import ground_truth_metrics
 
     config = CurveMetricsConfig(BezierLayout.from_controls(K, 6), demo_dataset.fps, 0.0)
     gt = ground_truth_metrics(config, eval_set)

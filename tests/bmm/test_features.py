@@ -14,7 +14,7 @@ from bmm.common import F, J, K
 
 from bezmotion.bezier import BezierLayout
 
-from bezmotion.baselines import handle_interpolation
+from bezmotion.evaluation.baselines import handle_interpolation
 from bezmotion.bmm.features import (
     FeatureStats,
     control_features,

@@ -18,7 +18,7 @@ from bmm.common import J, K, RESIDUAL, TINY
 
 from bezmotion.bezier import BezierLayout, basis, evaluate
 from bezmotion.bmm.denoiser import init_denoiser
-from bezmotion.bmm.evaluation import CurveMetricsConfig, curve_metrics, make_eval_set, reference_curves
+from bezmotion.evaluation.curves import CurveMetricsConfig, curve_metrics, make_eval_set, reference_curves
 from bezmotion.bmm.features import (
     draw_handle_frames,
     draw_intermediate_frames,

@@ -12,12 +12,12 @@ import pytest
 from helpers import assert_trees_close, assert_trees_identical, trees_differ
 from bmm.common import F, J, K, RESIDUAL, TINY, grid_errors, some_conditions
 
-from bezmotion.baselines import handle_interpolation
+from bezmotion.evaluation.baselines import handle_interpolation
 from bezmotion.bezier import BezierLayout, evaluate, tangent_from_velocity
 from bezmotion.bmm.denoiser import apply_denoiser, init_denoiser
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, held_key_tangents, load_model, sample_curves, save_model
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
-from bezmotion.metrics import handles_error
+from bezmotion.evaluation.metrics import handles_error
 from bezmotion._src.xla_options import inference_compiler_options
 
 

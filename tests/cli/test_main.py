@@ -16,7 +16,7 @@ from bezmotion.cli.demo import demo
 from bezmotion.geometry.rotations import quat_from_axis_angle
 from bezmotion.ik.protocol import Character
 from bezmotion._src.io import _umask
-from bezmotion.pipeline.window_figures import largest_turn
+from bezmotion.evaluation.window_figures import largest_turn
 
 
 @pytest.fixture(scope="module")

@@ -34,7 +34,7 @@ from bezmotion.delta.train import (
 )
 from bezmotion.evaluation.lafan1 import TEST_OFFSET, TEST_WINDOW, Lafan1Benchmark, evaluate_transitions
 from bezmotion.geometry.skeleton import Skeleton, forward_kinematics
-from bezmotion.baselines import interpolation, interpolation_inbetweener
+from bezmotion.evaluation.baselines import interpolation, interpolation_inbetweener
 from bezmotion.delta.model import (
     DeltaConfig,
     DeltaInterpolator,

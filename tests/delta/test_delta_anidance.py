@@ -30,7 +30,7 @@ from bezmotion.evaluation.anidance import (
     evaluate_anidance_baselines,
     in_stored_layout,
 )
-from bezmotion.baselines import (
+from bezmotion.evaluation.baselines import (
     interpolation_position_inbetweener,
     keyframe_position_interpolation,
     keyframe_position_zero_velocity,

@@ -18,10 +18,10 @@ import pytest
 
 from bezmotion.assets import DEMO_CLIP
 from bezmotion.bezier import BezierLayout, fit_curves
-from bezmotion.bmm.evaluation import make_eval_set
+from bezmotion.evaluation.curves import make_eval_set
 from bezmotion.data.bvh import read_bvh, write_bvh
 from bezmotion.data.windows import split_windows
-from bezmotion.metrics import chain_velocity_jumps
+from bezmotion.evaluation.metrics import chain_velocity_jumps
 from bezmotion.pipeline.authoring import load_profile
 from bezmotion.pipeline.transfer import Transfer
 from helpers import assert_trees_identical, load_experiment

@@ -21,7 +21,7 @@ from bmm.common import TINY
 from helpers import load_experiment
 
 from bezmotion.assets import DEMO_CLIP
-from bezmotion.bmm.ablations import DenseBMMConfig, DenseMotionModel, dense_windows, init_dense_network, save_dense_model
+from bezmotion.evaluation.ablations import DenseBMMConfig, DenseMotionModel, dense_windows, init_dense_network, save_dense_model
 from bezmotion.bmm.denoiser import init_denoiser
 from bezmotion.bmm.features import FeatureStats
 from bezmotion.bmm.sampling import BezierMotionModel, save_model

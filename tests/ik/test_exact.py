@@ -442,7 +442,7 @@ def test_window_solve_ramps_a_lasting_flip_of_the_inner_ik(bandai):
     IK that twists an arm 149° for five frames near the end key gives an exact IK turning it at
     most ~43° a frame (40° here), where without the limit (``spike_turn=0``) the smoothing
     only spreads the step over a few frames (62°)."""
-    from bezmotion.metrics import rotation_change_deg
+    from bezmotion.evaluation.metrics import rotation_change_deg
 
     motion = read_bvh(DEMO_CLIP)
     truth = pose_from_motion(bandai.character, jnp.asarray(motion.quat_local[10:26]), jnp.asarray(motion.pos_local[10:26]))
@@ -482,7 +482,7 @@ def test_second_pass_starts_from_ramps_into_a_handle_frame(bandai, monkeypatch):
     the chest at the handle frame alone (its neighbours, held near the key, weigh less). With
     the ramp the chest turns ~50° a frame at most; keeping only the keys, ~74°; the handles
     are met as closely."""
-    from bezmotion.metrics import rotation_change_deg
+    from bezmotion.evaluation.metrics import rotation_change_deg
 
     targets, keys = _demo_window_pulled(bandai.character, head_cm=-20.0, hips_cm=8.0)
     fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character, handle_spread=0.0, finish_turn=0.0)  # the ramp alone
@@ -505,7 +505,7 @@ def test_finish_ramps_every_turn_into_the_handle_frames(bandai):
     frames and the keys are kept, so the handles are met exactly as without it. Head pinned 30 cm
     lower and hips 12 cm higher at frame 6 of the demo window: a joint turns ~57° a frame into
     the handle frame without the finish, 43° with it."""
-    from bezmotion.metrics import rotation_change_deg
+    from bezmotion.evaluation.metrics import rotation_change_deg
 
     targets, keys = _demo_window_pulled(bandai.character, head_cm=-30.0, hips_cm=12.0)
     fn, params = exact_ik(protores_ik_fn, load_ik_model(BUNDLED_IK), bandai.character)

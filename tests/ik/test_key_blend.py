@@ -1,4 +1,4 @@
-"""Key blend (bezmotion.ik.key_blend) and the key-pop metric (bezmotion.metrics)."""
+"""Key blend (bezmotion.ik.key_blend) and the key-pop metric (bezmotion.evaluation.metrics)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 
 from bezmotion.geometry.rotations import quat_from_axis_angle
 from bezmotion.ik.protocol import Pose
-from bezmotion.metrics import key_pop_deg, rotation_change_deg
+from bezmotion.evaluation.metrics import key_pop_deg, rotation_change_deg
 from bezmotion.ik.key_blend import blend_to_chain_keys, blend_to_keys, key_blend_weights, key_distances
 
 

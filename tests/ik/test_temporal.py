@@ -11,7 +11,7 @@ import pytest
 from bezmotion.geometry.rotations import quat_angle, quat_from_axis_angle, quat_mul
 from bezmotion.ik.protocol import Pose
 from bezmotion.ik.temporal import limit_turns, planted_feet, remove_spikes, smooth, turn_out_of_keys, turns_near_keys
-from bezmotion.metrics import rotation_change_deg
+from bezmotion.evaluation.metrics import rotation_change_deg
 
 
 def test_planted_feet_marks_still_foot_targets_only():

@@ -13,7 +13,8 @@ from bmm.common import TINY  # the BMM tests' tiny configuration (width 32, one 
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
 from bezmotion.geometry.rotations import quat_from_rot6d
 from bezmotion.ik.protocol import Character, IKTargets, Pose
-from bezmotion.pipeline import Inbetweener, full_body_handles_error
+from bezmotion.evaluation.pipeline import full_body_handles_error
+from bezmotion.pipeline import Inbetweener
 
 FRAMES, STRIDE, K = TINY.num_frames, TINY.stride, TINY.num_controls  # 31, 6, 6
 STEPS = 2  # DDIM steps: plumbing, not quality

@@ -20,7 +20,7 @@ from pipeline.common import FRAMES, K, LEFT_HAND, STEPS, STRIDE, model_of
 from bezmotion.bmm.sampling import Handles
 from bezmotion.data.characteristic import HIPS
 from bezmotion.ik.protocol import Pose
-from bezmotion.metrics import boundary_velocity_jump
+from bezmotion.evaluation.metrics import boundary_velocity_jump
 from bezmotion.pipeline import InbetweenOptions, Transfer, chain_key_velocities, inbetween, join_windows, split_windows
 
 KEY_FRAMES = [0, 30, 39]  # clip frames of the three keys (the clip has 40)

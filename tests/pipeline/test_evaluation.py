@@ -1,4 +1,4 @@
-"""The after-IK metrics (``bezmotion.pipeline.evaluation`` and ``bezmotion.pipeline.window_figures``):
+"""The after-IK metrics (``bezmotion.evaluation.pipeline`` and ``bezmotion.evaluation.window_figures``):
 full-body handles error and MPJPE against NumPy, the true windows' poses, per-window figures and
 their summaries, and the pipeline evaluation end to end.
 """
@@ -16,11 +16,11 @@ from ik.demo_poses import frame, np_pose_positions, targets_of
 from pipeline.common import FRAMES, K, STRIDE, handles_error, hips_only_ik, identity_quats
 
 from bezmotion.bezier import BezierLayout, tangent_from_velocity
-from bezmotion.bmm.evaluation import floor_height_from, make_eval_set
+from bezmotion.evaluation.curves import floor_height_from, make_eval_set
 from bezmotion.bmm.sampling import Handles
 from bezmotion.ik.protocol import IKTargets, Pose, targets_from_pose
-from bezmotion.pipeline import mpjpe
-from bezmotion.pipeline.evaluation import (
+from bezmotion.evaluation.pipeline import mpjpe
+from bezmotion.evaluation.pipeline import (
     chain_frame_handles,
     chain_rows,
     evaluate_pipeline,
@@ -32,7 +32,7 @@ from bezmotion.pipeline.evaluation import (
     window_keys,
     window_poses,
 )
-from bezmotion.pipeline.window_figures import PipelineMetricsConfig, curve_miss
+from bezmotion.evaluation.window_figures import PipelineMetricsConfig, curve_miss
 
 mpjpe_of = jax.jit(mpjpe)
 
@@ -187,7 +187,7 @@ def test_curve_error_is_how_far_the_six_joints_lie_from_their_curves(clip):
     """``window_pose_metrics(..., curves=…)``: 0 on the pose's own six trajectories; moving one
     joint's curve by 2 cm on one frame gives that as the largest, and 2 / (frames · 6) on average."""
     from bezmotion.ik.protocol import pose_fk
-    from bezmotion.pipeline.window_figures import summarize_windows, window_pose_metrics
+    from bezmotion.evaluation.window_figures import summarize_windows, window_pose_metrics
 
     c = clip.character
     pose = jax.tree.map(lambda x: jnp.stack([x[:FRAMES], x[5 : 5 + FRAMES]]), clip.pose)  # (2, 31, …)
@@ -212,7 +212,7 @@ def test_planted_feet_rise_and_sink_against_their_curves(clip):
     the frames where a curve's foot stands still horizontally; a moving curve's foot is not
     counted, and 0 where the feet lie on their curves."""
     from bezmotion.ik.protocol import pose_fk
-    from bezmotion.pipeline.window_figures import summarize_windows, window_pose_metrics
+    from bezmotion.evaluation.window_figures import summarize_windows, window_pose_metrics
 
     c = clip.character
     pose = jax.tree.map(lambda x: jnp.stack([x[:FRAMES], x[5 : 5 + FRAMES]]), clip.pose)  # (2, 31, …)
@@ -242,7 +242,7 @@ def test_sliding_is_judged_on_the_curves_floor_contacts(clip):
     which frames are on the floor. Feet sliding 20 cm above curves on the floor slide but do
     not skate by the paper's test; curves 20 cm up make the same feet neither."""
     from bezmotion.ik.protocol import pose_fk
-    from bezmotion.pipeline.window_figures import paired_differences, summarize_windows, window_pose_metrics
+    from bezmotion.evaluation.window_figures import paired_differences, summarize_windows, window_pose_metrics
 
     c = clip.character
     pose = jax.tree.map(lambda x: jnp.stack([x[:FRAMES], x[:FRAMES]]), clip.pose)  # (2, 31, …)
@@ -270,7 +270,7 @@ def test_summaries_give_each_mean_over_windows_its_standard_error():
     """``summarize_windows``: ``…_se`` is the windows' sample standard deviation over √n (a
     window with several values, e.g. dense error per joint, counts once, by its mean), and
     None for one window."""
-    from bezmotion.pipeline.window_figures import standard_error, summarize_windows
+    from bezmotion.evaluation.window_figures import standard_error, summarize_windows
 
     skating = np.asarray([0.0, 0.1, 0.2, 0.5])
     dense = np.asarray([[1.0, 3.0], [2.0, 2.0], [4.0, 6.0], [0.0, 2.0]])  # (windows, joints): means 2, 2, 5, 1
@@ -284,7 +284,7 @@ def test_summaries_give_each_mean_over_windows_its_standard_error():
 def test_paired_differences_take_the_spread_of_the_differences_not_of_the_means():
     """Two IKs whose windows move together: each mean's own standard error is large, the
     difference's small; ``better_fraction`` counts windows where the second is lower."""
-    from bezmotion.pipeline.window_figures import paired_differences, summarize_windows
+    from bezmotion.evaluation.window_figures import paired_differences, summarize_windows
 
     base = {"mpjpe": np.asarray([2.0, 8.0, 4.0, 10.0]), "skating": np.asarray([0.1, 0.3, 0.2, 0.2])}
     other = {"mpjpe": base["mpjpe"] + np.asarray([0.5, 0.7, 0.6, -0.2]), "skating": base["skating"]}
@@ -310,7 +310,7 @@ def test_a_handle_that_no_pose_meets_with_another_counts_as_unreachable(clip):
     from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
     from bezmotion.ik.protocol import pose_fk
     from bezmotion.ik.rig import make_rig
-    from bezmotion.pipeline.window_figures import conflicting_handles, reach_chains, window_pose_metrics
+    from bezmotion.evaluation.window_figures import conflicting_handles, reach_chains, window_pose_metrics
 
     c = clip.character
     hand, left_hand, head = (CHARACTERISTIC_JOINTS.index(r) for r in ("right_hand", "left_hand", "head"))

@@ -13,7 +13,7 @@ window (:func:`paired_differences`):
   against the mocap, foot skating;
 - the mocap itself (:func:`window_mocap_metrics`): the yardsticks for skating and turns.
 
-:mod:`bezmotion.pipeline.evaluation` runs the pipeline over a corpus's windows and hands
+:mod:`bezmotion.evaluation.pipeline` runs the pipeline over a corpus's windows and hands
 its poses and curves here; ``experiments/pipeline_eval.py`` reports them.
 """
 
@@ -36,13 +36,13 @@ from bezmotion.geometry.rotations import quat_angle, quat_from_rot6d
 from bezmotion.ik.protocol import Character, Pose, pose_fk
 from bezmotion.ik.rig import Rig
 from bezmotion.ik.temporal import planted_feet
-from bezmotion.metrics import foot_skating_ratio, key_pop_deg, rotation_change_deg
+from bezmotion.evaluation.metrics import foot_skating_ratio, key_pop_deg, rotation_change_deg
 
 
 @dataclasses.dataclass(frozen=True)
 class PipelineMetricsConfig:
     """Settings of the after-IK metrics: the curves' stride, frame rate and the character's
-    ankle height with the foot flat (cm; :func:`~bezmotion.bmm.evaluation.floor_height_from`)."""
+    ankle height with the foot flat (cm; :func:`~bezmotion.evaluation.curves.floor_height_from`)."""
 
     stride: int
     fps: float
@@ -113,7 +113,7 @@ def _per_window(fn, *x: Array) -> Array:
 
 
 def _skating(config: PipelineMetricsConfig, feet: Array, heights_from: Array | None = None) -> Array:
-    """Per window: :func:`~bezmotion.metrics.foot_skating_ratio` of ``feet`` ``(windows, frames, 2, 3)``,
+    """Per window: :func:`~bezmotion.evaluation.metrics.foot_skating_ratio` of ``feet`` ``(windows, frames, 2, 3)``,
     on the floor where ``heights_from``'s feet are (default: their own)."""
     ratio = lambda f, h: foot_skating_ratio(f, config.fps, floor_height=config.floor_height, heights_from=h)  # noqa: E731
     return _per_window(ratio, feet, feet if heights_from is None else heights_from)
@@ -157,7 +157,7 @@ def window_pose_metrics(
     mocap's own come within a few millimetres of the chain's length.)
 
     Chained segments: ``pose`` and ``truth`` ``(chains, frames, …)`` over the chains' joined
-    frames, ``handles`` ``(chains, handles)`` at chain frames (:func:`~bezmotion.pipeline.evaluation.chain_frame_handles`)
+    frames, ``handles`` ``(chains, handles)`` at chain frames (:func:`~bezmotion.evaluation.pipeline.chain_frame_handles`)
     and ``windows`` the windows per chain, whose key pop is the largest over every window's
     first and last frame pair (every key, from both sides).
 
@@ -169,7 +169,7 @@ def window_pose_metrics(
     also the planted feet's largest rise above and sink below their curves (``foot_rise``,
     ``foot_sink``, cm: :func:`_planted_feet_height`) and ``sliding``: the skating test with
     the curves' feet deciding which frames are on the floor (``heights_from`` of
-    :func:`~bezmotion.metrics.foot_skating_ratio`), so IKs on the same curves are judged on the
+    :func:`~bezmotion.evaluation.metrics.foot_skating_ratio`), so IKs on the same curves are judged on the
     same frames and a sliding foot lifted off its curve is still counted."""
     return _to_numpy(_pose_figures(config, character, pose, truth, handles, chains, windows, curves))
 
@@ -297,7 +297,7 @@ def window_mocap_metrics(
     config: PipelineMetricsConfig, character: Character, truth: Pose, windows: int = 1
 ) -> dict[str, np.ndarray]:
     """Per-window figures of the mocap itself: foot skating, key pop and largest per-frame
-    rotation change (the yardsticks of :func:`~bezmotion.pipeline.evaluation.ground_truth_pose_metrics`). For chains,
+    rotation change (the yardsticks of :func:`~bezmotion.evaluation.pipeline.ground_truth_pose_metrics`). For chains,
     ``truth`` ``(chains, frames, …)`` and ``windows`` per chain (key pop at every key, as in
     :func:`window_pose_metrics`)."""
     return _to_numpy(_mocap_figures(config, character, truth, windows))

@@ -1,6 +1,6 @@
 """Metrics of the full pipeline, after IK, on a corpus's validation windows (BMM Table 1).
 
-The evaluation windows are those of :func:`bezmotion.bmm.evaluation.make_eval_set` (same
+The evaluation windows are those of :func:`bezmotion.evaluation.curves.make_eval_set` (same
 handles, same OOD noise); here each window also carries the ground-truth full-body poses
 of the target character, so the start and end poses are real and MPJPE can be measured.
 Everything is in the windows' aligned frame (hips start at the origin in XZ).
@@ -8,7 +8,7 @@ Everything is in the windows' aligned frame (hips start at the origin in XZ).
 Two ways to run it: :func:`evaluate_pipeline` in-betweens each window end to end per IK
 (:func:`run_pipeline`); :func:`sample_window_curves` samples each window's curves once and
 :func:`solve_window_curves` runs any number of IKs on those same curves (timed), whose
-per-window figures :mod:`bezmotion.pipeline.window_figures` measures and summarises over
+per-window figures :mod:`bezmotion.evaluation.window_figures` measures and summarises over
 all windows or any subset (e.g. one action label) — ``experiments/pipeline_eval.py``. Chained segments
 the same way: :func:`chain_rows` finds runs of windows 30 frames apart,
 :func:`sample_chain_curves` samples each chain's windows together (coupled C¹ at the shared
@@ -27,14 +27,14 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from bezmotion.bmm.evaluation import EvalSet, map_in_chunks
+from bezmotion.evaluation.curves import EvalSet, map_in_chunks
 from bezmotion.bmm.sampling import BezierMotionModel, Handles
 from bezmotion.data.characteristic import HIPS
 from bezmotion.data.corpus import MotionClips
 from bezmotion.data.curves import CurveDataset
 from bezmotion.ik.protocol import Character, IKFn, Pose, pose_fk, pose_from_motion, targets_from_pose
 from bezmotion.ik.rig import with_rest_pose
-from bezmotion.metrics import foot_skating_ratio, handles_error, key_pop_deg, mean_position_error, rotation_change_deg
+from bezmotion.evaluation.metrics import foot_skating_ratio, handles_error, key_pop_deg, mean_position_error, rotation_change_deg
 from bezmotion.pipeline.inbetweening import (
     KEY_BLEND_FRAMES,
     InbetweenOptions,
@@ -44,7 +44,7 @@ from bezmotion.pipeline.inbetweening import (
     pose_from_curves,
 )
 from bezmotion.pipeline.transfer import Transfer
-from bezmotion.pipeline.window_figures import PipelineMetricsConfig
+from bezmotion.evaluation.window_figures import PipelineMetricsConfig
 
 
 def full_body_handles_error(

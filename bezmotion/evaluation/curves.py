@@ -8,7 +8,7 @@ are the ground-truth control positions (in distribution) or those plus uniform n
 
 - handles error (cm): intermediate handles only, as the paper measures it;
 - dense position error (cm) of the six joints' evaluated curves against the mocap;
-- foot-skating ratio of the evaluated curves' feet (see :func:`~bezmotion.metrics.foot_skating_ratio`);
+- foot-skating ratio of the evaluated curves' feet (see :func:`~bezmotion.evaluation.metrics.foot_skating_ratio`);
 - contact accuracy of predicted contacts at control points (learned models only).
 """
 
@@ -27,8 +27,8 @@ from jaxtyping import Array
 from bezmotion.bezier import BezierLayout, evaluate
 from bezmotion.data.characteristic import FEET
 from bezmotion.data.curves import CurveDataset
-from bezmotion.metrics import contact_accuracy, foot_skating_ratio, handles_error, mean_position_error
-from bezmotion.baselines import interpolation_through_points
+from bezmotion.evaluation.metrics import contact_accuracy, foot_skating_ratio, handles_error, mean_position_error
+from bezmotion.evaluation.baselines import interpolation_through_points
 from bezmotion.bmm.features import (
     HANDLE_FRAMES,
     MAX_INTERMEDIATE_HANDLES,
@@ -190,7 +190,7 @@ def trajectory_metrics(
     config: CurveMetricsConfig, dense: Array, contacts: Array, eval_set: EvalSet, handles: Handles
 ) -> dict[str, float]:
     """The metrics of :func:`curve_metrics` for dense six-joint trajectories of any origin
-    (evaluated curves, or a dense model's frames: :mod:`bezmotion.bmm.ablations`).
+    (evaluated curves, or a dense model's frames: :mod:`bezmotion.evaluation.ablations`).
 
     Args:
       dense: ``(windows, frames, 6, 3)`` positions (cm), :data:`CHARACTERISTIC_JOINTS` order.
@@ -208,7 +208,7 @@ def trajectory_metrics(
 
 def reference_curves(eval_set: EvalSet, handles: Handles, layout: BezierLayout, *, off_grid: str = "linear") -> SampledCurves:
     """The non-learned reference for every window: interpolation through the start, end and
-    handles, each met exactly (:func:`~bezmotion.baselines.interpolation_through_points`;
+    handles, each met exactly (:func:`~bezmotion.evaluation.baselines.interpolation_through_points`;
     ``off_grid="projection"``: a reference that reaches a handle between control frames with a
     bump); no orientations, contacts all 0.5 (unknown)."""
     pos, tangent = _reference_controls(eval_set.start, eval_set.end, handles, layout=layout, off_grid=off_grid)

@@ -5,18 +5,18 @@ so Blender runs this file by path). Three ways to use it:
 
 - headless, with a Blender build::
 
-      blender --background --python-exit-code 1 --python bezmotion/blender_curves.py -- import out.glb --blend out.blend
-      blender --background --python-exit-code 1 --python bezmotion/blender_curves.py -- export handles.json --blend edited.blend
+      blender --background --python-exit-code 1 --python bezmotion/integrations/blender_curves.py -- import out.glb --blend out.blend
+      blender --background --python-exit-code 1 --python bezmotion/integrations/blender_curves.py -- export handles.json --blend edited.blend
 
   (``--python-exit-code 1``: a failure exits non-zero instead of leaving Blender running on.)
 
 - headless, with the ``bpy`` wheel (``pip install bpy``; CPython 3.11 for Blender 4.2–5.0)::
 
-      python bezmotion/blender_curves.py import out.glb --blend out.blend
+      python bezmotion/integrations/blender_curves.py import out.glb --blend out.blend
 
 - from Blender's UI: open this file in the Text Editor and press *Run Script*; it adds
   *File › Import › bezmotion curves (.glb)* and *File › Export › bezmotion handles (.json)*.
-  (``python -c "import bezmotion.blender_curves as m; print(m.__file__)"`` prints its path.)
+  (``python -c "import bezmotion.integrations.blender_curves as m; print(m.__file__)"`` prints its path.)
 
 **import** reads a ``.glb`` written by :func:`bezmotion.pipeline.gltf.write_glb`. The
 skeleton comes in through Blender's own glTF importer (an armature, animated per frame),
