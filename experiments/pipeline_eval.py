@@ -170,7 +170,6 @@ from bezmotion.assets.registry import REGISTRY, resolve_folder
 from bezmotion.bezier import BezierLayout
 from bezmotion.evaluation.curves import EvalSet, dense_positions, floor_height_from, make_eval_set, reference_curves
 from bezmotion.bmm.features import HANDLE_FRAMES
-from bezmotion.bmm.foot_lock import ANCHORS
 from bezmotion.evaluation.baselines import OFF_GRID_REFERENCES
 from bezmotion.bmm.sampling import Handles, load_model, share_boundaries, with_off_grid_prior
 from bezmotion.data.corpus import Corpus, motion_clips
@@ -264,11 +263,6 @@ class Options:
     foot_lock: bool = option(
         False, help="lock the curves' feet on their predicted contacts before any IK (sample_curves(foot_lock=True))"
     )
-    foot_lock_anchor: str = option(
-        ANCHORS[0], choices=ANCHORS,
-        help="where a locked run's control points stand: at the nearest of its conditions (a run between two steps "
-        "once between them) or at their mean",
-    )  # fmt: skip
     key_blend: int = option(KEY_BLEND_FRAMES, help="frames over which the start / end poses are blended in (0: replace the two frames)")
     chunk: int = option(10, help="windows per compiled call, chains: chunk // K (large chunks of the exact IK have hung XLA)")
     seed: int = option(1234, help="key of the windows, handles and OOD noise")
@@ -446,9 +440,9 @@ def sample_items(
     )  # fmt: skip
 
 
-def sampler_foot_lock(args: Options) -> bool | str:
-    """The samplers' ``foot_lock``: ``False``, or the anchor of ``--foot-lock-anchor``."""
-    return args.foot_lock and args.foot_lock_anchor
+def sampler_foot_lock(args: Options) -> bool:
+    """The samplers' ``foot_lock``."""
+    return args.foot_lock
 
 
 def joined(args: Options, curves: WindowCurves) -> WindowCurves:
@@ -631,7 +625,7 @@ def main(argv: list[str] | None = None) -> dict:
             "transfer": None if trained_on == args.corpus else {"scale": float(transfer.scale), "rot_offset": np.asarray(transfer.rot_offset).tolist()},
             "facing": args.facing, "orientation": args.orientation,
             "handle_frames": args.handle_frames, "off_grid_prior": bmm.config.off_grid_prior, "steps": args.steps, "key_blend_frames": args.key_blend,
-            "key_velocities": args.key_velocities, "foot_lock": args.foot_lock, "foot_lock_anchor": args.foot_lock_anchor,
+            "key_velocities": args.key_velocities, "foot_lock": args.foot_lock,
             "chunk": args.chunk, "seed": args.seed, "sample_seed": args.sample_seed, "segments": k,
             "exact": exact_settings(args.exact),
             "rows": np.asarray(items.rows).tolist(),
@@ -735,7 +729,7 @@ def format_report(r: dict) -> str:
         f"{transferred(s)}"
         f"key blend {s['key_blend_frames']} frames{'; the keys’ velocities given to the curves' if s.get('key_velocities') else ''}"
         f"{'; feet locked on their predicted contacts' if s.get('foot_lock') else ''}"
-        f"{' (each run at the mean of its conditions)' if s.get('foot_lock') and s.get('foot_lock_anchor') == 'mean' else ''}; the curves sampled once, every IK on the same curves ({r['seconds']:.0f} s).",
+        f"; the curves sampled once, every IK on the same curves ({r['seconds']:.0f} s).",
         f"Mocap: foot skating {m['foot_skating_ratio']:.4f}, key pop {m['key_pop_deg']:.2f}°, "
         f"largest per-frame change {m['max_rotation_change_deg']:.2f}° (mean of each frame's largest {m['rotation_change_deg']:.2f}°).",
     ]

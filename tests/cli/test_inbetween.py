@@ -537,9 +537,9 @@ def test_a_chain_refuses_a_handle_on_its_inner_key_and_takes_every_keys_velocity
     with pytest.raises(ValueError, match=r"--handle head@30=\+0,1,0: frame 30 is a key of the chain \(keys at \[0, 30, 60\]\)"):
         plan(parse_options(InbetweenCommand, [*argv, "--handle", "head@30=+0,1,0"]))
     p = plan(parse_options(InbetweenCommand, [*argv, "--key-velocities", "--handle", "head@59=+0,1,0"]))
-    assert len(p.keys) == 3 and p.handles.position.shape == (2, 4, 3)  # (windows, slots, xyz)
-    assert np.asarray(p.handles.valid).tolist() == [[False] * 4, [True, False, False, False]]
-    assert int(p.handles.frame[1, 0]) == 29  # frame 59 of the chain is frame 29 of its window
+    assert len(p.keys) == 3 and p.handles.position.shape == (4, 3)  # (slots, xyz), frames of the whole in-between
+    assert np.asarray(p.handles.valid).tolist() == [True, False, False, False]
+    assert int(p.handles.frame[0]) == 59
     pos = fk_positions(read_bvh(long_clip))[:, list(p.recognised.character.characteristic)]
     # Outwards at the ends (the frames before and after), the central difference inside.
     np.testing.assert_allclose(np.asarray(p.key_velocity), np.stack([pos[1] - pos[0], (pos[32] - pos[30]) / 2, pos[62] - pos[61]]), atol=1e-3)
@@ -692,7 +692,7 @@ def test_foot_lock_reaches_the_pipeline(flag, locked, tmp_path, monkeypatch):
         pass
 
     def inbetween(*args, **kwargs):
-        raise Called(kwargs["foot_lock"])
+        raise Called(kwargs["options"].foot_lock)
 
     monkeypatch.setattr(command, "inbetween", inbetween)
     args = parse_options(InbetweenCommand, [str(DEMO_CLIP), "--frames", "0", "30", *FAST, *flag, "--out", str(tmp_path / "x.bvh")])

@@ -161,9 +161,8 @@ def test_foot_lock_locks_the_curves_every_ik_is_given(experiment, clips, sampler
     out = tmp_path / "locked.json"
     locked = experiment.main(["--out", str(out), "--foot-lock", *common])
     plain = experiment.main(["--out", str(tmp_path / "plain.json"), *common])
-    assert [c["foot_lock"] for c in sampler_calls] == ["nearest", "nearest", False, False]  # both conditions' curves (the default anchor), then the plain run's
+    assert [c["foot_lock"] for c in sampler_calls] == [True, True, False, False]  # both conditions' curves, then the plain run's
     assert locked["settings"]["foot_lock"] and not plain["settings"]["foot_lock"]
-    assert locked["settings"]["foot_lock_anchor"] == "nearest"
     assert plain["settings"]["bmm_trained_on"] == "bandai_namco" and plain["settings"]["transfer"] is None  # the bundled BMM's own
     assert "feet locked on their predicted contacts" in out.with_suffix(".md").read_text()
     # Locking moves the feet (the walk has contacts), so the curves differ; handles still hold.

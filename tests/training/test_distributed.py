@@ -126,6 +126,6 @@ def test_bad_process_layout_names_the_value(coordinator, num_processes, process_
 
 
 def test_process_flags_without_a_coordinator_raise():
-    with pytest.raises(ValueError, match="--coordinator"):
+    with pytest.raises(ValueError, match="need a coordinator"):
         DistributedOptions(num_processes=2)
     assert DistributedOptions().coordinator is None  # one process: the default
