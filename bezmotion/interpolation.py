@@ -19,7 +19,8 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float, Int
 
 from bezmotion.bezier import BezierLayout
-from bezmotion.diffusion.projection import grid_conditions, on_control_frame, project_off_grid
+from bezmotion.diffusion.projection import project_off_grid
+from bezmotion.handles import Handles, grid_conditions, on_control_frame
 from bezmotion.geometry.rotations import slerp
 
 # ------------------------------------------------------------------------ key frames
@@ -140,10 +141,7 @@ OFF_GRID_REFERENCES = ("projection", "linear")
 
 def interpolation_through_points(
     layout: BezierLayout,
-    frame: Int[Array, "slots"],
-    joint: Int[Array, "slots"],
-    position: Float[Array, "slots 3"],
-    valid: Bool[Array, "slots"],
+    conditions: Handles,
     num_joints: int,
     *,
     off_grid: str = "linear",
@@ -169,10 +167,9 @@ def interpolation_through_points(
 
     Args:
       layout: the curves' layout.
-      frame, joint, valid: ``(slots,)`` each condition's frame (0 … last), joint and
+      conditions: ``(slots,)`` each condition's joint, frame (0 … last), position (cm) and
         whether it is real; every joint needs a valid condition at the first and at the
         last frame (in-betweening's keys), or its curve is meaningless (finite, though).
-      position: ``(slots, 3)`` where each condition puts its joint (cm).
       num_joints: joints of the curves.
       off_grid: ``"linear"`` or ``"projection"`` (above).
     Returns:
@@ -183,20 +180,21 @@ def interpolation_through_points(
     """
     if off_grid not in OFF_GRID_REFERENCES:
         raise ValueError(f"off_grid must be one of {OFF_GRID_REFERENCES}, got {off_grid!r}")
-    on_grid, _ = on_control_frame(layout, frame)
+    on_grid, _ = on_control_frame(layout, conditions.frame)
     # The two ways differ only in which conditions the interpolation reads ("projection": those
     # on control frames, i.e. handle_interpolation); the correction meets the rest either way.
-    read = valid if off_grid == "linear" else valid & on_grid
-    ctrl_pos = _linear_in_frame(layout, frame, joint, position, read, num_joints)
-    mask, _ = grid_conditions(layout, frame, joint, position, valid, num_joints)
-    ctrl_pos, ctrl_tangent = project_off_grid(layout, ctrl_pos, _catmull_rom_tangents(ctrl_pos), mask, joint, frame, position, valid)
+    read = conditions.valid if off_grid == "linear" else conditions.valid & on_grid
+    ctrl_pos = _linear_in_frame(layout, conditions._replace(valid=read), num_joints)
+    mask, _ = grid_conditions(layout, conditions, num_joints)
+    ctrl_pos, ctrl_tangent = project_off_grid(layout, ctrl_pos, _catmull_rom_tangents(ctrl_pos), mask, conditions)
     return ctrl_pos, ctrl_tangent, mask
 
 
-def _linear_in_frame(layout: BezierLayout, frame, joint, position, valid, num_joints: int) -> Float[Array, "controls joints 3"]:
+def _linear_in_frame(layout: BezierLayout, conditions: Handles, num_joints: int) -> Float[Array, "controls joints 3"]:
     """``(controls, joints, 3)``: each joint's position at every control frame, linear in
     frame between its nearest valid conditions at or before and at or after that frame (a
     condition on the control frame itself: its position exactly, the weight being 0)."""
+    joint, frame, position, valid = conditions
     controls = jnp.asarray(layout.control_frames, jnp.int32)[:, None, None]  # (K, 1, 1)
     own = (valid[None, :] & (joint[None, :] == jnp.arange(num_joints)[:, None]))[None]  # (1, J, S)
     slot_frame = frame.astype(jnp.int32)[None, None, :]

@@ -33,17 +33,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from flax import nnx
-from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
+from jaxtyping import Array, ArrayLike, Float, Int, Real
 
 from bezmotion.interpolation import OFF_GRID_REFERENCES
-from bezmotion.bezier import BezierLayout
-from bezmotion.diffusion.projection import grid_conditions
+from bezmotion.handles import Handles
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.training.step import count_parameters  # noqa: F401 (its old home, re-exported)
 
@@ -134,45 +131,6 @@ class BMMConfig:
         return cls.cpu(**{"width": 32, "ff_width": 64, "num_heads": 2, "num_layers": 1, **overrides})
 
 
-class Conditions(NamedTuple):
-    """Sparse position conditions as token slots (one motion; add a leading axis to batch).
-
-    Attributes:
-      position: ``(slots, 3)`` target positions in the aligned frame (cm).
-      joint: ``(slots,)`` characteristic-joint index (0…5).
-      frame: ``(slots,)`` the frame the condition constrains (0…num_frames−1): a control
-        frame (a multiple of the stride) or, for handles between them, any other frame.
-      valid: ``(slots,)`` which slots hold a condition; the others are padding.
-    """
-
-    position: Float[Array, "*batch slots 3"]
-    joint: Int[Array, "*batch slots"]
-    frame: Int[Array, "*batch slots"]
-    valid: Bool[Array, "*batch slots"]
-
-    @classmethod
-    def from_grid(
-        cls, mask: Bool[Array, "*batch controls joints"], position: Float[Array, "*batch controls joints 3"], stride: int
-    ) -> Conditions:
-        """All ``controls × joints`` slots, valid where ``mask`` (the training layout)."""
-        *batch, k, j = mask.shape
-        control, joint = np.meshgrid(np.arange(k), np.arange(j), indexing="ij")
-        shape = (*batch, k * j)
-        return cls(
-            position=position.reshape(*batch, k * j, 3),
-            joint=jnp.broadcast_to(jnp.asarray(joint.reshape(-1), jnp.int32), shape),
-            frame=jnp.broadcast_to(jnp.asarray(control.reshape(-1) * stride, jnp.int32), shape),
-            valid=mask.reshape(shape),
-        )
-
-    def to_grid(
-        self, num_controls: int, num_joints: int, stride: int
-    ) -> tuple[Bool[Array, "controls joints"], Float[Array, "controls joints 3"]]:
-        """``(mask, position)`` of the conditions on control frames, on the control × joint
-        grid (one motion; later slots win). Conditions between control frames are left out."""
-        return grid_conditions(BezierLayout.from_controls(num_controls, stride), self.frame, self.joint, self.position, self.valid, num_joints)
-
-
 def sinusoidal_encoding(
     position: Real[ArrayLike, "*shape"], width: int, max_period: float = 10000.0
 ) -> Float[Array, "*shape width"]:
@@ -250,7 +208,7 @@ class BMMDenoiser(nnx.Module):
         self,
         x_t: Float[Array, "controls features"],
         t: Int[Array, ""],
-        conditions: Conditions,
+        conditions: Handles,
         *,
         key: Array | None = None,
     ) -> tuple[Float[Array, "controls features"], Float[Array, "controls 2"]]:
@@ -307,7 +265,7 @@ def apply_denoiser(
     params: nnx.State,
     x_t: Float[Array, "controls features"],
     t: Int[Array, ""],
-    conditions: Conditions,
+    conditions: Handles,
     *,
     key: Array | None = None,
 ) -> tuple[Float[Array, "controls features"], Float[Array, "controls 2"]]:

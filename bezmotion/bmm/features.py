@@ -21,7 +21,8 @@ from bezmotion._src.linalg import exact_einsum
 from bezmotion.data.curves import CurveDataset
 from bezmotion.diffusion.projection import on_control_frame
 from bezmotion.interpolation import interpolation_through_points
-from bezmotion.bmm.denoiser import FEATURES_PER_JOINT, BMMDenoiser, Conditions
+from bezmotion.bmm.denoiser import FEATURES_PER_JOINT, BMMDenoiser
+from bezmotion.handles import Handles
 from bezmotion.bmm.unet import CondUNet1D
 
 MAX_INTERMEDIATE_HANDLES = 4  # BMM §5.2: zero to four uniformly sampled intermediate handles
@@ -185,24 +186,21 @@ def inbetween_conditions(
     num_frames: int,
     start: Float[Array, "joints 3"],
     end: Float[Array, "joints 3"],
-    handle_frame: Int[Array, "handles"],
-    handle_joint: Int[Array, "handles"],
-    handle_position: Float[Array, "handles 3"],
-    handle_valid: Bool[Array, "handles"],
-) -> Conditions:
+    handles: Handles,
+) -> Handles:
     """The in-betweening condition slots of one motion: every joint at the first and at the
-    last frame (always valid), then the handles. Positions as given (cm)."""
+    last frame (always valid), then the ``(handles,)`` handles. Positions as given (cm)."""
     j = start.shape[0]
     joints = jnp.arange(j, dtype=jnp.int32)
-    return Conditions(
-        position=jnp.concatenate([start, end, handle_position]),
-        joint=jnp.concatenate([joints, joints, handle_joint]),
-        frame=jnp.concatenate([jnp.zeros(j, jnp.int32), jnp.full(j, num_frames - 1, jnp.int32), handle_frame]),
-        valid=jnp.concatenate([jnp.ones(2 * j, bool), handle_valid]),
+    return Handles(
+        position=jnp.concatenate([start, end, handles.position]),
+        joint=jnp.concatenate([joints, joints, handles.joint]),
+        frame=jnp.concatenate([jnp.zeros(j, jnp.int32), jnp.full(j, num_frames - 1, jnp.int32), handles.frame]),
+        valid=jnp.concatenate([jnp.ones(2 * j, bool), handles.valid]),
     )
 
 
-def normalize_conditions(stats: FeatureStats, conditions: Conditions, translation: Float[Array, "3"] | None = None) -> Conditions:
+def normalize_conditions(stats: FeatureStats, conditions: Handles, translation: Float[Array, "3"] | None = None) -> Handles:
     """Positions → the model's normalised space (after subtracting ``translation``, the
     start alignment); padding slots get zeros, never a value they would reveal."""
     position = conditions.position if translation is None else conditions.position - translation
@@ -211,7 +209,7 @@ def normalize_conditions(stats: FeatureStats, conditions: Conditions, translatio
 
 
 def interpolation_prior(
-    stats: FeatureStats, conditions: Conditions, layout: BezierLayout, *, off_grid: str = "linear"
+    stats: FeatureStats, conditions: Handles, layout: BezierLayout, *, off_grid: str = "linear"
 ) -> Float[Array, "controls features"]:
     """The reference curves through the conditions, as normalised frame tokens (one motion).
 
@@ -234,7 +232,7 @@ def interpolation_prior(
     num_controls = layout.num_controls
     target_cm = conditions.position * stats.std[conditions.joint, :3] + stats.mean[conditions.joint, :3]
     ctrl_pos, ctrl_tangent, mask = interpolation_through_points(
-        layout, conditions.frame, conditions.joint, target_cm, conditions.valid, num_joints, off_grid=off_grid
+        layout, conditions._replace(position=target_cm), num_joints, off_grid=off_grid
     )
     feats = stats.normalize(jnp.concatenate([ctrl_pos, ctrl_tangent, jnp.broadcast_to(stats.mean[:, 6:], (num_controls, num_joints, 6))], axis=-1))
     known = mask[0] & mask[-1]
@@ -246,7 +244,7 @@ def predict_x0(
     stats: FeatureStats,
     x_t: Float[Array, "controls features"],
     t: Int[Array, ""],
-    conditions: Conditions,
+    conditions: Handles,
     *,
     key: Array | None = None,
 ) -> tuple[Float[Array, "controls features"], Float[Array, "controls 2"]]:

@@ -21,7 +21,7 @@ from bezmotion.diffusion.projection import on_control_frame
 
 if TYPE_CHECKING:
     from bezmotion.bezier import BezierLayout
-    from bezmotion.bmm.denoiser import Conditions
+    from bezmotion.handles import Handles
 
 # X and Z; +Y is up. NumPy, not jnp: importing bezmotion must not start a JAX backend
 # (jax.distributed.initialize has to come first when several processes train).
@@ -53,7 +53,7 @@ def lock_feet(
     constrained: Bool[Array, "*batch controls joints"],
     *,
     threshold: float = 0.5,
-    handles: Conditions | None = None,
+    handles: Handles | None = None,
     layout: BezierLayout | None = None,
     anchor: str = ANCHORS[0],
     max_stretch: float | None = MAX_STRETCH,
@@ -179,7 +179,7 @@ def _mean_weights(
 
 
 def _off_grid_members(
-    handles: Conditions, layout: BezierLayout | None, planted: Array, run: Array, feet: Array
+    handles: Handles, layout: BezierLayout | None, planted: Array, run: Array, feet: Array
 ) -> Bool[Array, "*batch controls handles 2"]:
     """``member[..., k, h, f]``: handle ``h`` is foot ``f``'s, off the control grid, both
     control points around its frame are planted in one run, and control ``k`` is in that run."""

@@ -12,10 +12,11 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Bool, Float, Int
+from jaxtyping import Array, Bool, Float
 
 from bezmotion.bezier import BezierLayout, evaluate
 from bezmotion.data.characteristic import FEET
+from bezmotion.handles import Handles
 
 CM_PER_M = 100.0
 
@@ -55,8 +56,7 @@ def bmm_loss_terms(
     dense_target: Float[Array, "frames joints 3"],
     condition_mask: Bool[Array, "controls joints"],
     *,
-    off_grid_conditions: tuple[Int[Array, "handles"], Int[Array, "handles"], Float[Array, "handles 3"], Bool[Array, "handles"]]
-    | None = None,
+    off_grid_conditions: Handles | None = None,
 ) -> dict[str, Float[Array, ""]]:
     """Unweighted loss terms for one motion (positions and tangents in cm in, metres inside).
 
@@ -79,7 +79,7 @@ def bmm_loss_terms(
     pos_err = ((pred_pos - target_pos) * to_m) ** 2
     off_err, off_count = 0.0, 0.0
     if off_grid_conditions is not None:
-        frame, joint, position, valid = off_grid_conditions
+        joint, frame, position, valid = off_grid_conditions
         err = jnp.sum(((pred_dense[frame, joint] - position) * to_m) ** 2, axis=-1)
         off_err, off_count = jnp.sum(jnp.where(valid, err, 0.0)), jnp.sum(valid.astype(pred_pos.dtype))
     return {

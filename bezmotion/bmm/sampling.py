@@ -18,24 +18,24 @@ from __future__ import annotations
 import dataclasses
 import functools
 import os
-from collections.abc import Sequence
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import nnx
-from jaxtyping import Array, ArrayLike, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from bezmotion._src.xla_options import inference_jit
 from bezmotion.training.checkpoint import CheckpointStore, cast_floating, save_model_folder
-from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, HIPS
+from bezmotion.data.characteristic import HIPS
 from bezmotion.bezier import BezierLayout
 from bezmotion.diffusion.ddim import ddim_sample
 from bezmotion.diffusion.projection import CurveMetric, curve_metric, project_off_grid
 from bezmotion.bmm.foot_lock import lock_anchor, lock_feet
 from bezmotion.diffusion.schedule import cosine_schedule
-from bezmotion.bmm.denoiser import BMMConfig, Conditions, init_denoiser
+from bezmotion.bmm.denoiser import BMMConfig, init_denoiser
+from bezmotion.handles import Handles
 from bezmotion.bmm.features import (
     FeatureStats,
     from_tokens,
@@ -58,117 +58,6 @@ class BezierMotionModel:
     stats: FeatureStats
     graphdef: nnx.GraphDef
     config: BMMConfig
-
-
-class Handles(NamedTuple):
-    """Sparse position handles: joint ``joint`` is at ``position`` at frame ``frame``.
-
-    Attributes:
-      joint: ``(*batch, handles)`` characteristic-joint indices (0…5, see
-        :data:`~bezmotion.data.characteristic.CHARACTERISTIC_JOINTS`).
-      frame: ``(*batch, handles)`` integer frames strictly inside the window (1 … 29 for
-        31 frames): control frames (multiples of the stride) or any frame between them.
-      position: ``(*batch, handles, 3)`` world positions (cm).
-      valid: ``(*batch, handles)`` which entries are real (padding lets motions in a
-        batch have different numbers of handles).
-    """
-
-    joint: Int[Array, "*batch handles"]
-    frame: Int[Array, "*batch handles"]
-    position: Float[Array, "*batch handles 3"]
-    valid: Bool[Array, "*batch handles"]
-
-    @classmethod
-    def from_frames(
-        cls,
-        joints: list[str | int],
-        frames: Sequence[Any],
-        positions: Float[Array | np.ndarray, "handles 3"],
-        *,
-        config: BMMConfig,
-    ) -> Handles:
-        """Handles from joint names (or indices), frame numbers and positions (one motion).
-
-        ``frames`` are checked here rather than by type (ints, NumPy integers or whole
-        floats; anything else raises naming it). Any integer frame strictly between the start and end frames is allowed; the same
-        joint may have handles on several frames. Two handles on one joint and frame must
-        agree (an identical repeat is harmless).
-
-        Raises:
-          ValueError: unknown joint, a frame that is not an integer in 1 … num_frames − 2
-          (the start and end poses are given separately), two different positions for one
-          joint and frame, or a positions array of the wrong shape.
-        """
-        positions = np.asarray(positions, np.float32)
-        if positions.shape != (len(joints), 3) or len(frames) != len(joints):
-            raise ValueError(
-                f"need one frame and one (3,) position per joint: {len(joints)} joints, {len(frames)} frames, "
-                f"positions {positions.shape}"
-            )
-        if not np.isfinite(positions).all():
-            raise ValueError(f"handle positions must be finite, got {positions.tolist()}")
-        joint_ids = []
-        for j in joints:
-            if isinstance(j, str):
-                if j not in CHARACTERISTIC_JOINTS:
-                    raise ValueError(f"unknown joint {j!r}; handles can be placed on {list(CHARACTERISTIC_JOINTS)}")
-                j = CHARACTERISTIC_JOINTS.index(j)
-            if not 0 <= int(j) < config.num_joints:
-                raise ValueError(f"joint index {j} out of range 0…{config.num_joints - 1}")
-            joint_ids.append(int(j))
-        last = config.num_frames - 1
-        frame_ids = []
-        for f in frames:
-            whole = _integer_frame(f)
-            if whole is None or not 0 < whole < last:
-                raise ValueError(
-                    f"handles sit on integer frames strictly between 0 and {last} (the start and end poses are given "
-                    f"separately), got {f!r}"
-                )
-            frame_ids.append(whole)
-        seen: dict[tuple[int, int], int] = {}
-        for i, slot in enumerate(zip(joint_ids, frame_ids)):
-            if slot in seen and not np.array_equal(positions[seen[slot]], positions[i]):
-                raise ValueError(
-                    f"two handles on {CHARACTERISTIC_JOINTS[slot[0]]} at frame {slot[1]} with different positions: "
-                    f"{positions[seen[slot]].tolist()} and {positions[i].tolist()}"
-                )
-            seen.setdefault(slot, i)
-        return cls(
-            jnp.asarray(joint_ids, jnp.int32),
-            jnp.asarray(frame_ids, jnp.int32),
-            jnp.asarray(positions),
-            jnp.ones(len(joint_ids), bool),
-        )
-
-    @classmethod
-    def from_controls(
-        cls, joint: Int[ArrayLike, "*batch handles"], control: Int[ArrayLike, "*batch handles"], position, valid, *, stride: int
-    ) -> Handles:
-        """Handles on control points (the paper's): frame = ``control · stride``."""
-        return cls(jnp.asarray(joint, jnp.int32), jnp.asarray(control, jnp.int32) * stride, jnp.asarray(position), jnp.asarray(valid, bool))
-
-    @classmethod
-    def empty(cls, batch_shape: tuple[int, ...] = ()) -> Handles:
-        """No handles (one padding slot, so the shapes stay non-empty)."""
-        return cls(
-            jnp.zeros((*batch_shape, 1), jnp.int32),
-            jnp.zeros((*batch_shape, 1), jnp.int32),
-            jnp.zeros((*batch_shape, 1, 3), jnp.float32),
-            jnp.zeros((*batch_shape, 1), bool),
-        )
-
-
-def _integer_frame(frame) -> int | None:
-    """``frame`` as an int when it is a whole number (int, NumPy integer or integral
-    float), else ``None`` (bools, fractions, strings, NaN)."""
-    if isinstance(frame, (bool, np.bool_)):
-        return None
-    if isinstance(frame, (int, np.integer)):
-        return int(frame)
-    if isinstance(frame, (float, np.floating)) and np.isfinite(frame) and float(frame).is_integer():
-        return int(frame)
-    return None
 
 
 class SampledCurves(NamedTuple):
@@ -221,7 +110,7 @@ def _shared_keys(chain: _Chain, num_controls: int, num_joints: int) -> Bool[Arra
 
 def _projector(
     layout: BezierLayout,
-    conditions: Conditions,
+    conditions: Handles,
     fixed: Bool[Array, "controls joints"],
     fixed_tangent: Bool[Array, "controls joints"] | None,
     chain: _Chain | None,
@@ -260,7 +149,7 @@ def _projector(
         def project(ctrl_pos, ctrl_tangent, target, pos_mean=0.0, tangent_mean=0.0):
             p_mean, p_std, t_mean, t_std = scales(ctrl_pos.dtype, pos_mean, pos_std, tangent_mean, tangent_std)
             return project_off_grid(
-                layout, ctrl_pos, ctrl_tangent, fixed, conditions.joint, conditions.frame, target, conditions.valid,
+                layout, ctrl_pos, ctrl_tangent, fixed, conditions._replace(position=target),
                 pos_mean=p_mean, pos_std=p_std, tangent_mean=t_mean, tangent_std=t_std, fixed_tangent=fixed_tangent,
             )  # fmt: skip
 
@@ -278,7 +167,8 @@ def _projector(
     held, held_tangent = join(gather(fixed)), join(gather(fixed_tangent))
     joint, valid = gather(conditions.joint).reshape(-1), gather(conditions.valid).reshape(-1)
     frame = (gather(conditions.frame) + (jnp.arange(chain.size) * step * layout.stride)[:, None]).reshape(-1)  # the chain's frames
-    near = gather(handles_next_to_keys(conditions.frame, conditions.joint, conditions.valid, k, j, layout.stride))  # (windows, 2, J)
+    chain_conditions = Handles(joint, frame, None, valid)  # positions: each call's targets
+    near = gather(handles_next_to_keys(conditions, k, j, layout.stride))  # (windows, 2, J)
     over_chain = jnp.any(near[:-1, 1] | near[1:, 0], axis=0)  # (J,)
     shared = jnp.zeros(whole.num_controls, bool).at[jnp.arange(1, chain.size) * step].set(True)
     held_tangent = held_tangent | (shared[:, None] & ~over_chain[None, :])
@@ -305,7 +195,7 @@ def _projector(
             p_mean, p_std, t_mean, t_std = scales(ctrl_pos.dtype, pos_mean, pos_std, tangent_mean, tangent_std)
             offsets = join(jnp.broadcast_to(gather(p_mean)[:, None], (chain.size, k, j, 3)))  # each window's own
             pos, tangent = project_off_grid(
-                whole, join(gather(ctrl_pos)), join(gather(ctrl_tangent)), held, joint, frame, gather(target).reshape(-1, 3), valid,
+                whole, join(gather(ctrl_pos)), join(gather(ctrl_tangent)), held, chain_conditions._replace(position=gather(target).reshape(-1, 3)),
                 pos_mean=offsets, pos_std=p_std, tangent_mean=t_mean, tangent_std=t_std, fixed_tangent=held_tangent, metric=metric,
             )  # fmt: skip
             # A shared key's position comes from the window before in the joined curve (in its frame): this window's own.
@@ -318,9 +208,7 @@ def _projector(
     return project
 
 
-def held_key_tangents(
-    frame: Int[Array, "slots"], joint: Int[Array, "slots"], valid: Bool[Array, "slots"], num_controls: int, num_joints: int, stride: int
-) -> Bool[Array, "controls joints"]:
+def held_key_tangents(handles: Handles, num_controls: int, num_joints: int, stride: int) -> Bool[Array, "controls joints"]:
     """Which key tangents (``key_tangent``: the first and last control point's) the handle
     projection keeps as they are: every joint's, except where the joint has a handle between
     that key and the control frame next to it (frames 1…stride−1 after the start, the same
@@ -335,22 +223,21 @@ def held_key_tangents(
     share keeps its tangent all the same (the sampler adds them back): both windows must
     leave and reach it alike.
     """
-    released = handles_next_to_keys(frame, joint, valid, num_controls, num_joints, stride)
+    released = handles_next_to_keys(handles, num_controls, num_joints, stride)
     return jnp.zeros((num_controls, num_joints), bool).at[jnp.asarray([0, num_controls - 1])].set(~released)
 
 
-def handles_next_to_keys(
-    frame: Int[Array, "slots"], joint: Int[Array, "slots"], valid: Bool[Array, "slots"], num_controls: int, num_joints: int, stride: int
-) -> Bool[Array, "2 joints"]:
+def handles_next_to_keys(handles: Handles, num_controls: int, num_joints: int, stride: int) -> Bool[Array, "2 joints"]:
     """``(2, joints)``: which joints have a (valid) handle within a stride after the first key
     (frames 1…stride−1) and before the last (row 1)."""
+    joint, frame, _, valid = handles
     last = (num_controls - 1) * stride
     near_start = valid & (frame > 0) & (frame < stride)
     near_end = valid & (frame > last - stride) & (frame < last)
     return jnp.zeros((2, num_joints), bool).at[0, joint].max(near_start).at[1, joint].max(near_end)
 
 
-def guided_denoiser(denoiser, conditions: Conditions, guidance: float):
+def guided_denoiser(denoiser, conditions: Handles, guidance: float):
     """``denoise(x_t, t) -> (x̂₀, contact logits)`` for DDIM: ``denoiser(x_t, t, conditions)``,
     with classifier-free guidance at scale ``guidance`` (``1.0``: the conditional pass alone).
 
@@ -392,7 +279,7 @@ def _sample_one(
     ends = jnp.asarray([0, cfg.num_controls - 1])
     layout = BezierLayout.from_controls(cfg.num_controls, cfg.stride)
     translation = start[HIPS] * jnp.asarray([1.0, 0.0, 1.0], start.dtype)
-    world = inbetween_conditions(cfg.num_frames, start, end, handles.frame, handles.joint, handles.position, handles.valid)
+    world = inbetween_conditions(cfg.num_frames, start, end, handles)
     normalized = normalize_conditions(stats, world, translation)
     mask, target = normalized.to_grid(cfg.num_controls, cfg.num_joints, cfg.stride)
     _, world_target = world.to_grid(cfg.num_controls, cfg.num_joints, cfg.stride)
@@ -406,7 +293,7 @@ def _sample_one(
     # given tangent whatever the handles: both windows must leave and reach it alike.
     held = None
     if key_tangent is not None:
-        held = held_key_tangents(world.frame, world.joint, world.valid, cfg.num_controls, cfg.num_joints, cfg.stride)
+        held = held_key_tangents(world, cfg.num_controls, cfg.num_joints, cfg.stride)
         held = held if chain is None else held | _shared_keys(chain, cfg.num_controls, cfg.num_joints)
     couple = (lambda x: x) if chain is None else functools.partial(_couple, chain=chain)
     # A chain's joints with a handle next to a shared key are met over the whole chain, each

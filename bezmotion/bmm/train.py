@@ -49,6 +49,7 @@ from bezmotion.training.loop import shard_batch
 from bezmotion.training.optim import adamw_amsgrad_torch, warmup_then_decay
 from bezmotion.training.state import TrainState, fresh_train_state, stack_seeds
 from bezmotion.training.step import apply_gradients
+from bezmotion.handles import Handles
 
 
 LR_SCHEDULES = ("constant", "cosine")
@@ -193,14 +194,14 @@ def make_bmm_train_step(
         # (off_grid_handles = 0, nothing drawn) keeps its random stream.
         frame = draw_handle_frames(jax.random.fold_in(cond_key, 1), control, layout, train_config.off_grid_handles)
         position = handle_positions(layout, pos, tangent, joint, frame) if train_config.off_grid_handles else pos[control, joint]
-        conditions = inbetween_conditions(layout.num_frames, pos[0], pos[-1], frame, joint, position, valid)
+        conditions = inbetween_conditions(layout.num_frames, pos[0], pos[-1], Handles(joint, frame, position, valid))
         # Classifier-free guidance: drop every condition of this example at once.
         conditions = conditions._replace(valid=conditions.valid & ~jax.random.bernoulli(drop_key, train_config.condition_dropout))
         mask, _ = conditions.to_grid(k_ctrl, k_joints, model_config.stride)
         off_grid = None
         if train_config.off_grid_handles:
             n = 2 * k_joints  # the handles follow the start and end slots
-            off_grid = (conditions.frame[n:], joint, position, conditions.valid[n:] & (frame % model_config.stride != 0))
+            off_grid = Handles(joint, conditions.frame[n:], position, conditions.valid[n:] & (frame % model_config.stride != 0))
         conditions = normalize_conditions(stats, conditions)
         pred_tokens, contact_logits = predict_x0(nnx.merge(graphdef, params), stats, x_t, t, conditions, key=dropout_key)
         pred_pos, pred_tangent, pred_rot6d = split_features(stats.denormalize(from_tokens(pred_tokens)))

@@ -37,7 +37,8 @@ from flax import nnx
 from jaxtyping import Array, Float, Int
 
 # Configs are typed as BMMConfig: CondMDIConfig (bezmotion.evaluation.ablations) subclasses it and imports this module.
-from bezmotion.bmm.denoiser import NUM_CONTACTS, BMMConfig, Conditions, sinusoidal_encoding
+from bezmotion.bmm.denoiser import NUM_CONTACTS, BMMConfig, sinusoidal_encoding
+from bezmotion.handles import Handles
 
 GROUPS = 8  # GroupNorm groups (Diffuser / GMD)
 
@@ -77,7 +78,7 @@ class _Level(nnx.Module):
 
 
 def condition_channels(
-    config: BMMConfig, conditions: Conditions
+    config: BMMConfig, conditions: Handles
 ) -> tuple[Float[Array, "frames features"], Float[Array, "frames features"]]:
     """CondMDI's condition inputs of one motion: ``(values, mask)``, each in the motion's
     layout ``(frames, token_joints · features_per_joint)``.
@@ -133,7 +134,7 @@ class CondUNet1D(nnx.Module):
         self,
         x_t: Float[Array, "frames features"],
         t: Int[Array, ""],
-        conditions: Conditions,
+        conditions: Handles,
         *,
         key: Array | None = None,
     ) -> tuple[Float[Array, "frames features"], Float[Array, "frames 2"]]:

@@ -25,37 +25,11 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import jax.numpy as jnp
-from jaxtyping import Array, ArrayLike, Bool, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float
 
 from bezmotion.bezier import BezierLayout, basis
+from bezmotion.handles import Handles, grid_conditions, on_control_frame
 from bezmotion._src.linalg import exact_einsum, min_norm_solve, spd_inverse
-
-
-def on_control_frame(layout: BezierLayout, frame: Int[ArrayLike, "*shape"]) -> tuple[Bool[Array, "*shape"], Int[Array, "*shape"]]:
-    """``(on_grid, control)``: whether each frame is a control frame, and its control index
-    there (clipped into range elsewhere, so it is always safe to index with)."""
-    frame = jnp.asarray(frame)
-    controls = jnp.asarray(layout.control_frames, frame.dtype)
-    control = jnp.clip(jnp.searchsorted(controls, frame), 0, layout.num_controls - 1).astype(jnp.int32)
-    return controls[control] == frame, control
-
-
-def grid_conditions(
-    layout: BezierLayout,
-    frame: Int[Array, "slots"],
-    joint: Int[Array, "slots"],
-    position: Float[Array, "slots 3"],
-    valid: Bool[Array, "slots"],
-    num_joints: int,
-) -> tuple[Bool[Array, "controls joints"], Float[Array, "controls joints 3"]]:
-    """``(mask, target)``: the valid point conditions that sit on control frames, on the
-    control × joint grid (one motion; later slots win); the others are left out."""
-    on_grid, control = on_control_frame(layout, frame)
-    # Other slots scatter out of range and are dropped, so they never overwrite a grid one.
-    control = jnp.where(valid & on_grid, control, layout.num_controls)
-    mask = jnp.zeros((layout.num_controls, num_joints), bool).at[control, joint].set(True, mode="drop")
-    target = jnp.zeros((layout.num_controls, num_joints, 3), position.dtype).at[control, joint].set(position, mode="drop")
-    return mask, target
 
 
 def project_off_grid(
@@ -63,10 +37,7 @@ def project_off_grid(
     ctrl_pos: Float[Array, "controls joints 3"],
     ctrl_tangent: Float[Array, "controls joints 3"],
     fixed: Bool[Array, "controls joints"],
-    joint: Int[Array, "handles"],
-    frame: Int[Array, "handles"],
-    target: Float[Array, "handles 3"],
-    valid: Bool[Array, "handles"],
+    handles: Handles,
     *,
     pos_mean: Float[ArrayLike, "*controls joints 3"] = 0.0,
     pos_std: Float[ArrayLike, "joints 3"] = 1.0,
@@ -90,9 +61,8 @@ def project_off_grid(
       layout: the curves' layout.
       ctrl_pos, ctrl_tangent: ``(controls, joints, 3)`` the variables (e.g. normalised).
       fixed: ``(controls, joints)`` control positions that must not change.
-      joint, frame: ``(handles,)`` joint index and integer frame of each handle.
-      target: ``(handles, 3)`` where the curve must be, in the curves' units (e.g. cm).
-      valid: ``(handles,)`` which handles are real.
+      handles: ``(handles,)`` the constraints, their positions where the curve must be, in
+        the curves' units (e.g. cm).
       pos_mean, pos_std, tangent_mean, tangent_std: the affine map from variables to
         curves, broadcastable to ``(joints, 3)`` (``pos_mean`` also to ``(controls, joints, 3)``).
       fixed_tangent: ``(controls, joints)`` control tangents that must not change either
@@ -110,6 +80,7 @@ def project_off_grid(
     """
     k, j = ctrl_pos.shape[:2]
     dtype = ctrl_pos.dtype
+    joint, frame, target, valid = handles
     shape = (j, 3)
     pos_std, tangent_mean, tangent_std = (jnp.broadcast_to(jnp.asarray(a, dtype), shape) for a in (pos_std, tangent_mean, tangent_std))
     pos_mean = jnp.broadcast_to(jnp.asarray(pos_mean, dtype), (k, j, 3))  # per control point too (a chain's windows)
@@ -191,10 +162,7 @@ def project_onto_handles(
     layout: BezierLayout,
     ctrl_pos: Float[Array, "controls joints 3"],
     ctrl_tangent: Float[Array, "controls joints 3"],
-    joint: Int[Array, "handles"],
-    frame: Int[Array, "handles"],
-    position: Float[Array, "handles 3"],
-    valid: Bool[Array, "handles"],
+    handles: Handles,
     *,
     fixed: Bool[Array, "controls joints"] | None = None,
     fixed_tangent: Bool[Array, "controls joints"] | None = None,
@@ -205,17 +173,17 @@ def project_onto_handles(
 
     Args:
       ctrl_pos, ctrl_tangent: ``(controls, joints, 3)`` curves (cm).
-      joint, frame, position, valid: ``(handles,)`` handles (positions ``(handles, 3)``, cm).
+      handles: ``(handles,)`` where the joints must be (cm).
       fixed: further control positions that must not move (e.g. the start and end poses).
       fixed_tangent: control tangents that must not move (e.g. shared with a neighbouring window).
     Returns:
       ``(ctrl_pos, ctrl_tangent)``.
     """
-    mask, target = grid_conditions(layout, frame, joint, position.astype(ctrl_pos.dtype), valid, ctrl_pos.shape[1])
+    mask, target = grid_conditions(layout, handles._replace(position=handles.position.astype(ctrl_pos.dtype)), ctrl_pos.shape[1])
     ctrl_pos = jnp.where(mask[..., None], target, ctrl_pos)
     if fixed is not None:
         mask = mask | fixed
-    return project_off_grid(layout, ctrl_pos, ctrl_tangent, mask, joint, frame, position, valid, fixed_tangent=fixed_tangent)
+    return project_off_grid(layout, ctrl_pos, ctrl_tangent, mask, handles, fixed_tangent=fixed_tangent)
 
 
 __all__ = ["CurveMetric", "curve_metric", "grid_conditions", "on_control_frame", "project_off_grid", "project_onto_handles"]

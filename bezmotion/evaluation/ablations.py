@@ -80,7 +80,8 @@ from jax.sharding import Mesh
 from jaxtyping import Array, Bool, Float
 
 from bezmotion.bezier import BezierLayout
-from bezmotion.bmm.denoiser import BMMConfig, Conditions, init_denoiser
+from bezmotion.bmm.denoiser import BMMConfig, init_denoiser
+from bezmotion.handles import Handles
 from bezmotion.bmm.features import (
     HANDLE_FRAMES,
     FeatureStats,
@@ -90,7 +91,7 @@ from bezmotion.bmm.features import (
     predict_x0,
 )
 from bezmotion.bmm.losses import CM_PER_M, dense_velocity, min_snr_weight
-from bezmotion.bmm.sampling import Handles, guided_denoiser, over_batch
+from bezmotion.bmm.sampling import guided_denoiser, over_batch
 from bezmotion.bmm.train import BMMTrainConfig
 from bezmotion.bmm.unet import GROUPS, init_unet
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, FEET, HIPS, characteristic_indices, contact_labels
@@ -370,7 +371,7 @@ def dense_loss_terms(
     target: Float[Array, "frames joints features"],
     contact_logits: Float[Array, "frames 2"],
     target_contacts: Bool[Array, "frames 2"],
-    conditions: Conditions,
+    conditions: Handles,
 ) -> dict[str, Float[Array, ""]]:
     """Unweighted loss terms of one motion, the BMM's dense ones at every frame (cm in, metres inside).
 
@@ -414,7 +415,7 @@ def init_dense_train_state(config: DenseBMMConfig, train_config: BMMTrainConfig,
     return fresh_train_state(lambda k: init_dense_network(config, key=k), train_config.optimizer(), key=key, ema=True)
 
 
-def drop_conditions(key: Array, conditions: Conditions, rate: float) -> Conditions:
+def drop_conditions(key: Array, conditions: Handles, rate: float) -> Handles:
     """Classifier-free guidance's training-time dropout: with probability ``rate`` every
     condition of the example at once (``valid`` all false: the model's unconditional input).
 
@@ -484,7 +485,7 @@ def make_dense_train_step(
         frame, joint, valid = draw_intermediate_frames(
             cond_key, grid, _NUM_CHARACTERISTIC, train_config.max_intermediate_handles, frames=handle_frames
         )
-        conditions = inbetween_conditions(frames, six[0], six[-1], frame, joint, six[frame, joint], valid)
+        conditions = inbetween_conditions(frames, six[0], six[-1], Handles(joint, frame, six[frame, joint], valid))
         conditions = drop_conditions(drop_key, conditions, train_config.condition_dropout)
         pred, logits = predict_x0(
             nnx.merge(graphdef, params), stats, x_t, t, normalize_conditions(cond_stats, conditions), key=dropout_key
@@ -544,7 +545,7 @@ def _sample_dense_one(model: DenseMotionModel, start, end, handles: Handles, key
     cfg, stats = model.config, model.stats
     frames, joints = cfg.num_frames, cfg.token_joints
     translation = start[HIPS] * jnp.asarray([1.0, 0.0, 1.0], start.dtype)
-    world = inbetween_conditions(frames, start, end, handles.frame, handles.joint, handles.position, handles.valid)
+    world = inbetween_conditions(frames, start, end, handles)
     normalized = normalize_conditions(characteristic_stats(cfg, stats), world, translation)
     # The slots written into x̂₀: the start and end poses (the first 2·6), and with "all" the handles.
     chosen = world.valid & (jnp.arange(world.valid.shape[0]) < 2 * _NUM_CHARACTERISTIC if overwrite == "keys" else True)

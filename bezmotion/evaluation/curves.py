@@ -199,7 +199,7 @@ def trajectory_metrics(
     feet = dense[..., list(FEET), :]
     return {
         # The trajectories at each handle's frame (curves on a control frame: its control position, exactly).
-        "handles_error_cm": float(handles_error(dense, handles.frame, handles.joint, handles.position, handles.valid)),
+        "handles_error_cm": float(handles_error(dense, handles)),
         "dense_error_cm": float(mean_position_error(dense, eval_set.dense_pos)),
         "foot_skating_ratio": float(foot_skating_ratio(feet, config.fps, floor_height=config.floor_height)),
         "contact_accuracy": float(contact_accuracy(contacts, eval_set.ctrl_contacts)),
@@ -222,8 +222,8 @@ def _reference_controls(start, end, handles: Handles, *, layout: BezierLayout, o
     j = start.shape[-2]
 
     def one(start, end, h):
-        c = inbetween_conditions(layout.num_frames, start, end, h.frame, h.joint, h.position, h.valid)
-        pos, tangent, _ = interpolation_through_points(layout, c.frame, c.joint, c.position, c.valid, j, off_grid=off_grid)
+        c = inbetween_conditions(layout.num_frames, start, end, h)
+        pos, tangent, _ = interpolation_through_points(layout, c, j, off_grid=off_grid)
         return pos, tangent
 
     return jax.vmap(one)(start, end, handles)

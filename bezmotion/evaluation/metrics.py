@@ -22,6 +22,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
+from bezmotion.handles import Handles
 from bezmotion.geometry.rotations import quat_angle, quat_fix_continuity
 
 
@@ -82,27 +83,22 @@ def align_to_context(
 # ------------------------------------------------------------------ Bézier-curve metrics (BMM)
 
 
-def handles_error(
-    ctrl_pos: Float[Array, "*batch controls joints 3"],
-    handle_control: Int[Array, "*batch handles"],
-    handle_joint: Int[Array, "*batch handles"],
-    handle_position: Float[Array, "*batch handles 3"],
-    handle_valid: Bool[Array, "*batch handles"],
-) -> Float[Array, ""]:
-    """Mean distance (cm) between each valid handle and the curve at its frame (BMM §5.1).
+def handles_error(positions: Float[Array, "*batch steps joints 3"], handles: Handles) -> Float[Array, ""]:
+    """Mean distance (cm) between each valid handle and ``positions`` at its step (BMM §5.1).
 
-    A curve passes through its control point at that control's frame, so the curve's
-    position there is ``ctrl_pos[control, joint]``. Pass only intermediate handles: the
-    paper excludes the first and last frames.
+    ``handles.frame`` indexes ``positions``' steps: the frames of dense positions, or, for
+    curves' control points ``ctrl_pos``, the control index (``frame // stride``: a curve
+    passes through its control point at that control's frame). Pass only intermediate
+    handles: the paper excludes the first and last frames.
     """
-    k, j = ctrl_pos.shape[-3:-1]
-    flat = ctrl_pos.reshape(*ctrl_pos.shape[:-3], k * j, 3)
-    slot = jnp.clip(handle_control, 0, k - 1) * j + jnp.clip(handle_joint, 0, j - 1)
+    k, j = positions.shape[-3:-1]
+    flat = positions.reshape(*positions.shape[:-3], k * j, 3)
+    slot = jnp.clip(handles.frame, 0, k - 1) * j + jnp.clip(handles.joint, 0, j - 1)
     picked = jnp.take_along_axis(flat, slot[..., None], axis=-2)
-    error = jnp.linalg.norm(picked - handle_position, axis=-1)
-    valid = handle_valid.astype(error.dtype)
+    error = jnp.linalg.norm(picked - handles.position, axis=-1)
+    valid = handles.valid.astype(error.dtype)
     # where, not a product: padding slots may hold anything, NaN included.
-    return jnp.sum(jnp.where(handle_valid, error, 0.0)) / jnp.maximum(jnp.sum(valid), 1.0)
+    return jnp.sum(jnp.where(handles.valid, error, 0.0)) / jnp.maximum(jnp.sum(valid), 1.0)
 
 
 def foot_skating_ratio(

@@ -55,7 +55,7 @@ def full_body_handles_error(
     ``(*batch, handles)`` at any frame (``stride`` is no longer needed; kept for callers)."""
     _, pos = pose_fk(character, pose)
     characteristic = pos[..., np.asarray(character.characteristic), :]  # (*batch, frames, 6, 3)
-    return handles_error(characteristic, handles.frame, handles.joint, handles.position, handles.valid)
+    return handles_error(characteristic, handles)
 
 
 def mpjpe(character: Character, pose: Pose, true: Pose) -> Float[Array, ""]:

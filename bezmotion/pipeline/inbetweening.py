@@ -178,7 +178,7 @@ def _window_in_target(
     ends = jnp.asarray([0, cfg.num_controls - 1])
     if key_tangent is not None:  # exactly, undoing the scale round trip's rounding
         # Where a handle next to a key moved that key's tangent in the sampler, the moved one.
-        held = held_key_tangents(handles.frame, handles.joint, handles.valid, cfg.num_controls, curves.ctrl_pos.shape[1], cfg.stride)
+        held = held_key_tangents(handles, cfg.num_controls, curves.ctrl_pos.shape[1], cfg.stride)
         held = held if shared is None else held | shared  # a chain's shared key keeps its tangent
         keyed = curves.ctrl_tangent.at[ends].set(key_tangent)
         curves = curves._replace(ctrl_tangent=jnp.where(held[..., None], keyed, curves.ctrl_tangent))
@@ -195,8 +195,7 @@ def _window_in_target(
     layout = BezierLayout.from_controls(cfg.num_controls, cfg.stride)
     keys_fixed = jnp.zeros(curves.ctrl_pos.shape[:2], bool).at[ends].set(True)
     ctrl_pos, ctrl_tangent = project_onto_handles(
-        layout, curves.ctrl_pos, curves.ctrl_tangent, handles.joint, handles.frame, handles.position, handles.valid,
-        fixed=keys_fixed, fixed_tangent=shared,
+        layout, curves.ctrl_pos, curves.ctrl_tangent, handles, fixed=keys_fixed, fixed_tangent=shared,
     )  # fmt: skip
     curves = curves._replace(ctrl_pos=ctrl_pos, ctrl_tangent=ctrl_tangent)
     positions, rot6d = reconstruct_dense(layout, curves.ctrl_pos, curves.ctrl_tangent, curves.ctrl_rot6d)

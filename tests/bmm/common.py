@@ -11,7 +11,8 @@ from types import SimpleNamespace
 import jax.numpy as jnp
 import numpy as np
 
-from bezmotion.bmm.denoiser import BMMConfig, Conditions
+from bezmotion.bmm.denoiser import BMMConfig
+from bezmotion.handles import Handles
 from bezmotion.bmm.features import inbetween_conditions
 from bezmotion.bmm.sampling import SampledCurves
 
@@ -21,16 +22,18 @@ TINY = BMMConfig.cpu(width=32, ff_width=64, num_heads=2, num_layers=1, dropout=0
 RESIDUAL = dataclasses.replace(TINY, prediction="residual")
 
 
-def some_conditions(rng: np.random.Generator, handles: int = 4, valid_handles: int = 2) -> Conditions:
+def some_conditions(rng: np.random.Generator, handles: int = 4, valid_handles: int = 2) -> Handles:
     """Start/end of all joints plus ``handles`` slots of which the first ``valid_handles`` are valid."""
     return inbetween_conditions(
         TINY.num_frames,
         jnp.asarray(rng.normal(size=(J, 3)), jnp.float32),
         jnp.asarray(rng.normal(size=(J, 3)), jnp.float32),
-        jnp.asarray(rng.integers(1, K - 1, handles) * TINY.stride, jnp.int32),
-        jnp.asarray(rng.integers(0, J, handles), jnp.int32),
-        jnp.asarray(rng.normal(size=(handles, 3)), jnp.float32),
-        jnp.arange(handles) < valid_handles,
+        Handles(
+            frame=jnp.asarray(rng.integers(1, K - 1, handles) * TINY.stride, jnp.int32),
+            joint=jnp.asarray(rng.integers(0, J, handles), jnp.int32),
+            position=jnp.asarray(rng.normal(size=(handles, 3)), jnp.float32),
+            valid=jnp.arange(handles) < valid_handles,
+        ),
     )
 
 

@@ -238,8 +238,10 @@ def unet(clips) -> SimpleNamespace:
     rng = np.random.default_rng(0)
     conditions = inbetween_conditions(
         31, jnp.asarray(rng.normal(size=(6, 3)), jnp.float32), jnp.asarray(rng.normal(size=(6, 3)), jnp.float32),
-        jnp.asarray([7, 20, 0], jnp.int32), jnp.asarray([2, 5, 0], jnp.int32),
-        jnp.asarray(rng.normal(size=(3, 3)), jnp.float32), jnp.asarray([True, True, False]),
+        Handles(
+            frame=jnp.asarray([7, 20, 0], jnp.int32), joint=jnp.asarray([2, 5, 0], jnp.int32),
+            position=jnp.asarray(rng.normal(size=(3, 3)), jnp.float32), valid=jnp.asarray([True, True, False]),
+        ),
     )  # fmt: skip
     x_t = jnp.asarray(rng.normal(size=(31, config.frame_features)), jnp.float32)
     stats = FeatureStats.from_features(arrays.features)

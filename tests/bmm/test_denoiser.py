@@ -20,7 +20,6 @@ from bmm.common import F, J, K, RESIDUAL, TINY, some_conditions
 from bezmotion.bmm.denoiser import (
     BMMConfig,
     BMMDenoiser,
-    Conditions,
     apply_denoiser,
     count_parameters,
     init_denoiser,
@@ -28,6 +27,7 @@ from bezmotion.bmm.denoiser import (
 )
 from bezmotion.bmm.features import interpolation_prior, normalize_conditions, predict_x0
 from bezmotion.bmm.sampling import BezierMotionModel, with_off_grid_prior
+from bezmotion.handles import Handles
 from bezmotion.bezier import BezierLayout
 
 
@@ -42,7 +42,7 @@ def tiny_model() -> SimpleNamespace:
 def test_conditions_grid_round_trip(rng):
     mask = jnp.asarray(rng.random((K, J)) < 0.4)
     position = jnp.asarray(rng.normal(size=(K, J, 3)), jnp.float32)
-    cond = Conditions.from_grid(mask, position, 6)
+    cond = Handles.from_grid(mask, position, 6)
     assert cond.position.shape == (K * J, 3) and cond.valid.shape == (K * J,)
     # Slot k·J + j is (control k, i.e. frame 6k, joint j).
     np.testing.assert_array_equal(cond.frame, np.repeat(np.arange(K) * 6, J))
@@ -52,13 +52,13 @@ def test_conditions_grid_round_trip(rng):
     np.testing.assert_array_equal(np.asarray(back_pos)[np.asarray(mask)], np.asarray(position)[np.asarray(mask)])
     np.testing.assert_array_equal(np.asarray(back_pos)[~np.asarray(mask)], 0.0)
     # Batched from_grid keeps the batch axes.
-    batched = Conditions.from_grid(jnp.stack([mask, ~mask]), jnp.stack([position, -position]), 6)
+    batched = Handles.from_grid(jnp.stack([mask, ~mask]), jnp.stack([position, -position]), 6)
     assert batched.position.shape == (2, K * J, 3) and batched.joint.shape == (2, K * J)
     np.testing.assert_array_equal(batched.valid[1], ~mask.reshape(-1))
 
 
 def test_conditions_to_grid_invalid_slots_never_overwrite_valid_ones():
-    cond = Conditions(
+    cond = Handles(
         position=jnp.asarray([[1.0, 2.0, 3.0], [9.0, 9.0, 9.0], [4.0, 5.0, 6.0], [7.0, 7.0, 7.0]]),
         joint=jnp.asarray([2, 2, 3, 3], jnp.int32),
         frame=jnp.asarray([6, 6, 24, 24], jnp.int32),
@@ -133,9 +133,9 @@ def test_padding_condition_slots_change_nothing(tiny_model, rng):
     assert_trees_identical(tiny_model.apply(tiny_model.params, x, t, garbage), base)
 
     # More padding slots (a different number of slots): the same output.
-    extra = Conditions(
-        jnp.asarray(rng.normal(size=(5, 3)), jnp.float32), jnp.arange(5, dtype=jnp.int32) % J,
-        jnp.arange(5, dtype=jnp.int32) * 7, jnp.zeros(5, bool),
+    extra = Handles(
+        position=jnp.asarray(rng.normal(size=(5, 3)), jnp.float32), joint=jnp.arange(5, dtype=jnp.int32) % J,
+        frame=jnp.arange(5, dtype=jnp.int32) * 7, valid=jnp.zeros(5, bool),
     )  # fmt: skip
     longer = jax.tree.map(lambda a, b: jnp.concatenate([a, b]), cond, extra)
     assert_trees_close(tiny_model.apply(tiny_model.params, x, t, longer), base, tol=1e-6)

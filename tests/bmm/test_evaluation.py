@@ -29,6 +29,7 @@ from bezmotion.evaluation.curves import (
 from bezmotion.bmm.sampling import SampledCurves
 from bezmotion.data.characteristic import FEET
 from bezmotion.evaluation.metrics import contact_accuracy, foot_skating_ratio, handles_error, mean_position_error
+from bezmotion.handles import Handles
 
 
 LAYOUT = BezierLayout.from_controls(K, 6)
@@ -60,8 +61,7 @@ def _slots(frames, joints, positions):
     """Condition slots of two joints (:func:`inbetween_conditions`): both keys, then the
     handles at ``frames``; ``positions``: the start's two, the end's two, the handles'."""
     p = jnp.asarray(positions, jnp.float32)
-    c = inbetween_conditions(31, p[:2], p[2:4], jnp.asarray(frames, jnp.int32), jnp.asarray(joints, jnp.int32), p[4:], jnp.ones(len(frames), bool))
-    return c.frame, c.joint, c.position, c.valid
+    return inbetween_conditions(31, p[:2], p[2:4], Handles(jnp.asarray(joints, jnp.int32), jnp.asarray(frames, jnp.int32), p[4:], jnp.ones(len(frames), bool)))
 
 
 def test_interpolation_through_points_on_the_grid_and_between():
@@ -75,7 +75,7 @@ def test_interpolation_through_points_on_the_grid_and_between():
     target = jnp.zeros((K, 2, 3)).at[0].set(keys[[0, 1]]).at[-1].set(keys[[2, 3]]).at[2, 0].set(jnp.asarray([5.0, 60.0, -3.0]))
     expected = handle_interpolation(mask, target)
     for way in ("projection", "linear"):
-        pos, tangent, on_grid = interpolation_through_points(LAYOUT, *grid, 2, off_grid=way)
+        pos, tangent, on_grid = interpolation_through_points(LAYOUT, grid, 2, off_grid=way)
         np.testing.assert_array_equal(on_grid, mask)
         np.testing.assert_allclose(pos, expected[0], atol=1e-5)
         np.testing.assert_allclose(tangent, expected[1], atol=1e-5)
@@ -87,14 +87,14 @@ def test_interpolation_through_points_on_the_grid_and_between():
     between = _slots([13], [0], [motion[0, 0], motion[0, 1], motion[30, 0], motion[30, 1], motion[13, 0]])
     error = {}
     for way in ("projection", "linear"):
-        pos, tangent, _ = interpolation_through_points(LAYOUT, *between, 2, off_grid=way)
+        pos, tangent, _ = interpolation_through_points(LAYOUT, between, 2, off_grid=way)
         dense = np.asarray(dense_positions(LAYOUT, pos, tangent))
         np.testing.assert_allclose(dense[13, 0], motion[13, 0], atol=1e-4)  # the condition, met
         np.testing.assert_allclose(dense[:, 1], 0.0, atol=1e-6)  # the other joint untouched
         error[way] = float(np.mean(np.abs(dense[:, 0, 1] - tent)))
     assert error["linear"] < 0.25 * error["projection"], error  # 0.96 against 17.3 cm (mean over the frames)
     with pytest.raises(ValueError, match="'bump'"):
-        interpolation_through_points(LAYOUT, *between, 2, off_grid="bump")
+        interpolation_through_points(LAYOUT, between, 2, off_grid="bump")
 
 
 def test_handles_error_by_hand():
@@ -102,9 +102,10 @@ def test_handles_error_by_hand():
     control = jnp.asarray([2, 4, 1], jnp.int32)
     joint = jnp.asarray([1, 2, 0], jnp.int32)
     position = jnp.asarray([[3.0, 4.0, 0.0], [1.0, 1.0, 1.0], [100.0, 0.0, 0.0]])
-    assert float(handles_error(ctrl, control, joint, position, jnp.asarray([True, True, False]))) == pytest.approx(2.5)
-    assert float(handles_error(ctrl, control, joint, position, jnp.asarray([True, True, True]))) == pytest.approx(35.0)
-    assert float(handles_error(ctrl, control, joint, position, jnp.zeros(3, bool))) == 0.0
+    slots = lambda valid: Handles(joint, control, position, jnp.asarray(valid))  # noqa: E731
+    assert float(handles_error(ctrl, slots([True, True, False]))) == pytest.approx(2.5)
+    assert float(handles_error(ctrl, slots([True, True, True]))) == pytest.approx(35.0)
+    assert float(handles_error(ctrl, slots([False] * 3))) == 0.0
 
 
 def test_foot_skating_ratio_by_hand():
@@ -219,11 +220,11 @@ def test_reference_curves_and_curve_metrics(demo_dataset, eval_set):
     np.testing.assert_array_equal(ref.ctrl_pos[:, 0], es.start)
     np.testing.assert_array_equal(ref.ctrl_pos[:, -1], es.end)
     h = es.handles
-    assert float(handles_error(ref.ctrl_pos, h.frame // 6, h.joint, h.position, h.valid)) == 0.0
+    assert float(handles_error(ref.ctrl_pos, h._replace(frame=h.frame // 6))) == 0.0
     # OOD handles are hit exactly as well (the reference trusts them).
     ood = reference_curves(es, es.handles_ood, LAYOUT)
     o = es.handles_ood
-    assert float(handles_error(ood.ctrl_pos, o.frame // 6, o.joint, o.position, o.valid)) == 0.0
+    assert float(handles_error(ood.ctrl_pos, o._replace(frame=o.frame // 6))) == 0.0
     # An invalid slot is ignored: moving it changes nothing.
     moved = h._replace(position=jnp.where(h.valid[..., None], h.position, h.position + 50.0))
     np.testing.assert_array_equal(reference_curves(es, moved, LAYOUT).ctrl_pos, ref.ctrl_pos)

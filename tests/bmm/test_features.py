@@ -15,6 +15,7 @@ from bmm.common import F, J, K
 from bezmotion.bezier import BezierLayout
 
 from bezmotion.evaluation.baselines import handle_interpolation
+from bezmotion.handles import Handles
 from bezmotion.bmm.features import (
     FeatureStats,
     control_features,
@@ -100,7 +101,7 @@ def test_inbetween_conditions_layout_and_normalisation(stats, rng):
     h_joint = jnp.asarray([5, 0, 1], jnp.int32)
     h_pos = jnp.asarray(rng.normal(size=(3, 3)), jnp.float32).at[2].set(jnp.nan)  # a NaN in the padding
     h_valid = jnp.asarray([True, True, False])
-    cond = inbetween_conditions(31, start, end, h_frame, h_joint, h_pos, h_valid)
+    cond = inbetween_conditions(31, start, end, Handles(h_joint, h_frame, h_pos, h_valid))
     assert cond.position.shape == (2 * J + 3, 3)
     np.testing.assert_array_equal(cond.position[:J], start)
     np.testing.assert_array_equal(cond.position[J : 2 * J], end)
@@ -123,8 +124,8 @@ def test_inbetween_conditions_layout_and_normalisation(stats, rng):
 
 def test_interpolation_prior_is_the_reference_curves_in_model_space(stats, demo_dataset):
     pos = jnp.asarray(demo_dataset.ctrl_pos[4])
-    handle = (jnp.asarray([18], jnp.int32), jnp.asarray([2], jnp.int32), pos[3, 2][None], jnp.asarray([True]))
-    world = inbetween_conditions(31, pos[0], pos[-1], *handle)
+    handle = Handles(frame=jnp.asarray([18], jnp.int32), joint=jnp.asarray([2], jnp.int32), position=pos[3, 2][None], valid=jnp.asarray([True]))
+    world = inbetween_conditions(31, pos[0], pos[-1], handle)
     prior = interpolation_prior(stats, normalize_conditions(stats, world), LAYOUT)
     assert prior.shape == (K, F)
     mask = np.zeros((K, J), bool)

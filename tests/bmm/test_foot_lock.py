@@ -54,7 +54,7 @@ def test_lock_feet_pins_each_contact_run_and_leaves_everything_else(rng):
 
 def test_a_foot_handle_between_control_frames_plants_its_contact_run(rng):
     from bezmotion.bezier import BezierLayout
-    from bezmotion.bmm.denoiser import Conditions
+    from bezmotion.handles import Handles
     from bezmotion.bmm.foot_lock import lock_feet
 
     layout = BezierLayout.from_controls(K, 6)
@@ -67,7 +67,7 @@ def test_a_foot_handle_between_control_frames_plants_its_contact_run(rng):
     constrained = np.zeros((K, J), bool)
     constrained[[0, -1]] = True
     target = np.asarray(rng.normal(scale=20.0, size=(5, 3)), np.float32)
-    handles = Conditions(
+    handles = Handles(
         position=jnp.asarray(target),
         joint=jnp.asarray([left, right, left, 0, left], jnp.int32),
         # left inside its run; right inside its run (which the start already anchors);

@@ -69,7 +69,7 @@ def test_projection_hits_off_grid_handles_composed_on_one_joint_and_every_joint(
     valid = jnp.asarray([True] * 10 + [False])
     target = jnp.asarray(rng.normal(size=(11, 3)) * 40.0 + 100.0, jnp.float32)
     target = target.at[9].set(target[8])  # the identical duplicate
-    new_pos, new_tangent = jax.jit(functools.partial(project_onto_handles, LAYOUT))(pos, tangent, joint, frame, target, valid)
+    new_pos, new_tangent = jax.jit(functools.partial(project_onto_handles, LAYOUT))(pos, tangent, Handles(joint, frame, target, valid))
     for h in range(10):
         np.testing.assert_allclose(curve_at(new_pos, new_tangent, joint[h], frame[h]), target[h], atol=1e-4 * 150)
     # The grid handle is an overwrite, bit for bit; the padding slot is not hit.
@@ -88,7 +88,7 @@ def test_projection_is_the_minimum_norm_correction(rng):
     mean, std = jnp.asarray(rng.normal(size=(J, 3)), jnp.float32), jnp.asarray(rng.uniform(1, 30, (J, 3)), jnp.float32)
     t_mean, t_std = jnp.asarray(rng.normal(size=(J, 3)), jnp.float32), jnp.asarray(rng.uniform(1, 5, (J, 3)), jnp.float32)
     p, t = project_off_grid(
-        LAYOUT, pos, tangent, fixed, joint, frame, target, jnp.ones(2, bool),
+        LAYOUT, pos, tangent, fixed, Handles(joint, frame, target, jnp.ones(2, bool)),
         pos_mean=mean, pos_std=std, tangent_mean=t_mean, tangent_std=t_std,
     )  # fmt: skip
     world = lambda p, t: (mean + std * p, t_mean + t_std * t)  # noqa: E731
@@ -119,7 +119,7 @@ def test_the_curve_metric_makes_the_smallest_change_of_the_curve(rng):
     valid = jnp.asarray([True, True, True, True, False])
     std, t_std = jnp.asarray(rng.uniform(10, 30, (J, 3)), jnp.float32), jnp.asarray(rng.uniform(1, 3, (J, 3)), jnp.float32)
     run = lambda metric: project_off_grid(  # noqa: E731
-        LAYOUT, pos, tangent, fixed, joint, frame, target, valid, pos_std=std, tangent_std=t_std, fixed_tangent=fixed_tangent, metric=metric
+        LAYOUT, pos, tangent, fixed, Handles(joint, frame, target, valid), pos_std=std, tangent_std=t_std, fixed_tangent=fixed_tangent, metric=metric
     )
     world = lambda p, t: evaluate(LAYOUT, jnp.moveaxis(std * p, -2, -3), jnp.moveaxis(t_std * t, -2, -3))  # noqa: E731
     before = np.asarray(world(pos, tangent))
@@ -134,7 +134,7 @@ def test_the_curve_metric_makes_the_smallest_change_of_the_curve(rng):
         change[metric] = ((dense - before) ** 2).sum(axis=(1, 2))  # per joint
     assert np.all(change["curve"] <= change["variables"] * (1 + 1e-4) + 1e-3), change
     assert change["curve"][2] < 0.5 * change["variables"][2], change  # frame 1 beside the held key tangent
-    nothing = project_off_grid(LAYOUT, pos, tangent, fixed, joint, frame, target, jnp.zeros(5, bool), pos_std=std, tangent_std=t_std, metric="curve")
+    nothing = project_off_grid(LAYOUT, pos, tangent, fixed, Handles(joint, frame, target, jnp.zeros(5, bool)), pos_std=std, tangent_std=t_std, metric="curve")
     assert_trees_identical(nothing, (pos, tangent))
     assert lapack_calls(lambda: run("curve")) == set()
     with pytest.raises(ValueError, match="metric must be 'variables' or 'curve'"):
@@ -153,14 +153,17 @@ def test_a_chain_with_its_shared_tangents_held_falls_apart_into_its_windows(rng)
     target_a, target_b = (jnp.asarray(rng.normal(size=(3, 3)) * 20.0, jnp.float32) for _ in range(2))
     std, t_std = jnp.asarray(rng.uniform(10, 30, (J, 3)), jnp.float32), jnp.asarray(rng.uniform(1, 3, (J, 3)), jnp.float32)
     scales = dict(pos_std=std, tangent_std=t_std)
-    alone_a = project_off_grid(LAYOUT, pos_a, tan_a, keys, joint, frame, target_a, valid, fixed_tangent=keys, **scales)
-    alone_b = project_off_grid(LAYOUT, pos_b, tan_b, keys, joint, frame, target_b, valid, fixed_tangent=keys, **scales)
+    alone_a = project_off_grid(LAYOUT, pos_a, tan_a, keys, Handles(joint, frame, target_a, valid), fixed_tangent=keys, **scales)
+    alone_b = project_off_grid(LAYOUT, pos_b, tan_b, keys, Handles(joint, frame, target_b, valid), fixed_tangent=keys, **scales)
     whole = BezierLayout.from_controls(2 * K - 1, LAYOUT.stride)
     held = jnp.zeros((2 * K - 1, J), bool).at[jnp.asarray([0, K - 1, 2 * K - 2])].set(True)
     joined = project_off_grid(
         whole, jnp.concatenate([pos_a, pos_b[1:]]), jnp.concatenate([tan_a, tan_b[1:]]), held,
-        jnp.concatenate([joint, joint]), jnp.concatenate([frame, frame + LAYOUT.num_frames - 1]),
-        jnp.concatenate([target_a, target_b]), jnp.ones(6, bool), fixed_tangent=held, **scales,
+        Handles(
+            jnp.concatenate([joint, joint]), jnp.concatenate([frame, frame + LAYOUT.num_frames - 1]),
+            jnp.concatenate([target_a, target_b]), jnp.ones(6, bool),
+        ),
+        fixed_tangent=held, **scales,
     )  # fmt: skip
     apart = tuple(jnp.concatenate([a, b[1:]]) for a, b in zip(alone_a, alone_b))
     assert np.abs(np.asarray(alone_a[0]) - np.asarray(pos_a)).max() > 1.0  # the handles moved the curves
@@ -176,11 +179,11 @@ def test_grid_only_and_padding_change_nothing_bit_for_bit(rng):
     target = jnp.asarray([[1.0, 2.0, 3.0], [4.0, 5.0, 6.0], [np.nan] * 3, [1e9] * 3], jnp.float32)
     valid = jnp.asarray([True, True, False, False])
     std = jnp.asarray(rng.uniform(1, 30, (J, 3)), jnp.float32)
-    out = project_off_grid(LAYOUT, pos, tangent, fixed, joint, frame, target, valid, pos_std=std, tangent_std=std)
+    out = project_off_grid(LAYOUT, pos, tangent, fixed, Handles(joint, frame, target, valid), pos_std=std, tangent_std=std)
     assert_trees_identical(out, (pos, tangent))
     # An off-grid handle with and without padding beside it: the same correction.
-    one = project_onto_handles(LAYOUT, pos, tangent, joint[:1], jnp.asarray([13]), target[:1], valid[:1])
-    padded = project_onto_handles(LAYOUT, pos, tangent, jnp.asarray([1, 99, 3]), jnp.asarray([13, 7, 40]), target[jnp.asarray([0, 2, 3])], jnp.asarray([True, False, False]))
+    one = project_onto_handles(LAYOUT, pos, tangent, Handles(joint[:1], jnp.asarray([13]), target[:1], valid[:1]))
+    padded = project_onto_handles(LAYOUT, pos, tangent, Handles(jnp.asarray([1, 99, 3]), jnp.asarray([13, 7, 40]), target[jnp.asarray([0, 2, 3])], jnp.asarray([True, False, False])))
     assert_trees_close(padded, one, tol=1e-4)
 
 
@@ -224,7 +227,7 @@ def _old_sampler(model, start, end, control, joint, position, valid, key, steps)
     """A sampler without off-grid handles: overwrite of control positions only."""
     cfg, stats = model.config, model.stats
     translation = start[HIPS] * jnp.asarray([1.0, 0.0, 1.0], start.dtype)
-    world = inbetween_conditions(cfg.num_frames, start, end, control * cfg.stride, joint, position, valid)
+    world = inbetween_conditions(cfg.num_frames, start, end, Handles(joint, control * cfg.stride, position, valid))
     normalized = normalize_conditions(stats, world, translation)
     mask, target = normalized.to_grid(cfg.num_controls, cfg.num_joints, cfg.stride)
     _, world_target = world.to_grid(cfg.num_controls, cfg.num_joints, cfg.stride)

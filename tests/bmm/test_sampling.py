@@ -28,7 +28,7 @@ def test_sampling_hits_start_end_and_handles_exactly(model, motions, sampled):
     assert np.all((np.asarray(sampled.contacts) >= 0) & (np.asarray(sampled.contacts) <= 1))
     assert np.all(grid_errors(sampled, motions) == 0.0)
     h = motions.handles
-    assert float(handles_error(sampled.ctrl_pos, h.frame // TINY.stride, h.joint, h.position, h.valid)) == 0.0
+    assert float(handles_error(sampled.ctrl_pos, h._replace(frame=h.frame // TINY.stride))) == 0.0
     # The padding slot is not a constraint: the curve does not go through it.
     assert np.linalg.norm(np.asarray(sampled.ctrl_pos[1, 1, 3]) - np.asarray(h.position[1, 2])) > 1e-3
     # Unconstrained points sit near the motion (the start's XZ offset is undone), not at the origin.
@@ -170,7 +170,7 @@ def test_a_handle_next_to_a_key_takes_precedence_over_that_keys_tangent(model, m
     frame = jnp.asarray([[1, 29, 0, 6, 24, 3], [5, 25, 30, 1, 2, 28]], jnp.int32)
     joint = jnp.asarray([[2, 3, 4, 5, 0, 1], [0, 1, 2, 3, 4, 5]], jnp.int32)
     valid = jnp.asarray([[True, True, True, True, True, False], [True] * 6])
-    held = np.asarray(jax.vmap(lambda f, j, v: held_key_tangents(f, j, v, K, J, TINY.stride))(frame, joint, valid))
+    held = np.asarray(jax.vmap(lambda f, j, v: held_key_tangents(Handles(j, f, None, v), K, J, TINY.stride))(frame, joint, valid))
     expected = np.zeros((2, K, J), bool)
     expected[:, [0, -1]] = True
     expected[0, 0, 2] = expected[0, -1, 3] = False  # frames 1 and 29; 0, 6, 24 and the padding's 3 hold
