@@ -235,29 +235,13 @@ def window_key_velocities(character: Character, truth: Pose) -> Float[Array, "wi
     return chain_key_velocities(character, truth, truth.root_pos.shape[-2] - 1)
 
 
-def sample_window_curves(
-    bmm: BezierMotionModel,
-    character: Character,
-    truth: Pose,
-    handles: Handles,
-    keys: jax.Array,
-    *,
-    transfer: Transfer | None = None,
-    steps: int = 10,
-    foot_lock: bool = False,
-    key_orientations: bool = True,
-    with_key_velocities: bool = False,
-    chunk: int = 128,
-) -> WindowCurves:
-    """The curves stage of every window (start and end from ``truth``, one key per window,
-    e.g. :func:`window_keys`), ``chunk`` windows per compiled call: batched
-    :class:`~bezmotion.pipeline.inbetweening.WindowCurves`, which :func:`solve_window_curves`
-    hands to any number of IKs. ``with_key_velocities``: the curves are also given the
-    keys' velocities (:func:`window_key_velocities`)."""
-    curves = sample_chain_curves(
-        bmm, character, truth, _one_window(handles), keys, coupled=False, transfer=transfer, steps=steps, foot_lock=foot_lock,
-        key_orientations=key_orientations, chunk=chunk, with_key_velocities=with_key_velocities,
-    )  # fmt: skip
+def sample_window_curves(bmm: BezierMotionModel, character: Character, truth: Pose, handles: Handles, keys: jax.Array, **options) -> WindowCurves:
+    """:func:`sample_chain_curves` of single windows, each a chain of one (start and end from
+    ``truth`` ``(windows, frames, …)``, handles ``(windows, slots)``, one key per window, e.g.
+    :func:`window_keys`; the same ``options``): batched
+    :class:`~bezmotion.pipeline.inbetweening.WindowCurves` ``(windows, …)``, which
+    :func:`solve_window_curves` hands to any number of IKs."""
+    curves = sample_chain_curves(bmm, character, truth, _one_window(handles), keys, coupled=False, **options)
     return jax.tree.map(lambda a: a[:, 0], curves)
 
 
@@ -285,33 +269,13 @@ class IKTiming(NamedTuple):
         return 1e3 * self.run_s / max(self.windows_run, 1)
 
 
-def solve_window_curves(
-    ik_fn: IKFn,
-    ik_params: Any,
-    curves: WindowCurves,
-    truth: Pose,
-    *,
-    handles: Handles | None = None,
-    key_blend_frames: int = KEY_BLEND_FRAMES,
-    chunk: int = 128,
-    rest_from_keys: bool = False,
-) -> tuple[Pose, IKTiming]:
-    """IK of every frame of every window's curves (batched, from :func:`sample_window_curves`),
-    the start and end poses of ``truth`` blended in as keys; ``(poses (windows, frames, …), timing)``.
-    ``handles`` ``(windows, handles)``: the curves' handles, pinned for the IK
-    (:func:`~bezmotion.pipeline.inbetweening.pose_from_curves`); ``None``: none.
-    ``rest_from_keys``: every :class:`~bezmotion.ik.rig.Rig` in ``ik_params`` takes each
-    window's start key as its rest pose (:func:`~bezmotion.ik.rig.with_rest_pose`), as
-    ``bezmotion inbetween`` gives the rig the take's start key; otherwise the rig's own.
-
-    A warm-up call on the first chunk compiles the chunked IK (``compile_s``: compiling and
-    one call; about the call alone when this IK, chunk and settings were compiled before),
-    so ``run_s`` is its steady-state time."""
+def solve_window_curves(ik_fn: IKFn, ik_params: Any, curves: WindowCurves, truth: Pose, **options) -> tuple[Pose, IKTiming]:
+    """:func:`solve_chain_curves` of single windows (curves ``(windows, …)`` of
+    :func:`sample_window_curves`, ``handles`` ``(windows, slots)``; the same ``options``):
+    ``(poses (windows, frames, …), timing)``."""
     chains = WindowCurves(None, curves.positions[:, None], curves.rot6d[:, None])
-    return solve_chain_curves(
-        ik_fn, ik_params, chains, truth, handles=_one_window(handles), key_blend_frames=key_blend_frames, chunk=chunk,
-        rest_from_keys=rest_from_keys,
-    )  # fmt: skip
+    handles = _one_window(options.pop("handles", None))
+    return solve_chain_curves(ik_fn, ik_params, chains, truth, handles=handles, **options)
 
 
 def _timed(run, inputs: Any, chunk: int) -> tuple[Pose, IKTiming]:
@@ -454,12 +418,16 @@ def solve_chain_curves(
     chunk: int = 128,
     rest_from_keys: bool = False,
 ) -> tuple[Pose, IKTiming]:
-    """:func:`solve_window_curves` for chains: one IK over each chain's joined frames
-    (curves ``(chains, windows, …)`` of :func:`sample_chain_curves`), each window blended to
-    its two keys from ``truth``; ``(poses (chains, frames, …), timing)``, the timing per
-    chain (``windows_run`` counts chains). ``handles`` ``(chains, windows, handles)`` at
-    window frames, pinned for the IK; ``None``: none. ``rest_from_keys``: the rig's rest
-    pose is each chain's first key."""
+    """One IK over each chain's joined frames (curves ``(chains, windows, …)`` of
+    :func:`sample_chain_curves`), each window blended to its two keys from ``truth``;
+    ``(poses (chains, frames, …), timing)``, the timing per chain (``windows_run`` counts
+    chains). ``handles`` ``(chains, windows, handles)`` at window frames, pinned for the IK;
+    ``None``: none. ``rest_from_keys``: every :class:`~bezmotion.ik.rig.Rig` in
+    ``ik_params`` takes each chain's first key as its rest pose, as ``bezmotion inbetween``
+    gives the rig the take's start key; otherwise the rig's own.
+
+    A warm-up call on the first chunk compiles the chunked IK (``compile_s``: compiling and
+    one call), so ``run_s`` is its steady-state time."""
     inputs = (curves.positions, curves.rot6d, chain_keys(truth, curves.positions.shape[1]), handles)
     run = functools.partial(_chain_ik_chunk, ik_params, ik_fn=ik_fn, key_blend_frames=key_blend_frames, rest_from_keys=rest_from_keys)
     return _timed(run, inputs, chunk)
