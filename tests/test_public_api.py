@@ -76,3 +76,21 @@ def test_no_library_error_names_a_command_line_flag():
 def _starts_with_a_flag(message: ast.expr) -> bool:
     first = message.values[0] if isinstance(message, ast.JoinedStr) and message.values else message
     return isinstance(first, ast.Constant) and isinstance(first.value, str) and first.value.lstrip().startswith("--")
+
+
+def test_no_code_line_carries_a_date_or_an_issue_number():
+    """Code says why, not when: dates and issue numbers belong to commit messages and
+    ``docs/notebook/``, not to code, comments or docstrings."""
+    import re
+
+    root = PACKAGE.parent
+    pattern = re.compile(r"\b20\d\d-\d\d-\d\d\b|\b[Ii]ssue #?\d+")
+    offenders = [
+        f"{path.relative_to(root)}:{number}"
+        for folder in ("bezmotion", "experiments", "benchmarks", "tests")
+        for path in sorted((root / folder).rglob("*.py"))
+        if path.resolve() != Path(__file__).resolve()
+        for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1)
+        if pattern.search(line)
+    ]
+    assert not offenders, offenders

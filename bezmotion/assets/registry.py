@@ -115,7 +115,7 @@ REGISTRY: Mapping[str, ModelEntry] = {
         data=_BANDAI_DATA,
         licence="CC BY-NC 4.0 (non-commercial use only, attribution kept)",
         commands=(
-            # One run from scratch, 37 minutes on a 2-core CPU (2026-11-26); the model lands in
+            # One run from scratch on a CPU (its time: the model card); the model lands in
             # ~/.cache/bezmotion/runs/bmm_bandai_namco_cpu_residual/model, bundled as float16.
             "python experiments/bmm_lafan1.py --corpus bandai_namco --prediction residual --learning-rate 5e-4 --min-snr-gamma 0 "
             "--off-grid-handles 0.5 --steps 10000 --eval-every 2500 --eval-windows 500 --table6-steps 10 --handle-frames any "
@@ -170,9 +170,8 @@ REGISTRY: Mapping[str, ModelEntry] = {
         data=_LAFAN1_DATA,
         licence=_LAFAN1_LICENCE,
         commands=(
-            # The CPU-size models (2.3 M and the CPU IK), about an hour on a 2-core CPU: the BMM's 10,000 steps in
-            # 40–55 min, the IK's 9,000 steps in 16 min beside it. No wall-clock cap: a run stopped by one (the first,
-            # 2026-11-27, at step 7,526) is another model; an interrupted run goes on from its checkpoint.
+            # The CPU-size models (2.3 M and the CPU IK), about an hour on a 2-core CPU. No wall-clock cap: a run
+            # stopped by one is another model; an interrupted run goes on from its checkpoint.
             "python experiments/bmm_lafan1.py --corpus lafan1 --prediction residual --learning-rate 5e-4 --min-snr-gamma 0 "
             "--off-grid-handles 0.5 --steps 10000 --eval-every 2500 --eval-windows 300 --table6-steps 10 "
             "--handle-frames any --out results/bmm_lafan1_cpu.json",

@@ -1,16 +1,12 @@
-"""Sampling Bézier motion curves from a trained BMM: start, end and sparse handles in,
+"""Sampling Bézier motion curves from a trained BMM: key positions and sparse handles in,
 curves that pass through every handle out (BMM §4.2, Appendix A.3).
 
-:func:`sample_curves` is pure and jit-compiled once per input shape. It aligns the
-inputs (hips start at the origin in XZ, as in training), runs DDIM with x̂₀ put through the conditions at every step and after the last
-(control points on control frames overwritten, handles between them met by the
-minimum-norm correction of x̂₀), and translates the curves back. Leading batch axes on the inputs sample several motions at once, each with
-its own key.
-
-:func:`sample_chained_curves` samples the windows between consecutive key poses of a
-longer motion in one batched loop, by default joined at their shared keys (the two
-windows' tangents, orientations and contacts there averaged in the same overwrite), so
-the chain is C¹ across the keys; independent windows (BMM Appendix D.1) for comparison.
+:func:`sample_chained_curves` is pure and jit-compiled once per input shape: the windows
+between consecutive key poses in one batched DDIM loop, by default joined at their shared
+keys (the two windows' tangents, orientations and contacts there averaged in the same
+overwrite), so the curves are C¹ across the keys; independent windows (BMM Appendix D.1)
+for comparison. :func:`sample_curves` is the same for two keys (one window). Leading batch
+axes on the inputs sample several motions at once, each with its own key.
 """
 
 from __future__ import annotations
@@ -129,10 +125,9 @@ def _projector(
     its tangent one variable of both windows. A joint with a handle within a stride of a
     shared key is met over the chain, its shared tangents free (moved in both windows alike),
     by the smallest change of its curve (:func:`~bezmotion.diffusion.projection.curve_metric`).
-    Projected window by window with the shared tangent held (the rule before 2026-12-03), a
-    handle one frame from a shared key could move only the next control point, whose weight
-    there is 0.07, and the curve swung out by up to a metre (20 cm asked for). The curve's
-    change rather than the model's normalised variables', because in those the next control
+    Projected window by window with the shared tangent held, a handle one frame from a shared
+    key could move only the next control point, whose weight there is small, and the curve
+    would swing far out. The curve's change rather than the model's normalised variables', because in those the next control
     point's position is the cheap variable (its scale is ten times the tangent's): a window
     alone has the model's own tangent, chosen with the handle in view, but a chain's shared one
     is the mean of two windows' that each saw half the handles. Every other joint keeps its
@@ -174,8 +169,8 @@ def _projector(
     held_tangent = held_tangent | (shared[:, None] & ~over_chain[None, :])
     # Where no joint is met over the chain (most chains: no handle next to a shared key), the
     # joined problem falls apart into the windows' own, each with its shared tangents held:
-    # each window solves its own (the same result to rounding) instead of every window
-    # solving the whole chain, which made a chain of 4 slower than 4 separate windows.
+    # each window solves its own (the same result to rounding) rather than every window
+    # solving the whole chain, whose cost grows with the chain's length.
     # `over_chain` comes from `all_gather`, one value for the whole chain, so the branch is
     # a real `lax.cond`, not a select (only under a further `vmap`, a batch of chains,
     # do both run).
@@ -352,20 +347,10 @@ def _sample_one(
 
 
 def sample_curves(
-    model: BezierMotionModel,
-    start: Float[Array, "*batch 6 3"],
-    end: Float[Array, "*batch 6 3"],
-    handles: Handles,
-    *,
-    key: Array,
-    steps: int = 10,
-    guidance: float = 1.0,
-    overwrite: bool = True,
-    foot_lock: bool | str = False,
-    key_rot6d: Float[Array, "*batch 2 6 6"] | None = None,
-    key_tangent: Float[Array, "*batch 2 6 3"] | None = None,
+    model: BezierMotionModel, start: Float[Array, "*batch 6 3"], end: Float[Array, "*batch 6 3"], handles: Handles, *, key: Array, **options
 ) -> SampledCurves:
-    """Sample Bézier curves of the six characteristic joints between a start and an end pose.
+    """Sample Bézier curves of the six characteristic joints between a start and an end pose:
+    :func:`sample_chained_curves` of these two keys (one window).
 
     Args:
       model: the trained BMM.
@@ -375,41 +360,13 @@ def sample_curves(
         poses, and :meth:`Handles.from_frames` its positions.
       handles: sparse intermediate handles, batched like ``start``.
       key: PRNG key; split per motion when batched.
-      steps: DDIM steps (the paper uses 10).
-      guidance: classifier-free guidance scale; ``1.0`` (default) runs the conditional
-        model alone, in one pass per step.
-      overwrite: put the curves through the conditions in x̂₀ at every step and after the
-        last: control positions on control frames are replaced (BMM), handles between
-        them get the minimum-norm correction of x̂₀ onto their linear constraints
-        (:func:`~bezmotion.diffusion.projection.project_off_grid`); ``False`` reproduces
-        the paper's "w/o overwrite" ablation.
-      foot_lock: afterwards, hold each foot still in the ground plane while its
-        predicted contact lasts (:func:`~bezmotion.bmm.foot_lock.lock_feet`; ours, not the
-        paper's). Constrained points do not move. ``True`` holds each planted control
-        point where the nearest condition of its contact run puts the foot; ``"mean"``
-        (the rule before 2026-12-01) at the mean of the run's conditions; ``"nearest"``
-        is ``True``'s.
-      key_rot6d: optionally ``(*batch, 2, 6, 6)`` global orientations (6-D, world frame) of
-        the six joints at the first and at the last frame. With ``overwrite`` they are
-        conditions like the key positions: written into x̂₀'s first and last control points
-        at every step and exactly after the last, so the curves leave and reach each key
-        facing the way it does (ours; the paper conditions on positions only, ``None``).
-      key_tangent: optionally ``(*batch, 2, 6, 3)`` the curves' tangents at the first and at
-        the last frame (cm, world frame; a velocity ``v`` in cm/frame is the tangent
-        ``v·stride/3``, :func:`~bezmotion.bezier.tangent_from_velocity`), where the keys'
-        motion is known, e.g. from the frames around them in a clip. With ``overwrite``
-        they are conditions like ``key_rot6d``: the curves leave and reach each key at its
-        own velocity instead of one the model guesses (ours). A joint's handle within a
-        stride of a key takes precedence over that key's tangent (:func:`held_key_tangents`).
+      options: :func:`sample_chained_curves`' (``steps``, ``guidance``, ``overwrite``,
+        ``foot_lock``, and ``key_rot6d`` ``(*batch, 2, 6, 6)``, ``key_tangent``
+        ``(*batch, 2, 6, 3)`` of the two keys).
     Returns:
-      :class:`SampledCurves` in the world frame; constrained control points (and the key
-      tangents) equal their targets exactly when ``overwrite``.
-
-    Compiled once per input shape and static argument, with the backend's inference
-    compiler options (:mod:`bezmotion._src.xla_options`); inside a caller's own ``jax.jit`` it is
-    simply traced into that computation. One window is a chain of two keys
-    (:func:`sample_chained_curves`).
+      :class:`SampledCurves` ``(*batch, controls, …)`` in the world frame.
     """
+    key_rot6d, key_tangent = options.get("key_rot6d"), options.get("key_tangent")
     joints = model.config.num_joints
     start, end = jnp.asarray(start), jnp.asarray(end)
     if start.shape[-2:] != (joints, 3) or end.shape != start.shape:
@@ -421,10 +378,7 @@ def sample_curves(
         if value is not None and value.shape != (*batch, 2, joints, last):
             raise ValueError(f"{name} must be {(*batch, 2, joints, last)} (start and end), got {value.shape}")
     one_window = Handles(*(jnp.expand_dims(x, len(batch)) for x in handles))
-    curves = sample_chained_curves(
-        model, jnp.stack([start, end], axis=-3), one_window, key=key, steps=steps, guidance=guidance, coupled=False,
-        overwrite=overwrite, foot_lock=foot_lock, key_rot6d=key_rot6d, key_tangent=key_tangent,
-    )  # fmt: skip
+    curves = sample_chained_curves(model, jnp.stack([start, end], axis=-3), one_window, key=key, coupled=False, **options)
     return jax.tree.map(lambda x: jnp.squeeze(x, len(batch)), curves)
 
 
@@ -460,9 +414,12 @@ def sample_chained_curves(
     (``model.config.num_frames`` frames, 31) between each pair of consecutive keys, all in
     one batched DDIM loop.
 
-    Window ``i`` runs from key ``i`` (its frame 0) to key ``i + 1`` (its last frame) through
-    its own handles (frames 1 … 29 of that window), exactly as :func:`sample_curves` would
-    sample it. With ``coupled`` the windows are also joined at every shared key, in x̂₀ at
+    The sampler aligns each window (its start hips at the origin in XZ, as in training), runs
+    DDIM with x̂₀ put through the conditions at every step and after the last (control
+    points on control frames overwritten, handles between them met by the minimum-norm
+    correction of x̂₀), and moves the curves back. Window ``i`` runs from key ``i`` (its
+    frame 0) to key ``i + 1`` (its last frame) through its own handles (frames 1 … 29 of
+    that window); two keys are one window (:func:`sample_curves`). With ``coupled`` the windows are also joined at every shared key, in x̂₀ at
     every DDIM step and exactly after the last: the two windows' tangents there are set to
     their mean, and so are their orientations and contact probabilities, before the
     handles are projected onto with those tangents held fixed. The curves are then C¹
@@ -477,20 +434,37 @@ def sample_chained_curves(
         each key (cm), ``keys ≥ 2``; consecutive keys are ``num_frames − 1`` (30) frames apart.
       handles: intermediate handles of each window, batched ``(*batch, keys − 1, handles)``
         (frames within the window, 1 … 29).
-      key: PRNG key; split per chain when batched, then per window.
-      steps, guidance, overwrite, foot_lock: as in :func:`sample_curves` (a coupled chain
-        needs ``overwrite``: the coupling is part of it).
+      key: PRNG key; split per chain when batched, then per window (a single window takes
+        it as it is).
+      steps: DDIM steps (the paper uses 10).
+      guidance: classifier-free guidance scale; ``1.0`` (default) runs the conditional
+        model alone, in one pass per step.
       coupled: join the windows at the shared keys (default); ``False``: independent windows.
-      key_rot6d: optionally ``(*batch, keys, 6, 6)`` global orientations (6-D) of the six
-        joints at every key, conditions like the key positions (``sample_curves``'s).
-      key_tangent: optionally ``(*batch, keys, 6, 3)`` the curves' tangents at every key
-        (cm, ``sample_curves``'s), conditions like ``key_rot6d``; both windows of a shared
-        key take its tangent, so a coupled chain keeps it.
+      overwrite: put the curves through the conditions in x̂₀ at every step and after the
+        last (:func:`~bezmotion.diffusion.projection.project_off_grid` between control
+        frames); ``False`` reproduces the paper's "w/o overwrite" ablation (a coupled chain
+        needs it: the coupling is part of it).
+      foot_lock: afterwards, hold each foot still in the ground plane while its predicted
+        contact lasts (:func:`~bezmotion.bmm.foot_lock.lock_feet`; ours, not the paper's),
+        each planted control point where the nearest condition of its contact run puts the
+        foot. Constrained points do not move.
+      key_rot6d: optionally ``(*batch, keys, 6, 6)`` global orientations (6-D, world frame)
+        of the six joints at every key. With ``overwrite`` they are conditions like the key
+        positions, so the curves leave and reach each key facing the way it does (ours; the
+        paper conditions on positions only, ``None``).
+      key_tangent: optionally ``(*batch, keys, 6, 3)`` the curves' tangents at every key (cm,
+        world frame; a velocity ``v`` in cm/frame is the tangent ``v·stride/3``,
+        :func:`~bezmotion.bezier.tangent_from_velocity`), conditions like ``key_rot6d``: the
+        curves leave and reach each key at its own velocity. A joint's handle within a
+        stride of a key takes precedence (:func:`held_key_tangents`); both windows of a
+        shared key take its tangent, so a coupled chain keeps it.
     Returns:
       :class:`SampledCurves` batched ``(*batch, keys − 1, controls, …)``, world frame; window
       ``i``'s last control point and window ``i + 1``'s first are the same key.
 
-    Compiled once per input shape and static argument, like :func:`sample_curves`.
+    Compiled once per input shape and static argument, with the backend's inference compiler
+    options (:mod:`bezmotion._src.xla_options`); inside a caller's own ``jax.jit`` it is
+    traced into that computation.
     """
     return _sample_chained_curves(
         model, key_pos, handles, key_rot6d, key_tangent,
@@ -572,8 +546,7 @@ def with_off_grid_prior(model: BezierMotionModel, off_grid_prior: str) -> Bezier
     """The same trained model, its residual added to another reference between control
     frames (:attr:`BMMConfig.off_grid_prior`, ``"linear"`` or ``"projection"``): the
     parameters are shared, only the structure is rebuilt. Handles on control frames sample
-    exactly as before; a model trained before 2026-12-01 over ``"projection"`` can be
-    sampled the way it was trained.
+    exactly as before; a model trained over ``"projection"`` is sampled the way it was trained.
 
     Raises:
       ValueError: ``off_grid_prior`` is not one of them.

@@ -1,4 +1,4 @@
-"""Chained windows (issue 15 item 5, ``bezmotion.bmm.sampling.sample_chained_curves``):
+"""Chained windows (``bezmotion.bmm.sampling.sample_chained_curves``):
 continuity at the chained keys (tangents, orientations, contacts shared; positions the
 keys), handles hit next to a shared key, independent windows for comparison, one
 compilation, the input errors, and the boundary velocity jump metric.

@@ -102,9 +102,8 @@ def test_two_samples_are_two_different_motions(run):
     out, summary, _, _, _ = run
     a, b = (fk_positions(read_bvh(out / f"inbetween_{k}.bvh")) for k in range(2))
     # Another seed, another in-between: float rounding moves joints by < 1e-3 cm. How far the
-    # two samples part is the model's (the bundled BMM of 2026-11-26, held by both keys'
-    # poses and orientations and two handles, 2 DDIM steps: 0.9 cm at most); the bar sits
-    # a hundred times above rounding.
+    # two samples part is the model's (the bundled BMM, held by both keys' poses and
+    # orientations and two handles, 2 DDIM steps); the bar sits a hundred times above rounding.
     assert np.abs(a - b).max() > 0.1  # cm
     assert [s["sample"] for s in summary["samples"]] == [0, 1]
     assert summary["foot_lock"] is True and summary["exact"] == {}  # the defaults
@@ -366,7 +365,7 @@ def test_another_skeleton_gets_the_exact_solve_from_the_rig_by_default(tmp_path)
         positions = fk_positions(motion)
         misses[ik] = float(np.linalg.norm(positions[12, foot] - straight_line(FOOT, 12) - [0, -12, 0]))
         np.testing.assert_allclose(positions[18, hand], straight_line(HAND, 18) + [0, 25, 0], atol=1e-2)
-    # Under a millimetre (0.06 cm since 2026-12-02: the foot's curve comes straight down into the
+    # Under a millimetre (the foot's curve comes straight down into the
     # handle, so the frames next to it count as planted and their foot may stay above its curve,
     # plant_height_scale; the solve's start at the handle frame is smoothed with theirs).
     assert misses["auto"] < 0.1 and misses["rig"] > 5.0, misses
