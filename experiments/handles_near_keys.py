@@ -27,7 +27,7 @@ import numpy as np
 from bezmotion.assets import DEMO_CLIP
 from bezmotion.data.bvh import read_bvh, write_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
-from bezmotion.cli.inbetween import InbetweenCommand, plan
+from bezmotion.cli.plan import InbetweenCommand, plan
 from bezmotion._src.io import atomic_write_text
 from bezmotion._src.options import option, options, parse_options
 from bezmotion.pipeline import InbetweenOptions, Inbetweener, inbetween

@@ -26,7 +26,7 @@ from bezmotion.data.bvh import read_bvh, write_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, SKELETON_MAPS
 from bezmotion.evaluation import skeleton_zoo as zoo
 from bezmotion.geometry.rotations import quat_angle, quat_from_rot6d
-from bezmotion.cli.inbetween import InbetweenCommand, plan
+from bezmotion.cli.plan import InbetweenCommand, plan
 from bezmotion._src.io import write_results
 from bezmotion._src.options import option, options, parse_options
 from bezmotion.pipeline.inbetweening import InbetweenOptions, curves_traced, window_handles

@@ -69,7 +69,7 @@ import numpy as np
 
 from bezmotion.assets import BUNDLED_BMM, BUNDLED_IK, PROFILES_DIR
 from bezmotion.evaluation.ablations import DenseMotion, load_dense_model, sample_dense
-from bezmotion.evaluation.curves import EvalSet, dense_positions, floor_height_from, make_eval_set, map_in_chunks, reference_curves
+from bezmotion.evaluation.curves import EvalSet, dense_positions, floor_height_from, make_eval_set, reference_curves
 from bezmotion.bmm.sampling import Handles, load_model
 from bezmotion.data.corpus import motion_clips
 from bezmotion.data.curves import CurveDataset, curve_dataset

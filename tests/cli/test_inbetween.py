@@ -29,7 +29,8 @@ from bezmotion.cli import main
 from bezmotion.data.bvh import read_bvh, write_bvh
 from bezmotion.data.clip_frame import ClipFrame
 from bezmotion.data.resample import resample_motion
-from bezmotion.cli.inbetween import HandleRequest, InbetweenCommand, bvh_frame_rate, parse_handle, plan, read_handles_file
+from bezmotion.cli.handles import HandleRequest, parse_handle, read_handles_file
+from bezmotion.cli.plan import InbetweenCommand, bvh_frame_rate, plan
 from bezmotion.ik.protocol import targets_from_pose
 from bezmotion._src.options import parse_options
 from bezmotion.pipeline.authoring import RigSpec, derive_rig_spec, read_mapping, recognise_character
@@ -419,7 +420,7 @@ def test_models_default_to_those_of_the_clips_skeleton_trained_here(tmp_path, mo
     from bezmotion.data.bvh import BvhMotion
     from bezmotion.ik.protocol import Character
     from bezmotion.ik.protores import ProtoResConfig, ProtoResModel, init_protores, save_ik_model
-    from bezmotion.cli.inbetween import default_models
+    from bezmotion.cli.plan import default_models
 
     monkeypatch.setenv("BEZMOTION_CACHE", str(tmp_path / "cache"))
     skeleton, quat, root = synthetic_clip(40, seed=3)
