@@ -46,7 +46,7 @@ from bezmotion.pipeline.export import pose_to_bvh
 from bezmotion.pipeline.inbetweening import InbetweenOptions, InbetweenResult, inbetween
 from bezmotion.pipeline.transfer import Transfer
 
-HANDLE_SLOTS = 8
+HANDLE_SLOTS = 4
 """Handles are padded to a multiple of this many slots, so that another count of handles
 reuses the compiled in-between."""
 
