@@ -37,11 +37,16 @@ FENCE = re.compile(r"^```python\n(.*?)^```$", re.MULTILINE | re.DOTALL)
 
 
 def python_blocks() -> list[tuple[Path, int, str]]:
-    """``(page, line of the block's first code line, code)`` for each ```python block."""
-    blocks = []
+    """``(page, line of the block's first code line, code)`` for each ```python block; a
+    block repeated word for word on another page (Getting started repeats the README's) is
+    run once, where it first appears."""
+    blocks, seen = [], set()
     for page in PAGES:
         text = page.read_text(encoding="utf-8")
-        blocks += [(page, text.count("\n", 0, m.start(1)) + 1, m.group(1)) for m in FENCE.finditer(text)]
+        for m in FENCE.finditer(text):
+            if m.group(1) not in seen:
+                seen.add(m.group(1))
+                blocks.append((page, text.count("\n", 0, m.start(1)) + 1, m.group(1)))
     return blocks
 
 
