@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any, NamedTuple, Protocol, runtime_checkable
 
+import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
@@ -180,4 +181,59 @@ def grid_conditions(
     return mask, target
 
 
-__all__ = ["Handles", "WindowShape", "grid_conditions", "on_control_frame"]
+
+
+HANDLE_FARTHEST_CM = 10_000.0
+"""How far (cm) a handle may lie from the straight line between the keys around it: no
+motion within one window goes farther, so a handle beyond it is a slip of units or digits."""
+
+
+def straight_line(start: Float[Array, "*batch joints 3"], end: Float[Array, "*batch joints 3"], handles: Handles, num_frames: int) -> Float[Array, "*batch slots 3"]:
+    """Where each handle's joint is on the straight line from its ``start`` to its ``end``
+    position at the handle's frame (one window of ``num_frames`` frames, batched alike)."""
+    joint = jnp.clip(handles.joint, 0, start.shape[-2] - 1)[..., None]
+    at = lambda pos: jnp.take_along_axis(pos, joint, axis=-2)  # noqa: E731  (*batch, slots, 3)
+    t = (handles.frame / (num_frames - 1)).astype(start.dtype)[..., None]
+    return (1.0 - t) * at(start) + t * at(end)
+
+
+def checked_handles(
+    handles: Handles, *, num_frames: int, num_joints: int, span: int | None = None, line: Float[Array, "*batch slots 3"] | None = None
+) -> Handles:
+    """``handles`` with run-time checks of their valid slots (``eqx.error_if``, inside a
+    computation as outside: one path), each naming the first slot that fails it.
+
+    Args:
+      num_frames: frames of the motion the handles' frames count in (a window's 31, or a
+        chain's); a handle sits strictly inside, and off every ``span``-th frame (the keys).
+      num_joints: joints a handle's index may name.
+      line: ``(*batch, slots, 3)`` the straight line between the keys at each handle
+        (:func:`straight_line`); a handle farther than :data:`HANDLE_FARTHEST_CM` from it is refused.
+    Raises:
+      ValueError: at once, frames or joints that are not integers.
+    """
+    for name in ("frame", "joint"):
+        if not jnp.issubdtype(jnp.asarray(getattr(handles, name)).dtype, jnp.integer):
+            raise ValueError(f"handles.{name} must be integers, got {jnp.asarray(getattr(handles, name)).dtype}")
+    last = num_frames - 1
+    span = last if span is None else span
+    joint, frame, position, valid = handles.joint, handles.frame, handles.position, handles.valid.astype(bool)
+    same = (joint[..., :, None] == joint[..., None, :]) & (frame[..., :, None] == frame[..., None, :]) & valid[..., :, None] & valid[..., None, :]
+    differ = jnp.any(position[..., :, None, :] != position[..., None, :, :], axis=-1)
+    checks = [
+        (valid & ((joint < 0) | (joint >= num_joints)), f"joint index outside 0 … {num_joints - 1}"),
+        (valid & ((frame <= 0) | (frame >= last) | (frame % span == 0)), f"frame outside 1 … {last - 1} or on a key (every {span}th frame)"),
+        (valid & ~jnp.isfinite(position).all(axis=-1), "position not finite"),
+        (jnp.any(same & differ, axis=-1), "another handle puts the same joint at the same frame elsewhere"),
+    ]
+    if line is not None:
+        far = valid & (jnp.linalg.norm(position - line, axis=-1) > HANDLE_FARTHEST_CM)
+        checks.append((far, f"farther than {HANDLE_FARTHEST_CM / 100:.0f} m from the straight line between its keys (positions are in cm)"))
+    slots = handles.valid.shape[-1]
+    for bad, what in checks:
+        flat = bad.reshape(-1, slots).any(axis=0)  # per slot, over any batch
+        handles = eqx.branched_error_if(handles, flat.any(), jnp.argmax(flat), [f"handle {i}: {what}" for i in range(slots)])
+    return handles
+
+
+__all__ = ["HANDLE_FARTHEST_CM", "Handles", "WindowShape", "checked_handles", "grid_conditions", "on_control_frame", "straight_line"]

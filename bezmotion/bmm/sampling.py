@@ -31,7 +31,7 @@ from bezmotion.diffusion.projection import CurveMetric, curve_metric, project_of
 from bezmotion.bmm.foot_lock import lock_anchor, lock_feet
 from bezmotion.diffusion.schedule import cosine_schedule
 from bezmotion.bmm.denoiser import BMMConfig, init_denoiser
-from bezmotion.handles import Handles
+from bezmotion.handles import Handles, checked_handles, straight_line
 from bezmotion.bmm.features import (
     FeatureStats,
     from_tokens,
@@ -495,6 +495,8 @@ def _sample_chained_curves(model, key_pos, handles, key_rot6d, key_tangent, *, k
         raise ValueError("a coupled chain needs overwrite=True (the coupling is part of the overwrite); use coupled=False")
     windows = num_keys - 1
     start, end = key_pos[..., :-1, :, :], key_pos[..., 1:, :, :]
+    frames = model.config.num_frames
+    handles = checked_handles(handles, num_frames=frames, num_joints=joints, line=straight_line(start, end, handles, frames))
     window_ends = lambda x: None if x is None else jnp.stack([x[..., :-1, :, :], x[..., 1:, :, :]], axis=-3)  # noqa: E731
     rot6d_pairs, tangent_pairs = window_ends(key_rot6d), window_ends(key_tangent)
     one = functools.partial(

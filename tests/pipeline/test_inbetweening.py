@@ -101,7 +101,7 @@ def test_inbetween_rejects_bad_inputs(run):
         call(handles=jax.tree.map(lambda x: x[None], run.handles))
     with pytest.raises(ValueError, match=r"on a key: handles go on frames 1 … 29, not on the keys' frames \[0, 30\]"):
         call(handles=run.handles._replace(frame=run.handles.frame.at[1].set(30)))
-    with pytest.raises(ValueError, match="a handle's position is not finite"):
+    with pytest.raises(ValueError, match="position not finite"):
         call(handles=run.handles._replace(position=run.handles.position.at[0, 2].set(jnp.nan)))
     with pytest.raises(ValueError, match=r"key_velocity must be \(2, 6, 3\)"):
         call(key_velocity=np.zeros((3, 6, 3)))
@@ -127,3 +127,40 @@ def test_inbetween_options_are_hashable_and_checked():
     for bad in (dict(steps=2.5), dict(foot_lock="mean")):  # TypeError where the test session checks annotations
         with pytest.raises((ValueError, TypeError)):
             InbetweenOptions(**bad)
+
+
+@pytest.mark.parametrize(
+    ("what", "message"),
+    [
+        ("joint 9", "handle 0: joint index outside 0 … 5"),
+        ("nan", "handle 1: position not finite"),
+        ("far", "handle 0: farther than 100 m"),
+        ("frame 45", "outside the in-between or on a key"),
+        ("frame 12.5", "handles.frame must be integers"),
+        ("conflict", "another handle puts the same joint at the same frame elsewhere"),
+    ],
+)
+def test_every_malformed_handle_is_refused_naming_it(run, what, message):
+    """Raw ``Handles`` are checked where they enter, eagerly with the slot that fails."""
+    h = run.handles
+    bad = {
+        "joint 9": lambda: h._replace(joint=h.joint.at[0].set(9)),
+        "nan": lambda: h._replace(position=h.position.at[1, 0].set(jnp.nan)),
+        "far": lambda: h._replace(position=h.position.at[0].set(1e30)),
+        "frame 45": lambda: h._replace(frame=h.frame.at[0].set(45)),
+        "frame 12.5": lambda: h._replace(frame=h.frame.astype(jnp.float32).at[0].set(12.5)),
+        "conflict": lambda: h._replace(position=h.position.at[2].set(h.position[0] + 5.0), valid=h.valid.at[2].set(True)),
+    }[what]()
+    with pytest.raises(ValueError, match=message):
+        inbetween(run.model, run.keys, bad, key=run.key, options=InbetweenOptions(steps=STEPS))
+
+
+def test_the_sampler_checks_raw_handles_too(bmm, run):
+    """``sample_curves`` alone (no in-between around it) refuses the same handles."""
+    from bezmotion.bmm.sampling import sample_curves
+    from bezmotion.ik.protocol import targets_from_pose
+
+    ends = targets_from_pose(run.character, run.keys).position
+    h = run.handles._replace(joint=run.handles.joint.at[1].set(-1))
+    with pytest.raises(ValueError, match="handle 1: joint index outside 0 … 5"):
+        sample_curves(bmm, ends[0], ends[1], h, key=run.key, steps=1)
