@@ -11,6 +11,8 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
+from bezmotion.handles import HANDLE_FARTHEST_CM
+from bezmotion.pipeline.model import HANDLE_SLOTS
 from bezmotion.bmm.sampling import BezierMotionModel, Handles
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.ik.protocol import Pose, pose_fk
@@ -44,11 +46,6 @@ class HandleRequest:
     source: str
 
 
-_HANDLE_SLOTS = 4
-# How far (cm) a handle may lie from the straight line between the keys around its frame. A
-# window is one second at 30 fps, and nobody moves 100 m in it: a handle beyond is a slip of
-# units (mm for cm) or digits, and float32 curves there lose the centimetres they are judged by.
-HANDLE_FARTHEST_CM = 10_000.0
 _HANDLE = re.compile(r"^\s*(?P<joint>[^@=\s]+)\s*@\s*(?P<frame>[^=]*?)\s*=\s*(?P<plus>\+)?(?P<xyz>.*)$")
 _HANDLE_FORM = "JOINT@FRAME=X,Y,Z (a position, cm) or JOINT@FRAME=+X,Y,Z (an offset from the straight line between the keys)"
 
@@ -136,7 +133,7 @@ def resolve_handles(
         window, more for a chain.
     Returns:
       The handles ``(slots,)`` in the in-between's frames (counted from the first key),
-      padded (``valid=False``) to a multiple of :data:`_HANDLE_SLOTS` so that another count
+      padded (``valid=False``) to a multiple of :data:`HANDLE_SLOTS` so that another count
       reuses the compiled in-between; the records as written.
     Raises:
       ValueError: an unknown joint, a frame outside the in-between or on a key of a chain,
@@ -177,7 +174,7 @@ def resolve_handles(
         except ValueError as error:
             raise ValueError(f"{r.source}: {error}") from None
         records.append({"joint": role, "frame": r.frame, "position": position.tolist()})
-    return records_as_handles(records, slots=_HANDLE_SLOTS * max(1, -(-len(records) // _HANDLE_SLOTS))), records
+    return records_as_handles(records, slots=HANDLE_SLOTS * max(1, -(-len(records) // HANDLE_SLOTS))), records
 
 
 def records_as_handles(records: Sequence[dict[str, Any]], slots: int | None = None) -> Handles:
