@@ -32,6 +32,11 @@ ROTATION_CHANNELS = ("Xrotation", "Yrotation", "Zrotation")
 _CHANNEL_LOOKUP = {name.lower(): name for name in POSITION_CHANNELS + ROTATION_CHANNELS}
 
 
+FRAME_TIME_RANGE = (1e-5, 60.0)
+"""Seconds per frame a motion may have: 100,000 fps down to a frame a minute. Outside it a
+``Frame Time`` is a mistake (and its frame rate would overflow)."""
+
+
 @dataclasses.dataclass(frozen=True)
 class BvhMotion:
     """An animated hierarchy as stored in a BVH file.
@@ -67,8 +72,8 @@ class BvhMotion:
             raise ValueError(f"{len(self.channels)} channel lists for {j} joints")
         for name, chans in zip(self.skeleton.names, self.channels):
             _rotation_order(chans, where=f"joint {name!r}")
-        if not (np.isfinite(self.frame_time) and self.frame_time > 0):
-            raise ValueError(f"frame_time must be a positive number of seconds, got {self.frame_time}")
+        if not (np.isfinite(self.frame_time) and FRAME_TIME_RANGE[0] <= self.frame_time <= FRAME_TIME_RANGE[1]):
+            raise ValueError(f"frame_time must be {FRAME_TIME_RANGE[0]:g} … {FRAME_TIME_RANGE[1]:g} seconds, got {self.frame_time}")
 
     @property
     def num_frames(self) -> int:
@@ -277,6 +282,8 @@ def _parse_motion_header(reader: _Reader) -> tuple[int, float, int | None]:
     frame_time = float(written)
     if not (np.isfinite(frame_time) and frame_time > 0):
         raise reader.error(f"Frame Time must be positive, got {frame_time}")
+    if not FRAME_TIME_RANGE[0] <= frame_time <= FRAME_TIME_RANGE[1]:
+        raise reader.error(f"Frame Time must lie in {FRAME_TIME_RANGE[0]:g} … {FRAME_TIME_RANGE[1]:g} s, got {frame_time:g}")
     exponent = written.as_tuple().exponent  # 0.03333 and 3.333e-02: -5
     return frames, frame_time, -exponent if isinstance(exponent, int) else None
 

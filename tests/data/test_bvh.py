@@ -333,6 +333,8 @@ MALFORMED = {
     "truncated hierarchy": (lambda lines: lines[:12], 12, r"unexpected end of file"),
     "negative frame time": (_replace(18, "Frame Time: -0.04"), 18, r"Frame Time must be positive, got -0.04"),
     "zero frame time": (_replace(18, "Frame Time: 0"), 18, r"Frame Time must be positive, got 0.0"),
+    "denormal frame time": (_replace(18, "Frame Time: 1e-320"), 18, r"Frame Time must lie in 1e-05 … 60 s, got 9.99989e-321"),
+    "hour-long frame": (_replace(18, "Frame Time: 3600"), 18, r"Frame Time must lie in 1e-05 … 60 s, got 3600"),
     "duplicate joint": (_replace(6, "\tJOINT Hips"), 6, r"joint name 'Hips' is used twice"),
     "bad frame count": (_replace(17, "Frames: many"), 17, r"expected 'Frames: <count>'"),
 }
