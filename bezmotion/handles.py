@@ -197,6 +197,15 @@ def straight_line(start: Float[Array, "*batch joints 3"], end: Float[Array, "*ba
     return (1.0 - t) * at(start) + t * at(end)
 
 
+def line_between_keys(key_positions: np.ndarray, joint: int, frame: int, span: int) -> np.ndarray:
+    """``(3,)`` where ``joint`` is at ``frame`` on the straight line between its positions at
+    the keys around that frame (``key_positions`` ``(K, joints, 3)``, keys ``span`` frames
+    apart): the reference a relative handle is an offset from."""
+    window = min(frame // span, len(key_positions) - 2)
+    t = (frame - span * window) / span
+    return (1.0 - t) * key_positions[window, joint] + t * key_positions[window + 1, joint]
+
+
 def checked_handles(
     handles: Handles, *, num_frames: int, num_joints: int, span: int | None = None, line: Float[Array, "*batch slots 3"] | None = None
 ) -> Handles:
@@ -236,4 +245,4 @@ def checked_handles(
     return handles
 
 
-__all__ = ["HANDLE_FARTHEST_CM", "Handles", "WindowShape", "checked_handles", "grid_conditions", "on_control_frame", "straight_line"]
+__all__ = ["HANDLE_FARTHEST_CM", "Handles", "WindowShape", "checked_handles", "grid_conditions", "line_between_keys", "on_control_frame", "straight_line"]

@@ -36,24 +36,6 @@ def inference_compiler_options() -> tuple[tuple[str, str], ...]:
     return tuple(sorted(CPU_INFERENCE_OPTIONS.items()))
 
 
-def call_with_inference_options(compiled: Callable[[tuple[tuple[str, str], ...]], Callable], *args, **kwargs):
-    """``compiled(options)(*args, **kwargs)`` with the backend's inference options.
-
-    ``compiled`` maps an options tuple to a jitted function (cache it). Inside a caller's
-    own ``jax.jit`` the call is traced into that computation, whose options are the
-    caller's, so none are passed; the same holds when a caller's jit traced the
-    function with constant inputs only (JAX then refuses per-call options).
-    """
-    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((args, kwargs))):
-        return compiled(())(*args, **kwargs)
-    try:
-        return compiled(inference_compiler_options())(*args, **kwargs)
-    except ValueError as error:
-        if "compiler_options" not in str(error):
-            raise
-        return compiled(())(*args, **kwargs)
-
-
 def inference_jit(fn: Callable | None = None, *, static_argnames: tuple[str, ...] = ()):
     """``jax.jit(fn)`` compiled with the backend's inference options, for entry points.
 
@@ -74,12 +56,15 @@ def inference_jit(fn: Callable | None = None, *, static_argnames: tuple[str, ...
         if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((args, kwargs))):
             return compiled(())(*args, **kwargs)
         try:
-            return jax.block_until_ready(call_with_inference_options(compiled, *args, **kwargs))
+            return jax.block_until_ready(compiled(inference_compiler_options())(*args, **kwargs))
         except (jax.errors.JaxRuntimeError, ValueError) as error:  # jax raises a failed callback as either
             message = check_message(error)
-            if message is None:
+            if message is not None:
+                raise ValueError(message) from None
+            if "compiler_options" not in str(error):
                 raise
-            raise ValueError(message) from None
+        # A caller's jit traced this with constant inputs only: JAX refuses per-call options.
+        return jax.block_until_ready(compiled(())(*args, **kwargs))
 
     return call
 

@@ -366,7 +366,6 @@ def sample_curves(
     Returns:
       :class:`SampledCurves` ``(*batch, controls, …)`` in the world frame.
     """
-    key_rot6d, key_tangent = options.get("key_rot6d"), options.get("key_tangent")
     joints = model.config.num_joints
     start, end = jnp.asarray(start), jnp.asarray(end)
     if start.shape[-2:] != (joints, 3) or end.shape != start.shape:
@@ -374,9 +373,6 @@ def sample_curves(
     batch = start.shape[:-2]
     if handles.position.shape[:-2] != batch:
         raise ValueError(f"handles must be batched like start {batch}, got {handles.position.shape[:-2]}")
-    for name, value, last in (("key_rot6d", key_rot6d, 6), ("key_tangent", key_tangent, 3)):
-        if value is not None and value.shape != (*batch, 2, joints, last):
-            raise ValueError(f"{name} must be {(*batch, 2, joints, last)} (start and end), got {value.shape}")
     one_window = Handles(*(jnp.expand_dims(x, len(batch)) for x in handles))
     curves = sample_chained_curves(model, jnp.stack([start, end], axis=-3), one_window, key=key, coupled=False, **options)
     return jax.tree.map(lambda x: jnp.squeeze(x, len(batch)), curves)

@@ -11,7 +11,7 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
-from bezmotion.handles import HANDLE_FARTHEST_CM
+from bezmotion.handles import HANDLE_FARTHEST_CM, line_between_keys
 from bezmotion.pipeline.model import HANDLE_SLOTS
 from bezmotion.bmm.sampling import BezierMotionModel, Handles
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
@@ -156,8 +156,7 @@ def resolve_handles(
             raise ValueError(f"{r.source}: frame {r.frame} is a key of the chain (keys at {list(range(0, last + 1, span))}); handles go between them")
         window = min(r.frame // span, len(keys) - 2)
         local = r.frame - span * window  # the frame in its window (0 and 30 are the window's keys)
-        j, t = CHARACTERISTIC_JOINTS.index(role), local / span
-        line = (1.0 - t) * key_positions[window, j] + t * key_positions[window + 1, j]  # between the keys around it
+        line = line_between_keys(key_positions, CHARACTERISTIC_JOINTS.index(role), r.frame, span)
         position = np.asarray(r.value, np.float64) + (line if r.relative else 0.0)
         away = float(np.linalg.norm(position - line))
         if away > HANDLE_FARTHEST_CM:  # a slip of units or digits: no window's motion goes that far

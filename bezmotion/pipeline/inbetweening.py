@@ -42,7 +42,6 @@ from bezmotion.data.windows import join_windows
 from bezmotion.geometry.rotations import quat_rotate
 from bezmotion.ik.protocol import Character, IKFn, IKTargets, Pose, solve_frames, targets_from_pose
 from bezmotion.ik.rig import with_rest_pose
-from bezmotion.handles import checked_handles
 from bezmotion.pipeline.transfer import Placement, Transfer, curves_to_target, orientations_to_source_space, placement, to_source_space
 
 if TYPE_CHECKING:
@@ -355,23 +354,16 @@ def _check_shapes(model: Inbetweener, keys: Pose, handles: Handles, key_velocity
     for name in ("joint", "frame", "valid"):
         if np.shape(getattr(handles, name)) != shape[:1]:
             raise ValueError(f"handles.{name} must be {shape[:1]} like the positions, got {np.shape(getattr(handles, name))}")
-    for name in ("joint", "frame"):
-        dtype = jnp.asarray(getattr(handles, name)).dtype  # a tracer's too
-        if not jnp.issubdtype(dtype, jnp.integer):
-            raise ValueError(f"handles.{name} must be integers, got {dtype}")
     if key_velocity is not None and np.shape(key_velocity) != (root[0], len(CHARACTERISTIC_JOINTS), 3):
         raise ValueError(f"key_velocity must be ({root[0]}, 6, 3) (one per key, six joints, cm/frame), got {np.shape(key_velocity)}")
     return root[0]
 
 
-def _checked_values(
-    keys: Pose, key_positions: Float[Array, "keys 6 3"], handles: Handles, key_velocity, span: int
-) -> tuple[Pose, Handles, Any]:
+def _checked_values(keys: Pose, handles: Handles, key_velocity, span: int) -> tuple[Pose, Handles, Any]:
     """The inputs, each with a run-time check of its values (``eqx.error_if``): finite keys
-    (naming the first that is not), valid handles on frames between the keys
-    (:func:`~bezmotion.handles.checked_handles`: joints, finite positions, no conflicting
-    duplicates, none beyond reach of the line between the keys, ``key_positions`` their
-    six joints), a finite ``key_velocity``."""
+    (naming the first that is not), valid handles on frames between the keys (a handle on a
+    key's frame would fall out of every window; the sampler checks the rest of each handle,
+    :func:`~bezmotion.handles.checked_handles`), a finite ``key_velocity``."""
     num_keys = keys.root_pos.shape[0]
     finite = jnp.isfinite(keys.root_pos).all(axis=-1) & jnp.isfinite(keys.quat_local).all(axis=(-1, -2))
     keys = eqx.branched_error_if(
@@ -385,12 +377,7 @@ def _checked_values(
         f"a handle's frame is outside the in-between or on a key: handles go on frames 1 … {last - 1}, "
         f"not on the keys' frames {list(range(0, last + 1, span))}",
     )  # fmt: skip
-    # Every other check of a handle, with the straight line between the keys around it.
-    window = jnp.clip(frame // span, 0, num_keys - 2)
-    around = lambda k: jnp.take_along_axis(key_positions[k], jnp.clip(handles.joint, 0, key_positions.shape[1] - 1)[:, None, None], axis=1)[:, 0]  # noqa: E731
-    t = ((frame - span * window) / span).astype(key_positions.dtype)[:, None]
-    line = (1.0 - t) * around(window) + t * around(window + 1)
-    handles = checked_handles(handles, num_frames=last + 1, num_joints=key_positions.shape[1], span=span, line=line)
+    # Every other check of a handle runs where the sampler takes each window's (checked_handles).
     if key_velocity is not None:
         key_velocity = eqx.error_if(key_velocity, ~jnp.isfinite(key_velocity).all(), "key_velocity contains non-finite values")
     return keys, handles, key_velocity
@@ -399,8 +386,7 @@ def _checked_values(
 @functools.partial(inference_jit, static_argnames=("options",))
 def _inbetween(model, keys, handles, key, options, key_velocity) -> InbetweenResult:
     span = model.bmm.config.num_frames - 1
-    key_positions = targets_from_pose(model.character, keys).position
-    keys, handles, key_velocity = _checked_values(keys, key_positions, handles, key_velocity, span)
+    keys, handles, key_velocity = _checked_values(keys, handles, key_velocity, span)
     windows = window_handles(handles, keys.root_pos.shape[0] - 1, span)
     return inbetween_traced(model, keys, windows, key, options, key_velocity)
 

@@ -27,6 +27,7 @@ from jaxtyping import Array, Float
 
 from bezmotion.assets.registry import load_pretrained
 from bezmotion.bmm.sampling import BezierMotionModel, Handles
+from bezmotion.handles import line_between_keys
 from bezmotion.data.bvh import BvhMotion
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.data.clip_frame import ClipFrame, detect_clip_frame
@@ -213,8 +214,7 @@ class Inbetweener:
         for role, frame, offset in zip(roles, frames, offsets):
             if frame >= last:
                 raise ValueError(f"{CHARACTERISTIC_JOINTS[role]} at frame {frame}: outside the in-between, frames 0 … {last} (the keys' last)")
-            window, t = frame // self.span, (frame % self.span) / self.span
-            out.append(offset + (1.0 - t) * key_positions[window, role] + t * key_positions[window + 1, role])
+            out.append(offset + line_between_keys(key_positions, role, frame, self.span))
         return out
 
     def inbetween(
