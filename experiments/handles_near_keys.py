@@ -67,7 +67,7 @@ def swing(keys: list[str], handle_frames: list[int], joint: str, offset: str) ->
 
 
 def main(argv: list[str] | None = None) -> dict:
-    args = parse_options(Options, argv)
+    args = parse_options(Options, argv, description=__doc__)
     clip = str(DEMO_CLIP)
     table = {
         "window": swing([clip, "--frames", "3", "33"], list(args.frames), args.joint, args.offset),

@@ -40,10 +40,11 @@ requires_shared = pytest.mark.skipif(
 # ---------------------------------------------------------------------- NumPy references
 
 
-def load_experiment(name: str) -> ModuleType:
-    """``experiments/<name>.py`` loaded as a module (``experiments/`` on ``sys.path`` while it
-    runs its imports, as when the script is started from the command line)."""
-    folder = REPO_ROOT / "experiments"
+def load_experiment(name: str, scripts: str = "experiments") -> ModuleType:
+    """``<scripts>/<name>.py`` (``experiments/`` or ``benchmarks/``) loaded as a module, its
+    folder on ``sys.path`` while it runs its imports, as when the script is started from the
+    command line."""
+    folder = REPO_ROOT / scripts
     sys.path.insert(0, str(folder))
     try:
         spec = importlib.util.spec_from_file_location(name, folder / f"{name}.py")

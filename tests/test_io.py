@@ -69,3 +69,9 @@ def test_a_writable_folder_is_one_whose_nearest_existing_ancestor_is_a_folder(tm
         with pytest.raises(ValueError, match=f"^{tmp_path}/file is a file, not a folder$"):
             check_writable_folder(under_a_file)
     assert not (tmp_path / "not").exists()  # checking makes nothing
+
+
+def test_atomic_temporaries_carry_the_process_id(tmp_path):
+    with atomic_path(tmp_path / "a.txt") as tmp:
+        assert tmp.name.startswith(f".a.txt.{os.getpid()}.") and tmp.name.endswith(".tmp")
+        tmp.write_text("x")

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import contextlib
+import hashlib
+import json
 import os
 import stat
 import tempfile
@@ -15,14 +17,16 @@ def atomic_path(path: str | os.PathLike, suffix: str = "") -> Iterator[Path]:
     """Yield a temporary path beside ``path``; on success it replaces ``path`` atomically.
 
     The temporary file lives in the destination directory so ``os.replace`` is a rename
-    on one filesystem. On any exception the temporary file is removed and ``path`` is
-    left untouched. ``suffix`` keeps tools that dispatch on the extension (``np.savez``)
-    happy. The file gets the mode an ordinary ``open`` would give it (``0o666`` less the
-    umask), or the mode of the file it replaces.
+    on one filesystem; its name, ``.NAME.PID.XXXXXXXX[suffix].tmp``, carries this process's
+    id, so that one a killed process left is known for stale (:func:`clear_interrupted`).
+    On any exception the temporary file is removed and ``path`` is left untouched.
+    ``suffix`` keeps tools that dispatch on the extension (``np.savez``) happy. The file
+    gets the mode an ordinary ``open`` would give it (``0o666`` less the umask), or the mode
+    of the file it replaces.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix + ".tmp", dir=path.parent)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=suffix + ".tmp", dir=path.parent)
     os.close(fd)
     tmp_path = Path(tmp)
     try:
@@ -50,6 +54,12 @@ def check_writable_folder(folder: str | os.PathLike) -> None:
         raise ValueError(f"{existing} is a file, not a folder")
     if not os.access(existing, os.W_OK | os.X_OK):
         raise ValueError(f"cannot write in {existing}")
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """The SHA-256 hex digest of one file's bytes."""
+    with open(path, "rb") as f:
+        return hashlib.file_digest(f, "sha256").hexdigest()
 
 
 def _umask() -> int:
@@ -88,8 +98,6 @@ def atomic_write_bytes(path: str | os.PathLike, data: bytes) -> None:
 def write_results(out: str | os.PathLike, results: dict, report: str) -> None:
     """Print an experiment's Markdown ``report`` and write it beside its JSON ``results``
     (``out`` and ``out`` with suffix ``.md``), both atomically."""
-    import json
-
     out = Path(out)
     print(report)
     atomic_write_text(out, json.dumps(results, indent=2) + "\n")

@@ -16,7 +16,11 @@ Bundled folders are checked against :data:`MANIFEST` (``MANIFEST.json`` beside t
 SHA-256 over every file of a folder (:func:`folder_digest`). A changed, truncated or
 missing file is a :class:`ChecksumError` naming the folder and both digests, before
 anything is loaded. ``tests/test_pretrained.py`` fails when the manifest is not updated
-along with the files.
+along with the files. Like every saved model, each folder also carries its own
+``checksums.json`` (:func:`~bezmotion.training.checkpoint.save_model_folder`), which
+:func:`~bezmotion.bmm.sampling.load_model` and :func:`~bezmotion.ik.protores.load_ik_model`
+check, bundled or trained locally; a local model saved before models carried them loads
+with ``verify=False``.
 
 ``bezmotion demo --bmm NAME`` and ``bezmotion inbetween --model NAME --ik-model NAME``
 take these names too (:func:`resolve_folder`).
@@ -25,7 +29,6 @@ take these names too (:func:`resolve_folder`).
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import math
 import os
@@ -33,6 +36,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Literal, NamedTuple
 
+from bezmotion._src.checksums import DIGEST_RULE, ChecksumError, folder_digest, folder_files
 from bezmotion.assets import MODELS_DIR, PROFILES_DIR
 from bezmotion.bmm.sampling import BezierMotionModel, load_model
 from bezmotion.data.cache import cache_dir
@@ -45,7 +49,6 @@ from bezmotion.pipeline.transfer import CharacterProfile
 MANIFEST = "MANIFEST.json"
 """The checksum manifest's file name, in the bundled models' root folder."""
 MANIFEST_FORMAT = "bezmotion.pretrained/1"
-DIGEST_RULE = "sha256 over the folder's files sorted by relative POSIX path: for each, the path, a NUL byte, the file's own sha256"
 
 Part = Literal["bmm", "ik"]
 PARTS: tuple[Part, ...] = ("bmm", "ik")
@@ -103,6 +106,19 @@ class ModelEntry:
 
     def retrain_hint(self) -> str:
         return "retrain with: " + " && ".join(self.commands)
+
+
+class NotTrained(FileNotFoundError):
+    """A registered model that is not bundled and has not been trained here (the message
+    names the commands that train it; :meth:`short` only what the models table adds)."""
+
+    def __init__(self, entry: ModelEntry, part: str, folder: Path):
+        self.entry, self.part, self.folder = entry, part, folder
+        super().__init__(f"{self.short()}: no saved model in {folder}; {entry.retrain_hint()}")
+
+    def short(self) -> str:
+        what = "BMM" if self.part == "bmm" else "learned IK"
+        return f"pretrained model {self.entry.name!r} is not bundled (its data is {self.entry.licence.split(' (')[0]}) and its {what} is not trained here"
 
 
 REGISTRY: Mapping[str, ModelEntry] = {
@@ -210,31 +226,12 @@ class PretrainedParts(NamedTuple):
     entry: ModelEntry
 
 
-class ChecksumError(ValueError):
-    """A bundled model folder does not match its checksum in :data:`MANIFEST`."""
-
-
 # -------------------------------------------------------------------------- checksums
-
-
-def _files(folder: Path) -> list[Path]:
-    return sorted((p for p in folder.rglob("*") if p.is_file()), key=lambda p: p.relative_to(folder).as_posix())
-
-
-def folder_digest(folder: str | os.PathLike) -> str:
-    """SHA-256 hex digest of every file under ``folder`` (:data:`DIGEST_RULE`)."""
-    folder = Path(folder)
-    h = hashlib.sha256()
-    for path in _files(folder):
-        with open(path, "rb") as f:
-            own = hashlib.file_digest(f, "sha256").digest()
-        h.update(path.relative_to(folder).as_posix().encode() + b"\0" + own)
-    return h.hexdigest()
 
 
 def folder_record(folder: str | os.PathLike) -> dict:
     """``{"sha256", "files", "bytes"}`` of a folder, as the manifest stores it."""
-    files = _files(Path(folder))
+    files = folder_files(folder)
     return {"sha256": folder_digest(folder), "files": len(files), "bytes": sum(p.stat().st_size for p in files)}
 
 
@@ -344,10 +341,7 @@ def model_folder(name: str, part: Part, *, root: str | os.PathLike | None = None
         elif not folder.is_dir():
             raise FileNotFoundError(f"{folder}: bundled model folder missing; reinstall bezmotion")
     elif not (folder / "config.json").is_file():
-        raise FileNotFoundError(
-            f"pretrained model {entry.name!r} is not bundled (its data is {entry.licence.split(' (')[0]}) and its "
-            f"{'BMM' if part == 'bmm' else 'learned IK'} is not trained here: no saved model in {folder}; {entry.retrain_hint()}"
-        )
+        raise NotTrained(entry, part, folder)
     return folder
 
 
@@ -366,12 +360,14 @@ def trained_for(skeleton: str | None, part: Part) -> str | None:
     return None
 
 
-def resolve_folder(name_or_path: str | os.PathLike, part: Part) -> tuple[Path, ModelEntry | None]:
-    """``(folder, entry or None)`` of a registered name (checked, :func:`model_folder`) or a saved model's folder."""
+def resolve_folder(name_or_path: str | os.PathLike, part: Part, *, verify: bool = True) -> tuple[Path, ModelEntry | None]:
+    """``(folder, entry or None)`` of a registered name (checked when ``verify``, :func:`model_folder`)
+    or a saved model's folder (its own checksums are checked where it is loaded:
+    :func:`~bezmotion.bmm.sampling.load_model`, :func:`~bezmotion.ik.protores.load_ik_model`)."""
     entry = REGISTRY.get(str(name_or_path))
     if entry is None:
         return Path(name_or_path), None
-    return model_folder(entry.name, part), entry
+    return model_folder(entry.name, part, verify=verify), entry
 
 
 def load_pretrained(name: str, *, root: str | os.PathLike | None = None, verify: bool = True) -> PretrainedParts:
@@ -383,17 +379,18 @@ def load_pretrained(name: str, *, root: str | os.PathLike | None = None, verify:
     Args:
       name: a name in :data:`REGISTRY` (``bezmotion models`` lists them).
       root: the bundled models' root and manifest (default :data:`MODELS_DIR`).
-      verify: check bundled folders against the manifest.
+      verify: check bundled folders against the manifest, and every model folder against
+        its own checksums (``False`` loads one saved before models carried them, and warns).
     Raises:
-      ValueError: an unknown name (listing the known ones).
+      ValueError: an unknown name (listing the known ones), or weights holding NaN or inf.
       ChecksumError: a bundled folder differs from the manifest (naming the folder and
-        the expected and actual digests).
+        the expected and actual digests), or a model folder from its own checksums (or has none).
       FileNotFoundError: a model that is not bundled has not been trained (naming the command).
     """
     entry = get_entry(name)
     folders = {part: model_folder(name, part, root=root, verify=verify) for part in PARTS}
-    bmm = load_model(folders["bmm"])
-    ik = load_ik_model(folders["ik"])
+    bmm = load_model(folders["bmm"], verify=verify)
+    ik = load_ik_model(folders["ik"], verify=verify)
     limits_file = folders["ik"] / "joint_limits.json"
     limits = JointLimits.load(limits_file, ik.character) if limits_file.is_file() else None
     profile = CharacterProfile.load(PROFILES_DIR / f"{entry.skeleton}.json")
@@ -404,7 +401,7 @@ def load_pretrained(name: str, *, root: str | os.PathLike | None = None, verify:
 
 
 def folder_bytes(folder: str | os.PathLike) -> int:
-    return sum(p.stat().st_size for p in _files(Path(folder)))
+    return sum(p.stat().st_size for p in folder_files(folder))
 
 
 def stored_values(folder: str | os.PathLike) -> int | None:
@@ -473,6 +470,7 @@ __all__ = [
     "REGISTRY",
     "ChecksumError",
     "ModelEntry",
+    "NotTrained",
     "PretrainedParts",
     "check_manifest",
     "folder_digest",

@@ -23,7 +23,7 @@ from flax import nnx
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from bezmotion._src.xla_options import inference_jit
-from bezmotion.training.checkpoint import CheckpointStore, cast_floating, save_model_folder
+from bezmotion.training.checkpoint import cast_floating, open_model_folder, save_model_folder
 from bezmotion.data.characteristic import HIPS
 from bezmotion.bezier import BezierLayout
 from bezmotion.diffusion.ddim import ddim_sample
@@ -512,7 +512,8 @@ def _sample_chained_curves(model, key_pos, handles, key_rot6d, key_tangent, *, k
 
 
 def save_model(directory: str | os.PathLike, model: BezierMotionModel, *, storage_dtype: str = "float32") -> None:
-    """Write a trained BMM (parameters, statistics, config) to ``directory``, atomically.
+    """Write a trained BMM (parameters, statistics, config, and the checksums of their
+    files) to ``directory``, atomically.
 
     ``storage_dtype="float16"`` halves the file (for bundling); :func:`load_model` casts
     the parameters back to float32. The statistics are always stored in float32.
@@ -521,22 +522,32 @@ def save_model(directory: str | os.PathLike, model: BezierMotionModel, *, storag
     save_model_folder(directory, {"params": params, "stats": model.stats}, {"model": dataclasses.asdict(model.config), "storage_dtype": storage_dtype})
 
 
-def load_model(directory: str | os.PathLike) -> BezierMotionModel:
-    """Read a BMM written by :func:`save_model` (its config says how to rebuild it)."""
-    try:  # read-only: loading from a wrong path must not leave a folder there
-        store = CheckpointStore(directory, max_to_keep=1, read_only=True)
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{directory}: not a saved BMM (no such folder)") from None
-    saved = store.config()
-    if saved is None or "model" not in saved or store.latest_step() is None:
-        raise FileNotFoundError(f"{directory}: not a saved BMM (config.json and a checkpoint expected)")
-    config = BMMConfig(**saved["model"])
-    graphdef, params = init_denoiser(config, key=jax.random.key(0))
-    j = config.num_joints
-    storage = jnp.dtype(saved.get("storage_dtype", "float32"))
-    like = {"params": cast_floating(params, storage), "stats": FeatureStats(jnp.zeros((j, 12)), jnp.ones((j, 12)))}
-    restored = store.restore(like)
-    store.close()
+def load_model(directory: str | os.PathLike, *, verify: bool = True) -> BezierMotionModel:
+    """Read a BMM written by :func:`save_model` (its config says how to rebuild it).
+
+    Args:
+      directory: the saved model's folder.
+      verify: check its files against the checksums :func:`save_model` wrote first.
+        ``False`` (it warns) loads a folder without them, saved before models carried them.
+
+    Raises:
+      FileNotFoundError: ``directory`` holds no saved BMM.
+      ChecksumError: its files differ from their checksums (naming them), or it has none.
+      ValueError: its parameters or statistics hold NaN or inf (naming them).
+    """
+    store = open_model_folder(directory, "BMM", verify=verify)
+    try:
+        saved = store.config()
+        if "model" not in saved:
+            raise FileNotFoundError(f"{directory}: not a saved BMM (its config.json describes no model)")
+        config = BMMConfig(**saved["model"])
+        graphdef, params = init_denoiser(config, key=jax.random.key(0))
+        j = config.num_joints
+        storage = jnp.dtype(saved.get("storage_dtype", "float32"))
+        like = {"params": cast_floating(params, storage), "stats": FeatureStats(jnp.zeros((j, 12)), jnp.ones((j, 12)))}
+        restored = store.restore(like, step=store.latest_step(), verify=False)  # the folder's checksums cover it
+    finally:
+        store.close()
     return BezierMotionModel(cast_floating(restored["params"], jnp.float32), restored["stats"], graphdef, config)
 
 

@@ -1,12 +1,14 @@
 """The ``bezmotion`` command line.
 
-    bezmotion demo [--out DIR] [--joint J --frame F --offset X Y Z] [--ik exact|refined|learned|rig] [--exact NAME=VALUE …] [--channels clip]
-    bezmotion inbetween CLIP.bvh --frames 0 30 [--handle JOINT@FRAME=X,Y,Z …] [--out out.bvh|out.glb|DIR]
+    bezmotion demo [--out DIR] [--force] [--joint J --frame F --offset X Y Z] [--ik exact|refined|learned|rig] [--exact NAME=VALUE …] [--channels clip]
+    bezmotion inbetween CLIP.bvh --frames 0 30 [--handle JOINT@FRAME=X,Y,Z …] [--out out.bvh|out.glb|DIR/] [--force]
     bezmotion inbetween --start A.bvh@F --end B.bvh@G [--handles FILE] [--samples N] [--ik rig] [--mapping MAP.json]
     bezmotion models [--check | --write-manifest]   # the pretrained models: bundled or not, size, data, licence, retraining
 
-Errors are one line, ``bezmotion: error: …`` naming the argument and its value, with exit
-status 2; nothing is written then.
+Errors are one line of about 300 characters at most (:func:`~bezmotion._src.messages.one_line`),
+``bezmotion: error: …`` naming the argument and its value, with exit status 2; nothing is
+written then. A run's output files are replaced all together or not at all; files that
+bezmotion did not write are replaced only with ``--force``.
 
 Paper tables and figures are reproduced by the scripts in ``experiments/``.
 """
@@ -19,19 +21,24 @@ from pathlib import Path
 
 from bezmotion.assets.registry import check_manifest, models_table, write_manifest
 from bezmotion._src.compilation_cache import use_compilation_cache
+from bezmotion._src.messages import one_line
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.cli.demo import demo
 from bezmotion.cli.inbetween import InbetweenCommand, run_inbetween
 from bezmotion._src.options import add_options, option, options, options_from
 from bezmotion.ik.exact import exact_settings
-from bezmotion.pipeline.authoring import CHANNEL_CHOICES, EXACT_HELP, FOOT_LOCK_HELP, IK_CHOICES
+from bezmotion.pipeline.authoring import CHANNEL_CHOICES, EXACT_HELP, FOOT_LOCK_HELP, IK_CHOICES, VERIFY_HELP
 
 
 @options
 class DemoOptions:
     """The ``bezmotion demo`` options."""
 
-    out: Path = option(Path("results/demo"), help="output folder (default results/demo)")
+    out: Path = option(Path("results/demo"), help="output folder (default results/demo); its other files stay")
+    force: bool = option(
+        False, help="replace the demo's files in --out where bezmotion did not write them (or they changed since); without it "
+        "only its own earlier files are replaced, with a note",
+    )  # fmt: skip
     joint: str = option("right_hand", choices=CHARACTERISTIC_JOINTS, help="the joint the handle moves")
     frame: int = option(12, help="the handle's frame, any in 1…29 (default 12)")
     offset: tuple[float, float, float] = option(
@@ -44,23 +51,25 @@ class DemoOptions:
     )  # fmt: skip
     steps: int = option(10, help="DDIM steps (default 10)")
     seed: int = 0
-    bmm: str = option(
-        "bandai_namco", metavar="NAME|PATH", help="the BMM: a pretrained model's name (default bandai_namco; bezmotion models lists them) or a saved BMM's folder"
+    bmm: str | None = option(
+        None, metavar="NAME|PATH", help="the BMM: a pretrained model's name (default bandai_namco; bezmotion models lists them) or a saved BMM's folder"
     )
     bmm_corpus: str | None = option(
         None, help="the corpus --bmm was trained on: bandai_namco or lafan1 (transferred); default: a named model's own, else bandai_namco"
     )
-    ik_model: str = option("bandai_namco", metavar="NAME|PATH", help="the learned IK: a pretrained model's name (default bandai_namco) or a saved one's folder")
+    ik_model: str | None = option(None, metavar="NAME|PATH", help="the learned IK: a pretrained model's name (default bandai_namco) or a saved one's folder")
     channels: str = option(
         "default", choices=CHANNEL_CHOICES,
         help="BVH channels: default (positions on the root and hips, rotations elsewhere) or clip (the clip's own layout)",
     )  # fmt: skip
     foot_lock: bool = option(True, help=FOOT_LOCK_HELP)
     exact: tuple[str, ...] = option((), repeat=True, metavar="NAME=VALUE", help=EXACT_HELP)
+    verify: bool = option(True, help=VERIFY_HELP)
 
 
 INBETWEEN_EXAMPLES = """examples:
   bezmotion inbetween CLIP.bvh --frames 0 30 --handle right_hand@12=+0,25,0 --out take/
+  bezmotion inbetween CLIP.bvh --frames 0 30 --handle right_hand@12=+0,40,0 --out take.v2/
   bezmotion inbetween --start A.bvh@0 --end B.bvh@40 --handle right_hand@12=40,150,80 --samples 3 --out take.bvh
   bezmotion inbetween CLIP.bvh --frames 0 30 --handles edited.json --out take.glb
   bezmotion inbetween OTHER.bvh --frames 0 30 --mapping map.json --ik rig --out take/
@@ -75,7 +84,7 @@ class _Parser(argparse.ArgumentParser):
     """Reports a bad command line in one line, as every other error (exit status 2)."""
 
     def error(self, message: str):
-        self.exit(2, f"bezmotion: error: {' '.join(message.split())} (see {self.prog} --help)\n")
+        self.exit(2, f"bezmotion: error: {one_line(message)} (see {self.prog} --help)\n")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -107,7 +116,7 @@ def main(argv: list[str] | None = None) -> int:
             demo(
                 args.out, joint=args.joint, frame=args.frame, offset=tuple(args.offset), ik=args.ik, steps=args.steps,
                 seed=args.seed, bmm_dir=args.bmm, bmm_corpus=args.bmm_corpus, ik_dir=args.ik_model,
-                channels=args.channels, foot_lock=args.foot_lock, exact_settings=exact_settings(args.exact, "--exact"),
+                channels=args.channels, foot_lock=args.foot_lock, exact_settings=exact_settings(args.exact, "--exact"), force=args.force, verify=args.verify,
             )  # fmt: skip
         elif parsed.command == "inbetween":
             run_inbetween(options_from(p_inbetween, InbetweenCommand, parsed))
@@ -119,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
             else:
                 print(models_table())
     except (ValueError, FileNotFoundError) as e:
-        print(f"bezmotion: error: {' '.join(str(e).split())}", file=sys.stderr)
+        print(f"bezmotion: error: {one_line(e)}", file=sys.stderr)
         return 2
     return 0
 

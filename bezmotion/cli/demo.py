@@ -10,13 +10,15 @@ The pipeline generates curves through the handle, IK turns them into full-body p
 and the demo writes them as BVH (read back and checked by forward kinematics), a PNG
 of the curves and poses, a glTF file (the skeleton and the six curves as CUBICSPLINE
 controllers, :mod:`bezmotion.pipeline.gltf`), an animated GIF preview beside the mocap
-(:mod:`bezmotion.pipeline.preview`), and a JSON summary.
+(:mod:`bezmotion.pipeline.preview`), and a JSON summary: one set of files (:data:`DEMO_FILES`),
+moved into the output folder together (:func:`~bezmotion._src.output_sets.output_set`).
 """
 
 from __future__ import annotations
 
 import functools
 import json
+import sys
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -27,6 +29,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from bezmotion._src.io import atomic_write_text, check_writable_folder, save_figure
+from bezmotion._src.output_sets import existing_outputs, output_set
+from bezmotion.cli.errors import argument_error
 from bezmotion.assets import DEMO_CLIP, DEMO_CLIP_ATTRIBUTION
 from bezmotion.data.bvh import read_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, FEET
@@ -55,6 +59,10 @@ from bezmotion.pipeline.authoring import (
     write_result,
 )
 from bezmotion.bmm.sampling import Handles, load_model
+
+
+DEMO_FILES = ("inbetween.bvh", "ground_truth.bvh", "demo.png", "inbetween.glb", "preview.gif", "summary.json")
+"""The files the demo writes in its folder; ``summary.json`` last, so that beside it the set is whole."""
 
 
 def _plot(
@@ -104,14 +112,17 @@ def _plot(
     plt.close(fig)
 
 
-def _resolve(flag: str, name_or_path: str | Path, resolve: Callable[[str | Path], Any]) -> Any:
-    """A model's name or folder resolved, its errors naming the flag."""
+DEFAULT_MODEL = "bandai_namco"
+"""The pretrained BMM and learned IK the demo runs without ``--bmm`` / ``--ik-model``."""
+
+
+def _resolve(label: str, name_or_path: str | Path, resolve: Callable[[str | Path], Any]) -> Any:
+    """``resolve(name_or_path)``, its errors naming the model as ``label`` (its option, or
+    what the default is) and ``name_or_path``."""
     try:
         return resolve(name_or_path)
-    except FileNotFoundError as error:
-        raise FileNotFoundError(f"{flag} {name_or_path}: {error}") from None
-    except ValueError as error:
-        raise ValueError(f"{flag} {name_or_path}: {error}") from None
+    except (FileNotFoundError, ValueError) as error:
+        raise argument_error(label, name_or_path, error) from None
 
 
 def ground_slide_cm(feet_pos: np.ndarray, ground: np.ndarray, *, height: float = 5.0) -> np.ndarray:
@@ -132,13 +143,15 @@ def demo(
     ik: str = "exact",
     steps: int = 10,
     seed: int = 0,
-    bmm_dir: str | Path = "bandai_namco",
+    bmm_dir: str | Path | None = None,
     bmm_corpus: str | None = None,
-    ik_dir: str | Path = "bandai_namco",
+    ik_dir: str | Path | None = None,
     clip: Path = DEMO_CLIP,
     channels: str = "default",
     foot_lock: bool = True,
     exact_settings: Mapping[str, float | int] | None = None,
+    force: bool = False,
+    verify: bool = True,
 ) -> dict:
     """Run the demo; returns (and writes) its summary. See the module docstring.
 
@@ -166,6 +179,13 @@ def demo(
         left foot slides 2.6 cm on the ground instead of 17.3 (the mocap 3.9; the summary's ``ground_slide_cm``).
       exact_settings: :class:`~bezmotion.ik.exact.ExactIKParams` keywords of the exact IKs
         (``--exact NAME=VALUE``), e.g. ``{"plant_weight": 10.0}``.
+      force: replace files of :data:`DEMO_FILES` in ``out`` that bezmotion did not write (or
+        that changed since); without it they are refused, and only its own are replaced.
+      verify: check the models' files against their checksums; ``False`` loads a model saved
+        without them, with a warning.
+    Raises:
+      ValueError: a bad argument (naming its option), before the work; files in ``out``
+        that bezmotion did not write, without ``force``.
     """
     if ik not in IK_CHOICES:
         raise ValueError(f"--ik must be one of {IK_CHOICES}, got {ik!r}")
@@ -182,14 +202,20 @@ def demo(
         raise ValueError(f"--bmm-corpus must be one of {profile_names()}, got {bmm_corpus!r}")
     try:
         check_writable_folder(out)
+        existing = existing_outputs(out, DEMO_FILES, "")
     except ValueError as error:
         raise ValueError(f"--out {out}: {error}") from None
+    if existing.refusal() is not None and not force:
+        raise ValueError(f"--out {out}: {existing.refusal()}; --force replaces {'it' if len(existing.theirs) == 1 else 'them'}")
     started = time.perf_counter()
-    bmm_folder, trained_on = _resolve("--bmm", bmm_dir, resolve_bmm)
+    # Errors name the option only where the user gave it.
+    bmm_label, bmm_dir = ("--bmm", bmm_dir) if bmm_dir is not None else ("the default BMM", DEFAULT_MODEL)
+    ik_label, ik_dir = ("--ik-model", ik_dir) if ik_dir is not None else ("the default learned IK", DEFAULT_MODEL)
+    bmm_folder, trained_on = _resolve(bmm_label, bmm_dir, functools.partial(resolve_bmm, verify=verify))
     bmm_corpus = bmm_corpus if bmm_corpus is not None else trained_on or "bandai_namco"
-    ik_folder = _resolve("--ik-model", ik_dir, resolve_ik_model) if ik in LEARNED_IK_CHOICES else None
+    ik_folder = _resolve(ik_label, ik_dir, functools.partial(resolve_ik_model, verify=verify)) if ik in LEARNED_IK_CHOICES else None
     motion = read_bvh(clip)
-    bmm = load_model(bmm_folder)
+    bmm = _resolve(bmm_label, bmm_dir, lambda _: load_model(bmm_folder, verify=verify))
     # The clip's own skeleton (its offsets) throughout: the files' FK is the pipeline's.
     recognised = recognise_character(motion)
     character = recognised.character
@@ -199,7 +225,7 @@ def demo(
     truth = motion_poses(motion, character, slice(0, frames))
     # Joints the rig does not solve (clavicles, toes) keep the start pose's rotations.
     ik_fn, ik_params = make_ik(
-        ik, recognised, rest_quat_local=np.asarray(truth.quat_local[0]), ik_model=None if ik_folder is None else load_ik_model(ik_folder),
+        ik, recognised, rest_quat_local=np.asarray(truth.quat_local[0]), ik_model=None if ik_folder is None else _resolve(ik_label, ik_dir, lambda _: load_ik_model(ik_folder, verify=verify)),
         limits=ik_model_joint_limits(ik_folder, character) if ik == "exact" else None, exact_settings=exact_settings,
     )  # fmt: skip
     _, true_pos = pose_fk(character, truth)
@@ -221,14 +247,7 @@ def demo(
     jax.block_until_ready(run())
     second_call_s = time.perf_counter() - t0
 
-    out.mkdir(parents=True, exist_ok=True)
-    paths = {
-        "inbetween": out / "inbetween.bvh",
-        "ground_truth": out / "ground_truth.bvh",
-        "png": out / "demo.png",
-        "glb": out / "inbetween.glb",
-        "gif": out / "preview.gif",
-    }
+    paths = dict(zip(("inbetween", "ground_truth", "png", "glb", "gif"), (out / name for name in DEMO_FILES[:-1]), strict=True))
     # The files rig like the user's clip (its offsets, End Sites, 30 fps rather than the
     # 30.00003 of its 0.0333333 s), not like the take the IK model stored as its character.
     export = dict(fps=motion.nominal_fps, channels=None if channels == "default" else motion.channels, template=motion)
@@ -239,43 +258,48 @@ def demo(
         character, pose_to_bvh(character, result.pose, **export), result.joined_curves(), bmm.config.stride, handle_records, truth_motion,
         f"{clip.name}: {joint} at frame {frame} moved by {list(offset)} cm",
     )  # fmt: skip
-    for name in ("inbetween", "glb", "gif"):
-        write_result(paths[name], files)
-    write_result(paths["ground_truth"], ResultFiles(character, truth_motion, None, bmm.config.stride))
-    _plot(paths["png"], character, result, truth, handle_pos, j, frame)
     _, pos = pose_fk(character, result.pose)
     feet = np.asarray(character.characteristic)[np.asarray(FEET)]
     ground = np.asarray(true_pos)[:, feet, 1].min(axis=0)
     slides = {which: ground_slide_cm(np.asarray(p[:, feet], np.float64), ground).round(2).tolist() for which, p in (("inbetween", pos), ("mocap", true_pos))}
     turns = {which: largest_turn(character, q) for which, q in (("inbetween", result.pose.quat_local), ("mocap", truth.quat_local))}
-    summary = {
-        "clip": clip.name,
-        "frames": frames,
-        "joints": character.num_joints,
-        "handle": {"joint": joint, "frame": frame, "offset_cm": list(offset), "position_cm": handle_pos.tolist()},
-        "ik": ik,
-        "steps": steps,
-        "channels": channels,
-        "foot_lock": foot_lock,
-        "exact": dict(exact_settings or {}),
-        "curve_handle_error_cm": float(np.linalg.norm(np.asarray(result.positions[frame, j]) - handle_pos)),
-        "full_body_handle_error_cm": float(full_body_handles_error(character, result.pose, handles, bmm.config.stride)),
-        "joint_moved_cm": float(np.linalg.norm(np.asarray(pos[frame, character.characteristic[j]] - true_pos[frame, character.characteristic[j]]))),
-        # How far each foot slides along the ground (near its lowest mocap height), the mocap's beside it.
-        "ground_slide_cm": {which: dict(zip(("left_foot", "right_foot"), cm, strict=True)) for which, cm in slides.items()},
-        # The fastest any joint turns from one frame to the next, and where: a pop or a
-        # catch-up shows here (the mocap's beside it).
-        "largest_turn_deg": turns,
-        # How far the IK'd six joints lie from their curves at worst, and at which frame.
-        "curve_error_max_cm": curve_miss(np.asarray(pos)[:, np.asarray(character.characteristic)], result.positions),
-        "bvh_fk_error_cm": bvh_fk_error_cm(paths["inbetween"], character, result.pose),
-        "first_call_s": first_call_s,
-        "second_call_s": second_call_s,
-        "total_s": time.perf_counter() - started,
-        "files": {k: str(v) for k, v in paths.items()},
-        "attribution": DEMO_CLIP_ATTRIBUTION,
-    }
-    atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    with output_set(out, "", remove=existing.stale, last=DEMO_FILES[-1]) as staging:
+        staged = {name: staging / path.name for name, path in paths.items()}
+        for name in ("inbetween", "glb", "gif"):
+            write_result(staged[name], files)
+        write_result(staged["ground_truth"], ResultFiles(character, truth_motion, None, bmm.config.stride))
+        _plot(staged["png"], character, result, truth, handle_pos, j, frame)
+        summary = {
+            "clip": clip.name,
+            "frames": frames,
+            "joints": character.num_joints,
+            "handle": {"joint": joint, "frame": frame, "offset_cm": list(offset), "position_cm": handle_pos.tolist()},
+            "ik": ik,
+            "steps": steps,
+            "channels": channels,
+            "foot_lock": foot_lock,
+            "exact": dict(exact_settings or {}),
+            "curve_handle_error_cm": float(np.linalg.norm(np.asarray(result.positions[frame, j]) - handle_pos)),
+            "full_body_handle_error_cm": float(full_body_handles_error(character, result.pose, handles, bmm.config.stride)),
+            "joint_moved_cm": float(np.linalg.norm(np.asarray(pos[frame, character.characteristic[j]] - true_pos[frame, character.characteristic[j]]))),
+            # How far each foot slides along the ground (near its lowest mocap height), the mocap's beside it.
+            "ground_slide_cm": {which: dict(zip(("left_foot", "right_foot"), cm, strict=True)) for which, cm in slides.items()},
+            # The fastest any joint turns from one frame to the next, and where: a pop or a
+            # catch-up shows here (the mocap's beside it).
+            "largest_turn_deg": turns,
+            # How far the IK'd six joints lie from their curves at worst, and at which frame.
+            "curve_error_max_cm": curve_miss(np.asarray(pos)[:, np.asarray(character.characteristic)], result.positions),
+            "bvh_fk_error_cm": bvh_fk_error_cm(staged["inbetween"], character, result.pose),
+            "first_call_s": first_call_s,
+            "second_call_s": second_call_s,
+            "total_s": time.perf_counter() - started,
+            "files": {k: str(v) for k, v in paths.items()},
+            "attribution": DEMO_CLIP_ATTRIBUTION,
+        }
+        atomic_write_text(staging / DEMO_FILES[-1], json.dumps(summary, indent=2) + "\n")
+    note = existing.note(out)
+    if note is not None:
+        print(f"bezmotion demo: note: {note}", file=sys.stderr)
     print(f"bezmotion demo: {clip.name}, frames 0–{frames - 1}, {character.num_joints} joints, IK: {ik}")
     print(f"  handle: {joint} at frame {frame} moved by {list(offset)} cm")
     print(f"  curve passes the handle within {summary['curve_handle_error_cm']:.2e} cm; full body after IK {summary['full_body_handle_error_cm']:.2f} cm")

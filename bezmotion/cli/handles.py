@@ -11,20 +11,15 @@ from typing import Any
 import jax.numpy as jnp
 import numpy as np
 
+from bezmotion._src.messages import listed, one_line
 from bezmotion.handles import HANDLE_FARTHEST_CM, line_between_keys
 from bezmotion.pipeline.model import HANDLE_SLOTS
 from bezmotion.bmm.sampling import BezierMotionModel, Handles
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.ik.protocol import Pose, pose_fk
-from bezmotion.evaluation.window_figures import (
-    HANDLE_MISS_CM,
-    ReachChains,
-)
-from bezmotion.pipeline.authoring import (
-    RecognisedCharacter,
-    read_structured_file,
-)
-
+from bezmotion._src.structured_files import read_structured_file
+from bezmotion.evaluation.window_figures import HANDLE_MISS_CM, ReachChains
+from bezmotion.pipeline.authoring import RecognisedCharacter
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,20 +71,38 @@ def parse_handle(text: str) -> HandleRequest:
     return HandleRequest(match["joint"], int(match["frame"]), value, match["plus"] is not None, source)  # type: ignore[arg-type]
 
 
+def _coordinates(value: Any) -> tuple[float, float, float] | None:
+    """``value`` as three finite floats; ``None`` unless it is a list of three numbers, each
+    finite as a float (a 400-digit integer is not)."""
+    if not (isinstance(value, list) and len(value) == 3 and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)):
+        return None
+    try:
+        xyz = tuple(float(v) for v in value)
+    except OverflowError:
+        return None
+    return xyz if np.isfinite(xyz).all() else None  # type: ignore[return-value]
+
+
 def read_handles_file(path: Path) -> list[HandleRequest]:
     """Handles from a JSON or TOML file (see the module docstring).
 
     Raises:
       FileNotFoundError: no such file.
-      ValueError: unreadable, or an entry without a joint, an integer frame and exactly one
-        of ``position`` / ``offset`` as three numbers (the message names the entry).
+      ValueError: a folder or other non-file; unreadable, not UTF-8, not valid JSON / TOML
+        or nested too deep (:func:`~bezmotion._src.structured_files.read_structured_file`); or an
+        entry without a joint, an integer frame and exactly one of ``position`` / ``offset``
+        as three finite numbers (the message names the entry, shortened to one line).
     """
-    if not path.is_file():
+    if path.is_dir():
+        raise ValueError(f"--handles {path}: is a folder, not a handles file")
+    if not path.exists():
         raise FileNotFoundError(f"--handles {path}: no such file")
+    if not path.is_file():  # a pipe or a device: reading it could wait forever
+        raise ValueError(f"--handles {path}: not a regular file")
     try:
         data = read_structured_file(path)
-    except ValueError as error:
-        raise ValueError(f"--handles {path}: {error}") from None
+    except (ValueError, OSError) as error:
+        raise ValueError(f"--handles {path}: {one_line(error, 200)}") from None
     entries = data.get("handles") if isinstance(data, dict) else data
     if not isinstance(entries, list):
         raise ValueError(f'--handles {path}: expected a list of handles, or a table with a "handles" list')
@@ -99,12 +112,11 @@ def read_handles_file(path: Path) -> list[HandleRequest]:
         kinds = [k for k in ("position", "offset") if isinstance(entry, dict) and k in entry]
         ok = isinstance(entry, dict) and isinstance(entry.get("joint"), str) and len(kinds) == 1
         frame = entry.get("frame") if ok else None
-        value = entry[kinds[0]] if ok else None
-        ok = ok and isinstance(frame, int) and not isinstance(frame, bool)
-        ok = ok and isinstance(value, list) and len(value) == 3 and all(isinstance(v, int | float) and not isinstance(v, bool) for v in value)
-        if not ok or not np.isfinite(value).all():
-            raise ValueError(f'{source}: expected {{"joint": name, "frame": integer, "position" or "offset": [x, y, z]}}, got {entry!r}')
-        requests.append(HandleRequest(entry["joint"], frame, tuple(float(v) for v in value), kinds[0] == "offset", f"{source} ({entry['joint']}@{frame})"))
+        value = _coordinates(entry[kinds[0]]) if ok else None
+        if not (isinstance(frame, int) and not isinstance(frame, bool) and value is not None):
+            raise ValueError(f'{source}: expected {{"joint": name, "frame": integer, "position" or "offset": [x, y, z]}}, got {one_line(repr(entry), 120)}')
+        written = one_line(f"{entry['joint']}@{frame}", 60)  # the joint's name and frame as written, cut to fit a message
+        requests.append(HandleRequest(entry["joint"], frame, value, kinds[0] == "offset", f"{source} ({written})"))
     return requests
 
 
@@ -117,7 +129,7 @@ def handle_role(request: HandleRequest, recognised: RecognisedCharacter) -> str:
     if request.joint in own:
         return own[request.joint]
     raise ValueError(
-        f"{request.source}: unknown joint {request.joint!r}; handles go on {', '.join(CHARACTERISTIC_JOINTS)} "
+        f"{request.source}: unknown joint {one_line(repr(request.joint), 60)}; handles go on {', '.join(CHARACTERISTIC_JOINTS)} "
         f"(this skeleton's {', '.join(own)})"
     )
 
@@ -151,14 +163,14 @@ def resolve_handles(
     for r in requests:
         role = handle_role(r, recognised)
         if not 0 <= r.frame <= last:
-            raise ValueError(f"{r.source}: frame {r.frame} is outside the in-between, frames 0…{last} (0 and {last} are the keys)")
+            raise ValueError(one_line(f"{r.source}: frame {r.frame} is outside the in-between, frames 0…{last} (0 and {last} are the keys)"))
         if 0 < r.frame < last and r.frame % span == 0:
-            raise ValueError(f"{r.source}: frame {r.frame} is a key of the chain (keys at {list(range(0, last + 1, span))}); handles go between them")
+            raise ValueError(f"{r.source}: frame {r.frame} is a key of the chain (keys at {listed(range(0, last + 1, span))}); handles go between them")
         window = min(r.frame // span, len(keys) - 2)
         local = r.frame - span * window  # the frame in its window (0 and 30 are the window's keys)
         line = line_between_keys(key_positions, CHARACTERISTIC_JOINTS.index(role), r.frame, span)
         position = np.asarray(r.value, np.float64) + (line if r.relative else 0.0)
-        away = float(np.linalg.norm(position - line))
+        away = float(np.linalg.norm((position - line) / HANDLE_FARTHEST_CM)) * HANDLE_FARTHEST_CM  # scaled: 1e300 cm squared overflows
         if away > HANDLE_FARTHEST_CM:  # a slip of units or digits: no window's motion goes that far
             raise ValueError(
                 f"{r.source}: {role} at frame {r.frame} lies {away / 100:.6g} m from the straight line between the keys' "

@@ -59,15 +59,21 @@ from the analytic rig's poses (``exact_rig``), which needs no training.
 
 **Output.** ``--out x.bvh`` / ``x.glb`` / ``x.gif``: that file (``x_0.bvh``, ``x_1.bvh``, …
 with ``--samples N``); ``--out FOLDER``: ``inbetween.bvh``, ``inbetween.glb``,
-``preview.gif`` (unless ``--no-preview``) and ``summary.json``. Every argument is checked
-and the models are loaded before anything is written: a bad argument writes nothing.
+``preview.gif`` (unless ``--no-preview``) and ``summary.json``
+(:func:`~bezmotion.pipeline.authoring.output_format` tells a file from a folder). Every
+argument is checked and the models are loaded before anything is written: a bad argument
+writes nothing. A run's files are one set, written in a staging folder and moved into place
+together (:func:`~bezmotion._src.output_sets.output_set`): the folder holds the earlier set or the
+new one, and the earlier set's files the new one lacks are removed; other files there stay.
+A file that bezmotion did not write (or that changed since), or an input, is replaced only
+with ``--force``; an earlier output is replaced with a note on stderr.
 """
 from __future__ import annotations
 
 import json
 import sys
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import jax
@@ -77,8 +83,9 @@ import numpy as np
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.data.resample import TRAINED_FPS
 from bezmotion.ik.exact import exact_settings
-from bezmotion.ik.protocol import pose_fk
+from bezmotion.ik.protocol import Pose, pose_fk
 from bezmotion._src.io import atomic_write_text
+from bezmotion._src.output_sets import output_set
 from bezmotion.pipeline import InbetweenOptions, Inbetweener, inbetween, pose_to_bvh
 from bezmotion.evaluation.window_figures import (
     beyond_reach,
@@ -93,7 +100,7 @@ from bezmotion.pipeline.authoring import (
 )
 
 from bezmotion.cli.handles import records_as_handles, handle_conflicts, handle_misses
-from bezmotion.cli.plan import InbetweenCommand, plan
+from bezmotion.cli.plan import SUMMARY, InbetweenCommand, Plan, plan
 
 
 def _stderr(message: str) -> None:
@@ -124,8 +131,8 @@ def run_inbetween(args: InbetweenCommand, *, say: Callable[[str], None] | None =
         + (", transferred from the BMM's skeleton" if p.transferred else "")
     )
     # The handles as written, all in the in-between's frames (a chain's too), for their reports.
-    written = records_as_handles(p.handle_records)
-    conflict = np.asarray(conflicting_handles(written, p.reach))
+    targets = records_as_handles(p.handle_records)
+    conflict = np.asarray(conflicting_handles(targets, p.reach))
     warnings = handle_conflicts(p.handle_records, conflict, p.reach)
     for warning in [*p.warnings, *warnings]:
         warn(f"warning: {warning}")
@@ -133,7 +140,7 @@ def run_inbetween(args: InbetweenCommand, *, say: Callable[[str], None] | None =
     model = Inbetweener(p.bmm, p.ik_fn, p.ik_params, character, p.transfer)
     keys = jax.tree.map(lambda *x: jnp.stack(x), *p.keys)
     options = InbetweenOptions(steps=args.steps, foot_lock=args.foot_lock, key_orientations=not args.key_positions_only)
-    samples = []
+    samples, written = [], []
     for k in range(n):
         t0 = time.perf_counter()
         say(f"sample {k + 1}/{n}" + (" (compiling first, about a minute on a CPU) …" if k == 0 else " …"))
@@ -148,8 +155,6 @@ def run_inbetween(args: InbetweenCommand, *, say: Callable[[str], None] | None =
             f"{p.label}, sample {k}" if n > 1 else p.label, tuple(range(0, frames, p.bmm.config.num_frames - 1)), p.clip_frame,
             bvh_fps=p.bvh_fps,
         )  # fmt: skip
-        if k == 0 and p.folder is not None:
-            p.folder.mkdir(parents=True, exist_ok=True)
         _, pos = pose_fk(character, result.pose)
         pos = np.asarray(pos)
         errors = [
@@ -163,23 +168,9 @@ def run_inbetween(args: InbetweenCommand, *, say: Callable[[str], None] | None =
             "curve_error_max_cm": curve_miss(pos[:, np.asarray(character.characteristic)], result.positions),
             "files": {},
         }  # fmt: skip
-        for suffix, path in p.outputs[k].items():
-            say(f"writing {path}")
-            write_result(path, files)
-            entry["files"][suffix[1:]] = str(path)
-            if suffix == ".bvh":
-                entry["bvh_fk_error_cm"] = bvh_fk_error_cm(path, character, result.pose, p.clip_frame, every=round(p.bvh_fps / TRAINED_FPS))
-        misses = handle_misses(p.handle_records, errors, np.asarray(beyond_reach(jnp.asarray(pos), written, p.reach)), conflict.any(axis=-1))
-        entry["handle_misses"] = misses
+        entry["handle_misses"] = handle_misses(p.handle_records, errors, np.asarray(beyond_reach(jnp.asarray(pos), targets, p.reach)), conflict.any(axis=-1))
         samples.append(entry)
-        worst = (
-            "" if not errors
-            else f", handles hit within {max(errors):.2g} cm" if not misses
-            else f", {len(misses)} of {len(errors)} handle(s) missed, by up to {max(errors):.1f} cm"
-        )  # fmt: skip
-        print(f"sample {k}: {', '.join(entry['files'].values())}{worst} ({seconds:.1f} s)")
-        for line in misses:
-            warn(line)
+        written.append((files, result.pose))
     summary = {
         "keys": p.label,
         "character": character.name,
@@ -202,9 +193,43 @@ def run_inbetween(args: InbetweenCommand, *, say: Callable[[str], None] | None =
         "input_warnings": list(p.warnings),
         "handle_warnings": warnings,
         "samples": samples,
-        "total_s": time.perf_counter() - started,
     }
-    if p.folder is not None:
-        atomic_write_text(p.folder / "summary.json", json.dumps(summary, indent=2) + "\n")
+    write_outputs(p, written, summary, started=started, say=say)
+    for entry in samples:
+        errors, misses = entry["handle_errors_cm"], entry["handle_misses"]
+        worst = (
+            "" if not errors
+            else f", handles hit within {max(errors):.2g} cm" if not misses
+            else f", {len(misses)} of {len(errors)} handle(s) missed, by up to {max(errors):.1f} cm"
+        )  # fmt: skip
+        print(f"sample {entry['sample']}: {', '.join(entry['files'].values())}{worst} ({entry['seconds']:.1f} s)")
+        for line in misses:
+            warn(line)
+    note = p.existing.note(p.out_dir)
+    if note is not None:
+        warn(f"note: {note}")
     say(f"done in {summary['total_s']:.1f} s")
     return summary
+
+
+def write_outputs(
+    p: Plan, results: Sequence[tuple[ResultFiles, Pose]], summary: dict[str, Any], *, started: float, say: Callable[[str], None]
+) -> None:
+    """Write every sample's files (``results``: per sample, the files and the pose they show),
+    and with ``--out FOLDER`` the summary, as one set (:func:`~bezmotion._src.output_sets.output_set`):
+    they replace the earlier ones all together, and the earlier set's files that the new one
+    lacks are removed. Fills each of ``summary["samples"]`` in with its files and
+    ``bvh_fk_error_cm``, and ``summary["total_s"]``: seconds since ``started`` (``time.perf_counter``)."""
+    every = round(p.bvh_fps / TRAINED_FPS)
+    last = SUMMARY if p.folder is not None else None
+    with output_set(p.out_dir, p.set_name, remove=p.existing.stale, last=last) as staging:
+        for (files, pose), outputs, entry in zip(results, p.outputs, summary["samples"], strict=True):
+            for suffix, path in outputs.items():
+                say(f"writing {path}")
+                write_result(staging / path.name, files)
+                entry["files"][suffix[1:]] = str(path)
+                if suffix == ".bvh":
+                    entry["bvh_fk_error_cm"] = bvh_fk_error_cm(staging / path.name, files.character, pose, p.clip_frame, every=every)
+        summary["total_s"] = time.perf_counter() - started
+        if last is not None:
+            atomic_write_text(staging / last, json.dumps(summary, indent=2) + "\n")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import os
 import re
 from collections.abc import Sequence
 from pathlib import Path
@@ -22,6 +23,8 @@ from bezmotion.ik.protocol import Character, Pose, targets_from_pose
 from bezmotion.ik.protores import load_ik_model
 from bezmotion.ik.rig import make_rig
 from bezmotion._src.io import check_writable_folder
+from bezmotion.cli.errors import argument_error
+from bezmotion._src.output_sets import ExistingOutputs, existing_outputs
 from bezmotion._src.options import option, options
 from bezmotion.evaluation.window_figures import (
     ReachChains,
@@ -30,13 +33,13 @@ from bezmotion.evaluation.window_figures import (
 from bezmotion.pipeline.authoring import (
     CHANNEL_CHOICES,
     EXACT_HELP,
+    VERIFY_HELP,
     EXACT_IK_CHOICES,
     FOOT_LOCK_HELP,
     IK_CHOICES,
     LEARNED_IK_CHOICES,
     RecognisedCharacter,
     check_ik_model,
-    check_output,
     ik_model_joint_limits,
     load_profile,
     make_ik,
@@ -44,6 +47,7 @@ from bezmotion.pipeline.authoring import (
     make_transfer,
     motion_poses,
     motion_window,
+    output_format,
     recognise_character,
     resolve_bmm,
     resolve_ik_model,
@@ -119,7 +123,16 @@ class InbetweenCommand:
         "The in-between is written in it; handles, reports and the .glb are in cm (.glb: m), Y up",
     )  # fmt: skip
     up: str = option("auto", choices=("auto", *UP_AXES), help="the clips' up axis; auto (default): where the head stands above the feet")
-    out: Path = option(Path("results/inbetween"), metavar="PATH", help="a .bvh, .glb or .gif file, or a folder (default results/inbetween)")
+    out: str = option(
+        "results/inbetween", metavar="PATH",
+        help="a .bvh, .glb or .gif file, or a folder (default results/inbetween): a name ending in / or an existing folder is a "
+        "folder; another suffix of letters and digits, two letters or more (take.fbx, take.mp4), is refused; any other name is a "
+        "folder (take, take.v2). Other files in the folder stay",
+    )  # fmt: skip
+    force: bool = option(
+        False, help="replace output files that bezmotion did not write (or that changed since), an input file included; "
+        "without it only its own earlier outputs are replaced, with a note",
+    )  # fmt: skip
     channels: str = option(
         "default", choices=CHANNEL_CHOICES, help="BVH channels: default (positions on the root and hips) or clip (the start file's layout)"
     )  # fmt: skip
@@ -140,6 +153,7 @@ class InbetweenCommand:
     )  # fmt: skip
     foot_lock: bool = option(True, help=FOOT_LOCK_HELP)
     exact: tuple[str, ...] = option((), repeat=True, metavar="NAME=VALUE", help=EXACT_HELP)
+    verify: bool = option(True, help=VERIFY_HELP)
     no_preview: bool = option(False, help="with --out FOLDER: no preview.gif (drawing it takes a few seconds)")
     no_progress: bool = option(False, help="no progress lines on stderr (warnings and missed handles still go there)")
 
@@ -147,26 +161,17 @@ class InbetweenCommand:
 # ----------------------------------------------------------------------------- handles
 
 
-def _error(argument: str, value: Any, error: BaseException) -> ValueError:
-    """``ValueError("ARGUMENT VALUE: message")``, without the value repeated at the message's start."""
-    message = str(error.args[0]) if error.args else str(error)
-    for prefix in (f"{value}: ", f"{Path(str(value)).absolute()}: "):
-        if message.startswith(prefix):
-            message = message[len(prefix) :]
-    return ValueError(f"{argument} {value}: {message}")
-
-
 def _read_clip(argument: str, path: Path, shown: str | None = None) -> BvhMotion:
     """The BVH file of an argument (``shown``: the argument's value as written, default ``path``)."""
     shown = str(path) if shown is None else shown
     if not path.is_file():
-        raise _error(argument, shown, FileNotFoundError("no such file" if not path.exists() else "not a file"))
+        raise argument_error(argument, shown, FileNotFoundError("no such file" if not path.exists() else "not a file"))
     try:
         return read_bvh(path)
     except (ValueError, UnicodeDecodeError, OSError) as error:
         message = str(error).removeprefix(f"{path}:").strip()
         message = re.sub(r"^(\d+):\s*", r"line \1: ", message)  # the parser's "path:line: …"
-        raise _error(argument, shown, ValueError(message)) from None
+        raise argument_error(argument, shown, ValueError(message)) from None
 
 
 def _key(argument: str, text: str, *, end: bool) -> tuple[Path, int | None]:
@@ -181,7 +186,8 @@ def _key(argument: str, text: str, *, end: bool) -> tuple[Path, int | None]:
 
 def _check_frame(argument: str, text: str, motion: BvhMotion, frame: int) -> None:
     if not 0 <= frame < motion.num_frames:
-        raise ValueError(f"{argument} {text}: frame {frame} is out of range; the file has frames 0…{motion.num_frames - 1}")
+        has = f"frames 0…{motion.num_frames - 1}" if motion.num_frames > 1 else "frame 0 alone" if motion.num_frames else "no frames"
+        raise ValueError(f"{argument} {text}: frame {frame} is out of range; the file has {has}")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -200,8 +206,8 @@ class Plan:
     handles: Handles
     handle_records: list[dict[str, Any]]
     reach: ReachChains  # how far the character's joints reach, for the handles' reports
-    outputs: list[dict[str, Path]]
-    folder: Path | None
+    outputs: list[dict[str, Path]]  # per sample, {suffix: path}
+    folder: Path | None  # --out FOLDER, else None
     label: str
     key_velocity: Any = None  # (keys, 6, 3) cm/frame with --key-velocities
     models: dict[str, str | None] | None = None  # {"bmm": name or folder, "ik": the learned IK's, None without one}
@@ -210,25 +216,68 @@ class Plan:
     clip_fps: float = TRAINED_FPS  # the start clip's own frame rate (the keys are resampled to TRAINED_FPS)
     bvh_fps: float = TRAINED_FPS  # the BVH file's rate (bvh_frame_rate): TRAINED_FPS or a whole multiple of it
     transferred: bool = False  # the BMM was trained on another skeleton (``transfer`` may also hold the facing alone)
+    out_dir: Path = Path()  # where the outputs go: the --out folder, or the --out file's
+    set_name: str = ""  # their set's name there (_replacing)
+    existing: ExistingOutputs = ExistingOutputs()  # what the outputs replace (ours, and theirs with --force) and remove (stale)
+
+
+SUMMARY = "summary.json"
+"""The summary's name in an ``--out`` folder: written last, so that beside it the set is whole."""
 
 
 def _outputs(args: InbetweenCommand) -> tuple[list[dict[str, Path]], Path | None]:
-    """Per sample, ``{suffix: path}``; and the folder (None when ``--out`` is a file)."""
-    out = args.out
+    """Per sample, ``{suffix: path}``; and the folder (None when ``--out`` is a file,
+    :func:`~bezmotion.pipeline.authoring.output_format`)."""
+    out = Path(args.out)
     n = args.samples
     tag = (lambda k: "") if n == 1 else (lambda k: f"_{k}")
     try:
-        if out.suffix:
-            suffix = check_output(out)
+        suffix = output_format(args.out)
+        if suffix is not None:
             check_writable_folder(out.parent)
             return [{suffix: out.with_name(f"{out.stem}{tag(k)}{out.suffix}")} for k in range(n)], None
         if out.exists() and not out.is_dir():
             raise ValueError("exists and is not a folder")
         check_writable_folder(out)
     except ValueError as error:
-        raise _error("--out", out, error) from None
+        raise argument_error("--out", args.out, error) from None
     names = {".bvh": "inbetween", ".glb": "inbetween"} | ({} if args.no_preview else {".gif": "preview"})
     return [{s: out / f"{stem}{tag(k)}{s}" for s, stem in names.items()} for k in range(n)], out
+
+
+def _replacing(
+    args: InbetweenCommand, outputs: list[dict[str, Path]], folder: Path | None, inputs: Sequence[tuple[str, Path]]
+) -> tuple[Path, str, ExistingOutputs]:
+    """Where the outputs go, the name of their set there (``""``: an ``--out`` folder's own;
+    else the ``--out`` file's name, for its numbered samples too) and what they would replace
+    (:func:`~bezmotion._src.output_sets.existing_outputs`).
+
+    Raises:
+      ValueError: without ``--force``, an output that is one of the ``inputs``
+        (``(argument, path)``), or a file there that bezmotion did not write.
+    """
+    names = [path.name for sample in outputs for path in sample.values()]
+    if folder is not None:
+        where, set_name, names = folder, "", [*names, SUMMARY]
+    else:
+        where, set_name = Path(args.out).parent, Path(args.out).name
+    try:
+        existing = existing_outputs(where, names, set_name)
+    except ValueError as error:
+        raise argument_error("--out", args.out, error) from None
+    if args.force:
+        return where, set_name, existing
+    for name in [*existing.ours, *existing.theirs]:
+        for argument, path in inputs:
+            try:
+                same = os.path.samefile(where / name, path)
+            except OSError:
+                same = False
+            if same:
+                raise ValueError(f"--out {args.out}: would replace {name}, the {argument} file, an input of this run; --force replaces it")
+    if existing.refusal() is not None:
+        raise ValueError(f"--out {args.out}: {existing.refusal()}; --force replaces {'it' if len(existing.theirs) == 1 else 'them'}")
+    return where, set_name, existing
 
 
 DEFAULT_MODEL = "bandai_namco"  # the bundled models: any skeleton, through a transfer
@@ -247,10 +296,12 @@ def default_models(skeleton: str | None, model: str | None, ik_model: str | None
 
 
 def plan(args: InbetweenCommand) -> Plan:
-    """Check every argument, read the inputs and load the models; writes nothing.
+    """Check every argument, read the inputs and load the models; writes nothing (what a
+    killed run left in the output folder is finished or removed: :func:`~bezmotion._src.output_sets.clear_interrupted`).
 
     Raises:
-      ValueError: a bad argument; the message starts with the argument and its value.
+      ValueError: a bad argument; the message starts with the argument and its value. An
+        output that would replace an input or a file bezmotion did not write is one, unless ``--force``.
     """
     for h in args.handle:  # the syntax first, before any file is read
         parse_handle(h)
@@ -263,14 +314,17 @@ def plan(args: InbetweenCommand) -> Plan:
     (arg0, text0, path0, start_motion, f0), f1 = keys[0], keys[-1][-1]
     if args.mapping is not None and not Path(args.mapping).is_file():
         raise ValueError(f"--mapping {args.mapping}: no such file")
+    inputs = [(argument, path) for argument, _, path, _, _ in keys]
+    inputs += [(flag, Path(path)) for flag, path in (("--handles", args.handles), ("--mapping", args.mapping)) if path is not None]
+    out_dir, set_name, existing = _replacing(args, outputs, folder, inputs)
 
     def recognise(motion: BvhMotion) -> RecognisedCharacter:
         try:
             return recognise_character(motion, args.mapping)
         except (ValueError, FileNotFoundError) as error:
             if args.mapping is not None:
-                raise _error("--mapping", args.mapping, error) from None
-            raise _error(arg0, path0, error) from None
+                raise argument_error("--mapping", args.mapping, error) from None
+            raise argument_error(arg0, path0, error) from None
 
     recognised = recognise(start_motion)
     for argument, text, _, motion, _ in keys[1:]:
@@ -302,17 +356,17 @@ def plan(args: InbetweenCommand) -> Plan:
     # The models.
     model_name, ik_model_name = default_models(recognised.preset, args.model, args.ik_model)
     try:
-        bmm_dir, bundled_trained_on = resolve_bmm(model_name)
-        bmm = load_model(bmm_dir)
+        bmm_dir, bundled_trained_on = resolve_bmm(model_name, verify=args.verify)
+        bmm = load_model(bmm_dir, verify=args.verify)
     except (FileNotFoundError, ValueError, TypeError) as error:
-        raise _error("--model", model_name, error) from None
+        raise argument_error("--model" if args.model is not None else "the default BMM", model_name, error) from None
     window = bmm.config.num_frames
     clip_fps = start_motion.nominal_fps
     if args.clip is not None:
         shown = " ".join(map(str, args.frames))
         # The BMM's window is window − 1 frames at TRAINED_FPS: so many seconds of the clip.
         apart = (window - 1) * clip_fps / TRAINED_FPS
-        if abs(apart - round(apart)) > 1e-6:
+        if apart < 0.5 or abs(apart - round(apart)) > 1e-6:
             raise ValueError(
                 f"CLIP {args.clip}: at {clip_fps:g} fps no whole number of frames spans the BMM's window of {window - 1} frames at "
                 f"{TRAINED_FPS:g} fps ({(window - 1) / TRAINED_FPS:g} s); resample the clip to {TRAINED_FPS:g} fps, or give the keys with --start/--end"
@@ -324,7 +378,7 @@ def plan(args: InbetweenCommand) -> Plan:
                 retime = f", or --start {args.clip}@{a} --end {args.clip}@{b} to put these two poses {window - 1} frames apart" if len(args.frames) == 2 else ""
                 raise ValueError(
                     f"--frames {shown}: the keys{'' if len(args.frames) == 2 else f' {a} and {b}'} are {b - a} frames apart; the BMM in-betweens {apart}{rate} "
-                    f"(a {window}-frame window): use --frames {' '.join(str(f0 + i * apart) for i in range(len(args.frames)))}{retime}"
+                    f"(a {window}-frame window): {_frames_advice(args.frames, apart, start_motion.num_frames)}{retime}"
                 )
     # Every clip at the BMM's frame rate from here on (its window, thresholds and velocities count those frames).
     bvh_fps = bvh_frame_rate(args.bvh_fps, clip_fps)
@@ -341,7 +395,7 @@ def plan(args: InbetweenCommand) -> Plan:
         try:
             source = load_profile(trained_on)
         except ValueError as error:
-            raise _error("--trained-on", trained_on, error) from None
+            raise argument_error("--trained-on" if args.trained_on is not None else "the BMM's training skeleton", trained_on, error) from None
         target = target_profile(recognised, list({id(m): m for _, _, _, m, _ in keys}.values())) if transferred else None
         transfer = make_transfer(source, target, orientation=args.orientation, facing=args.facing)
 
@@ -350,10 +404,10 @@ def plan(args: InbetweenCommand) -> Plan:
     ik_model = ik_folder = None
     if ik == "auto" or ik in LEARNED_IK_CHOICES:
         try:
-            ik_folder = resolve_ik_model(ik_model_name)
-            ik_model = load_ik_model(ik_folder)
+            ik_folder = resolve_ik_model(ik_model_name, verify=args.verify)
+            ik_model = load_ik_model(ik_folder, verify=args.verify)
         except (FileNotFoundError, ValueError, TypeError) as error:
-            raise _error("--ik-model", ik_model_name, error) from None
+            raise argument_error("--ik-model" if args.ik_model is not None else "the default learned IK", ik_model_name, error) from None
         if ik == "auto":
             try:
                 check_ik_model(ik_model, character)
@@ -361,7 +415,7 @@ def plan(args: InbetweenCommand) -> Plan:
             except ValueError:
                 ik, ik_model, ik_folder = "exact_rig", None, None
     if settings and ik not in EXACT_IK_CHOICES:
-        chose = f"--ik auto chose {ik} for this skeleton" if args.ik == "auto" else f"not of --ik {ik}"
+        chose = f"not of the {ik} IK chosen for this skeleton" if args.ik == "auto" else f"not of --ik {ik}"
         raise ValueError(f"--exact {' '.join(args.exact)}: the settings of the exact IK, {chose}")
     try:
         # The exact IK's soft joint limits: those measured beside the learned IK, if any
@@ -380,8 +434,19 @@ def plan(args: InbetweenCommand) -> Plan:
     return Plan(
         recognised, start_motion, key_poses, reference, bmm, ik, ik_fn, ik_params, transfer, handles, records, reach, outputs, folder,
         label, key_velocity, {"bmm": model_name, "ik": None if ik_model is None else ik_model_name}, clip_frame, tuple(frame_warnings),
-        clip_fps, bvh_fps, transferred,
+        clip_fps, bvh_fps, transferred, out_dir, set_name, existing,
     )  # fmt: skip
+
+
+def _frames_advice(frames: Sequence[int], apart: int, num_frames: int) -> str:
+    """``use --frames …``: as many key frames as ``frames``, ``apart`` frames apart in a clip
+    of ``num_frames`` frames, from the first of ``frames`` or as near it as the clip allows;
+    or why the clip has no such frames."""
+    span = (len(frames) - 1) * apart
+    if span > num_frames - 1:
+        return f"the clip's {num_frames} frames are too few for {len(frames)} keys {apart} frames apart"
+    first = min(max(frames[0], 0), num_frames - 1 - span)
+    return "use --frames " + " ".join(str(first + i * apart) for i in range(len(frames)))
 
 
 def bvh_frame_rate(choice: str, clip_fps: float) -> float:
@@ -419,7 +484,7 @@ def _clip_frame(
         try:
             cm_per_unit(units)
         except ValueError as error:
-            raise _error("--units", units, error) from None
+            raise argument_error("--units", units, error) from None
     else:
         told = {}
         for shown, motion in clips.values():

@@ -6,8 +6,11 @@ Rotations follow the BVH convention: channels ``Zrotation Yrotation Xrotation`` 
 ``R = Rz · Ry · Rx`` (see :mod:`bezmotion.geometry.rotations`). Joints are returned in
 file order (depth first), End Sites are kept aside so a file can be written back.
 
-A malformed file raises ``ValueError("<file>:<line>: <what is wrong>")``. Writing is
-atomic. Arrays are NumPy float64: I/O is host-side work; convert with ``jnp.asarray``.
+A malformed file raises ``ValueError("<file>:<line>: <what is wrong>")``, one line of about
+:data:`~bezmotion._src.messages.MESSAGE_CHARS` characters; so does a file beyond the limits
+below (nesting, joint count, values), which no real motion comes near. Nothing recurses over
+the hierarchy, so no depth gives a ``RecursionError``. Writing is atomic, and refuses what
+reading would. Arrays are NumPy float64: I/O is host-side work; convert with ``jnp.asarray``.
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ import jax
 import numpy as np
 
 from bezmotion._src.io import atomic_write_text
+from bezmotion._src.messages import MESSAGE_CHARS, one_line
 from bezmotion.geometry.rotations import euler_from_quat, quat_fix_continuity, quat_from_euler
 from bezmotion.geometry.skeleton import Skeleton
 
@@ -35,6 +39,35 @@ _CHANNEL_LOOKUP = {name.lower(): name for name in POSITION_CHANNELS + ROTATION_C
 FRAME_TIME_RANGE = (1e-5, 60.0)
 """Seconds per frame a motion may have: 100,000 fps down to a frame a minute. Outside it a
 ``Frame Time`` is a mistake (and its frame rate would overflow)."""
+
+MAX_DEPTH = 256
+"""The most joints nested one inside another (the root is at depth 1). A human skeleton is
+about 10 deep, a rope, tail or finger chain a few dozen more; deeper nesting is a broken or
+hostile file."""
+
+MAX_JOINTS = 4096
+"""The most joints a file may declare. Face and finger rigs bring a skeleton to a few
+hundred, the largest game rigs to about a thousand."""
+
+MAX_JOINT_FRAMES = 50_000_000
+"""The most joints × frames a file may hold (its motion takes about 1.2 GB as float64
+positions and rotations then): two hours at 120 fps of a 60-joint skeleton. A few joints
+without channels times a million short rows would otherwise ask for tens of gigabytes."""
+
+OFFSET_LIMIT = 1e6
+"""The largest ``|x|``, ``|y|`` or ``|z|`` of an ``OFFSET``, in the file's own unit: 1 km in
+millimetres (the smallest unit BVH files use), 10 km in centimetres. No bone or rest position
+comes near it; a larger number is corrupt (``1e300`` would overflow once squared)."""
+
+POSITION_LIMIT = 1e8
+"""The largest ``|value|`` of a position channel, in the file's own unit: 100 km in
+millimetres, 1,000 km in centimetres, far beyond any capture volume or walk. Its square still
+fits float32, the models' precision."""
+
+ANGLE_LIMIT = 1e6
+"""The largest ``|value|`` of a rotation channel, degrees: 2,777 turns, more than an exporter
+that never wraps its angles reaches. float64 resolves 10⁻¹⁰ degrees there; past about 10¹⁷
+degrees an angle no longer tells one turn from the next."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -148,8 +181,10 @@ class _Reader:
         self.i = 0  # index of the next line to read
 
     def error(self, message: str, line_index: int | None = None) -> ValueError:
-        lineno = (self.i if line_index is None else line_index + 1)
-        return ValueError(f"{self.source}:{lineno}: {message}")
+        """``ValueError("<source>:<line>: <message>")``, the message cut to fit one line."""
+        lineno = max(1, self.i if line_index is None else line_index + 1)  # an empty file's "line 1"
+        prefix = f"{self.source}:{lineno}: "
+        return ValueError(prefix + one_line(message, max(MESSAGE_CHARS - len(prefix), 100)))
 
     def next_tokens(self) -> list[str]:
         """Tokens of the next non-empty line (raises at end of file)."""
@@ -158,48 +193,70 @@ class _Reader:
             self.i += 1
             if tokens:
                 return tokens
-        raise ValueError(f"{self.source}:{len(self.lines)}: unexpected end of file")
+        if not any(line.strip() for line in self.lines):
+            raise self.error("the file has only blank lines" if self.lines else "the file is empty", 0)
+        raise self.error("unexpected end of file", len(self.lines) - 1)
 
-    def floats(self, tokens: Sequence[str], what: str) -> list[float]:
+    def floats(self, tokens: Sequence[str], what: str, limit: float) -> list[float]:
+        """``tokens`` as finite numbers of at most ``limit`` in size (raises naming the first other)."""
         try:
             values = [float(t) for t in tokens]
         except ValueError:
             raise self.error(f"{what}: expected numbers, got {' '.join(tokens)!r}") from None
-        if not all(np.isfinite(values)):
-            raise self.error(f"{what}: non-finite value in {' '.join(tokens)!r}")
+        for token, value in zip(tokens, values):
+            if not np.isfinite(value):
+                raise self.error(f"{what}: non-finite value {token!r} in {' '.join(tokens)!r}")
+            if abs(value) > limit:
+                raise self.error(f"{what}: {token} is out of range, beyond ±{limit:g}")
         return values
 
 
+@dataclasses.dataclass
+class _Block:
+    """A ``ROOT``/``JOINT`` or End Site block being read: its joint (``-1`` for an End Site)
+    and parent, and whether its OFFSET has been read."""
+
+    joint: int
+    parent: int
+    name: str
+    have_offset: bool = False
+
+
 def _parse_hierarchy(reader: _Reader):
+    """``(names, parents, offsets, channels, end_sites)`` of the HIERARCHY section.
+
+    An explicit stack of open blocks rather than recursion: a file nested thousands deep is
+    refused by :data:`MAX_DEPTH` with its line, not by Python's recursion limit.
+    """
     names: list[str] = []
+    known: set[str] = set()
     parents: list[int] = []
     offsets: list[list[float]] = []
     channels: list[tuple[str, ...]] = []
     end_sites: list[tuple[int, tuple[float, float, float]]] = []
+    open_blocks: list[_Block] = []
 
-    tokens = reader.next_tokens()
-    if tokens[0].upper() != "HIERARCHY":
-        raise reader.error(f"expected 'HIERARCHY', got {' '.join(tokens)!r}")
-    tokens = reader.next_tokens()
-    if tokens[0].upper() != "ROOT":
-        raise reader.error(f"expected 'ROOT <name>', got {' '.join(tokens)!r}")
-
-    def parse_block(tokens: list[str], parent: int, is_end_site: bool) -> None:
+    def open_block(tokens: list[str], parent: int, is_end_site: bool) -> None:
         # tokens: the declaration line (ROOT/JOINT name, or End Site), possibly ending in '{'.
         decl_line = reader.i
         opened = tokens[-1] == "{"
         if opened:
             tokens = tokens[:-1]
         if is_end_site:
-            joint = -1
+            block = _Block(-1, parent, "End Site")
         else:
             if len(tokens) < 2:
                 raise reader.error(f"{tokens[0]} without a joint name")
             name = " ".join(tokens[1:])
-            if name in names:
+            if name in known:
                 raise reader.error(f"joint name {name!r} is used twice")
-            joint = len(names)
+            if len(names) == MAX_JOINTS:
+                raise reader.error(f"more than {MAX_JOINTS} joints")
+            if len(open_blocks) == MAX_DEPTH:
+                raise reader.error(f"joints nested more than {MAX_DEPTH} deep")
+            block = _Block(len(names), parent, name)
             names.append(name)
+            known.add(name)
             parents.append(parent)
             offsets.append([0.0, 0.0, 0.0])
             channels.append(())
@@ -207,52 +264,60 @@ def _parse_hierarchy(reader: _Reader):
             t = reader.next_tokens()
             if t != ["{"]:
                 raise reader.error(f"expected '{{' after the declaration on line {decl_line}, got {' '.join(t)!r}")
-        have_offset = False
-        while True:
-            t = reader.next_tokens()
-            key = t[0].upper()
-            if t == ["}"]:
-                break
-            if key == "OFFSET":
-                if len(t) != 4:
-                    raise reader.error(f"OFFSET needs 3 numbers, got {len(t) - 1}")
-                value = reader.floats(t[1:], "OFFSET")
-                have_offset = True
-                if is_end_site:
-                    end_sites.append((parent, tuple(value)))
-                else:
-                    offsets[joint] = value
-            elif key == "CHANNELS":
-                if is_end_site:
-                    raise reader.error("an End Site cannot have CHANNELS")
-                try:
-                    count = int(t[1])
-                except (IndexError, ValueError):
-                    raise reader.error(f"CHANNELS needs a count, got {' '.join(t)!r}") from None
-                if count != len(t) - 2:
-                    raise reader.error(f"CHANNELS announces {count} channels but lists {len(t) - 2}")
-                chans = []
-                for c in t[2:]:
-                    if c.lower() not in _CHANNEL_LOOKUP:
-                        raise reader.error(f"unknown channel {c!r}")
-                    chans.append(_CHANNEL_LOOKUP[c.lower()])
-                try:
-                    _rotation_order(chans, where=f"joint {names[joint]!r}")
-                except ValueError as e:
-                    raise reader.error(str(e)) from None
-                channels[joint] = tuple(chans)
-            elif key == "JOINT" and not is_end_site:
-                parse_block(t, joint, False)
-            elif key == "END" and not is_end_site:
-                if len(t) < 2 or t[1].upper() != "SITE":
-                    raise reader.error(f"expected 'End Site', got {' '.join(t)!r}")
-                parse_block(t[1:], joint, True)
-            else:
-                raise reader.error(f"unexpected {' '.join(t)!r} inside {'End Site' if is_end_site else names[joint]!r}")
-        if not have_offset:
-            raise reader.error(f"missing OFFSET in {'End Site' if is_end_site else names[joint]!r}")
+        open_blocks.append(block)
 
-    parse_block(tokens, -1, False)
+    tokens = reader.next_tokens()
+    if tokens[0].upper() != "HIERARCHY":
+        raise reader.error(f"expected 'HIERARCHY', got {' '.join(tokens)!r}")
+    tokens = reader.next_tokens()
+    if tokens[0].upper() != "ROOT":
+        raise reader.error(f"expected 'ROOT <name>', got {' '.join(tokens)!r}")
+    open_block(tokens, -1, False)
+    while open_blocks:
+        block = open_blocks[-1]
+        is_end_site = block.joint < 0
+        t = reader.next_tokens()
+        key = t[0].upper()
+        if t == ["}"]:
+            if not block.have_offset:
+                raise reader.error(f"missing OFFSET in {block.name!r}")
+            open_blocks.pop()
+        elif key == "OFFSET":
+            if len(t) != 4:
+                raise reader.error(f"OFFSET needs 3 numbers, got {len(t) - 1}")
+            value = reader.floats(t[1:], "OFFSET", OFFSET_LIMIT)
+            block.have_offset = True
+            if is_end_site:
+                end_sites.append((block.parent, tuple(value)))
+            else:
+                offsets[block.joint] = value
+        elif key == "CHANNELS":
+            if is_end_site:
+                raise reader.error("an End Site cannot have CHANNELS")
+            try:
+                count = int(t[1])
+            except (IndexError, ValueError):
+                raise reader.error(f"CHANNELS needs a count, got {' '.join(t)!r}") from None
+            if count != len(t) - 2:
+                raise reader.error(f"CHANNELS announces {count} channels but lists {len(t) - 2}")
+            chans = []
+            for c in t[2:]:
+                if c.lower() not in _CHANNEL_LOOKUP:
+                    raise reader.error(f"unknown channel {c!r}")
+                chans.append(_CHANNEL_LOOKUP[c.lower()])
+            try:
+                _rotation_order(chans, where=f"joint {block.name!r}")
+            except ValueError as e:
+                raise reader.error(str(e)) from None
+            channels[block.joint] = tuple(chans)
+        elif key == "JOINT" and not is_end_site:
+            open_block(t, block.joint, False)
+        elif key == "END" and not is_end_site:
+            if len(t) < 2 or t[1].upper() != "SITE":
+                raise reader.error(f"expected 'End Site', got {' '.join(t)!r}")
+            open_block(t[1:], block.joint, True)
+        else:
+            raise reader.error(f"unexpected {' '.join(t)!r} inside {block.name!r}")
     return names, parents, offsets, channels, end_sites
 
 
@@ -268,8 +333,9 @@ def _header_value(reader: _Reader, label: str, what: str, convert):
         raise reader.error(expected) from None
 
 
-def _parse_motion_header(reader: _Reader) -> tuple[int, float, int | None]:
-    """``(frames, frame time in s, the frame time's written decimals)`` of the MOTION header."""
+def _parse_motion_header(reader: _Reader, num_joints: int) -> tuple[int, float, int | None]:
+    """``(frames, frame time in s, the frame time's written decimals)`` of the MOTION header
+    of a hierarchy of ``num_joints`` joints."""
     t = reader.next_tokens()
     if t[0].upper() == "ROOT":
         raise reader.error("more than one ROOT is not supported")
@@ -278,6 +344,8 @@ def _parse_motion_header(reader: _Reader) -> tuple[int, float, int | None]:
     frames = _header_value(reader, "Frames", "count", int)
     if frames < 0:
         raise reader.error(f"negative frame count {frames}")
+    if frames * num_joints > MAX_JOINT_FRAMES:
+        raise reader.error(f"{frames} frames of {num_joints} joints: more than {MAX_JOINT_FRAMES:,} joint-frames; split the file")
     written = _header_value(reader, "Frame Time", "seconds", _decimal)
     frame_time = float(written)
     if not (np.isfinite(frame_time) and frame_time > 0):
@@ -303,13 +371,18 @@ def _decimal(text: str) -> decimal.Decimal:
     return value
 
 
-def _parse_motion_data(reader: _Reader, frames: int, num_channels: int) -> np.ndarray:
-    """``(frames, num_channels)`` float64 values; fast path first, line-by-line diagnosis on failure."""
+def _parse_motion_data(reader: _Reader, frames: int, columns: Sequence[tuple[str, str]]) -> np.ndarray:
+    """``(frames, channels)`` float64 values, each finite and within its channel's limit
+    (:data:`POSITION_LIMIT`, :data:`ANGLE_LIMIT`); ``columns`` names each channel
+    ``(joint, channel)``. A fast path first, line-by-line diagnosis on failure."""
+    num_channels = len(columns)
+    limits = np.asarray([POSITION_LIMIT if c in POSITION_CHANNELS else ANGLE_LIMIT for _, c in columns], np.float64)
     start = reader.i
     rows = reader.lines[start:]
     try:
         values = np.array(" ".join(rows).split(), dtype=np.float64)
-        ok = values.size == frames * num_channels and np.isfinite(values).all()
+        # NaN compares False, so this refuses non-finite values too.
+        ok = values.size == frames * num_channels and (np.abs(values.reshape(frames, num_channels)) <= limits).all()
     except ValueError:
         ok = False
     if ok:
@@ -317,25 +390,32 @@ def _parse_motion_data(reader: _Reader, frames: int, num_channels: int) -> np.nd
         nonempty = [r for r in rows if r.strip()]
         if len(nonempty) == frames and all(len(r.split()) == num_channels for r in nonempty):
             return values.reshape(frames, num_channels)
-    seen = 0
+    table = []
     for k, row in enumerate(rows):
         tokens = row.split()
         if not tokens:
             continue
-        idx = start + k
+        idx, seen = start + k, len(table)
         if seen == frames:
             raise reader.error(f"more motion rows than the {frames} announced by 'Frames:'", idx)
         if len(tokens) != num_channels:
             raise reader.error(f"frame {seen} has {len(tokens)} values, the hierarchy declares {num_channels} channels", idx)
-        try:
-            v = np.array(tokens, dtype=np.float64)
-        except ValueError:
-            bad = next(tok for tok in tokens if not _is_float(tok))
-            raise reader.error(f"frame {seen}: {bad!r} is not a number", idx) from None
-        if not np.isfinite(v).all():
-            raise reader.error(f"frame {seen}: non-finite value", idx)
-        seen += 1
-    raise reader.error(f"'Frames:' announces {frames} frames but the file has {seen}", len(reader.lines) - 1)
+        bad = next((tok for tok in tokens if not _is_float(tok)), None)
+        if bad is not None:
+            raise reader.error(f"frame {seen}: {bad!r} is not a number", idx)
+        v = np.array([float(tok) for tok in tokens], np.float64)
+        outside = np.flatnonzero(~(np.abs(v) <= limits))
+        if outside.size:
+            c = int(outside[0])
+            (joint, channel), token = columns[c], tokens[c]
+            if not np.isfinite(v[c]):
+                raise reader.error(f"frame {seen}: non-finite value {token!r} in {joint} {channel}", idx)
+            unit = " degrees" if channel in ROTATION_CHANNELS else ""
+            raise reader.error(f"frame {seen}: {joint} {channel} {token} is out of range, beyond ±{limits[c]:g}{unit}", idx)
+        table.append(v)
+    if len(table) != frames:
+        raise reader.error(f"'Frames:' announces {frames} frames but the file has {len(table)}", len(reader.lines) - 1)
+    return np.reshape(table, (frames, num_channels))  # numbers NumPy would not read but Python does (none known)
 
 
 def _is_float(token: str) -> bool:
@@ -390,12 +470,18 @@ def parse_bvh(text: str, source: str = "<string>", *, fix_continuity: bool = Tru
 
     With ``fix_continuity`` the quaternion signs are made continuous over time (frame t
     negated when its dot product with frame t-1 is negative), as the LaFAN1 reader does.
+
+    Raises:
+      ValueError: ``"<source>:<line>: <what is wrong>"`` on one line: a malformed file, or
+        one beyond :data:`FRAME_TIME_RANGE`, :data:`MAX_DEPTH`, :data:`MAX_JOINTS`,
+        :data:`MAX_JOINT_FRAMES`, :data:`OFFSET_LIMIT`, :data:`POSITION_LIMIT` or :data:`ANGLE_LIMIT` (a value that
+        is not finite included); the message names the value.
     """
     reader = _Reader(text.splitlines(), source)
     names, parents, offsets, channels, end_sites = _parse_hierarchy(reader)
-    frames, frame_time, frame_time_decimals = _parse_motion_header(reader)
-    num_channels = sum(len(c) for c in channels)
-    data = _parse_motion_data(reader, frames, num_channels)
+    frames, frame_time, frame_time_decimals = _parse_motion_header(reader, len(names))
+    columns = [(name, c) for name, chans in zip(names, channels) for c in chans]
+    data = _parse_motion_data(reader, frames, columns)
 
     num_joints = len(names)
     offsets_np = np.asarray(offsets, np.float64)
@@ -434,7 +520,12 @@ def parse_bvh(text: str, source: str = "<string>", *, fix_continuity: bool = Tru
 
 
 def read_bvh(path: str | os.PathLike, *, fix_continuity: bool = True) -> BvhMotion:
-    """Read a BVH file (any hierarchy); see :func:`parse_bvh`."""
+    """Read a BVH file (any hierarchy; UTF-8, else Latin-1); see :func:`parse_bvh`.
+
+    Raises:
+      FileNotFoundError: no such file (other ``OSError``: unreadable).
+      ValueError: as :func:`parse_bvh`, naming ``path`` and the line.
+    """
     path = Path(path)
     raw = path.read_bytes()
     try:
@@ -464,15 +555,58 @@ def _format_row(values: Sequence[float] | np.ndarray, precision: int) -> str:
     return " ".join(f"{v:.{precision}f}" for v in values)
 
 
-def _check_finite(motion: BvhMotion) -> None:
-    """Refuse NaN/inf up front: the NaN-safe Euler conversion would quietly turn them into 0°."""
+def _outside(values: np.ndarray, limit: float = np.inf) -> tuple[int, ...] | None:
+    """Index of the first of ``values`` that is not finite or exceeds ``limit`` in size; ``None`` if none."""
+    bad = ~(np.isfinite(values) & (np.abs(values) <= limit))
+    return tuple(int(i) for i in np.argwhere(bad)[0]) if bad.any() else None
+
+
+def _check_writable(motion: BvhMotion) -> None:
+    """Refuse up front what :func:`parse_bvh` would not read back.
+
+    Joint names that would read back otherwise (empty, line breaks, runs of spaces), NaN or
+    inf (the NaN-safe Euler conversion would quietly turn them into 0°), positions beyond
+    :data:`POSITION_LIMIT`, offsets beyond :data:`OFFSET_LIMIT`, more than
+    :data:`MAX_JOINTS` joints or nesting deeper than :data:`MAX_DEPTH`.
+
+    Raises:
+      ValueError: naming the value, its joint and (for motion) its frame.
+    """
+    skel = motion.skeleton
+
+    def joint(j: int) -> str:
+        return f"joint {j} ({skel.names[j]!r})"
+
+    if skel.num_joints > MAX_JOINTS:
+        raise ValueError(f"cannot write {skel.num_joints} joints: a BVH file holds at most {MAX_JOINTS}")
+    for j, name in enumerate(skel.names):
+        # The reader takes the rest of a ROOT/JOINT line, words joined by one space, less a final "{".
+        if not name.split() or " ".join(name.split()) != name or name.split()[-1] == "{":
+            raise ValueError(one_line(f"cannot write {joint(j)}: a joint's name is words joined by single spaces, not ending in '{{'"))
+    depth = [1] * skel.num_joints
+    for j, p in enumerate(skel.parents[1:], start=1):  # parents precede their children
+        depth[j] = depth[p] + 1
+    if max(depth) > MAX_DEPTH:
+        deepest = depth.index(max(depth))
+        raise ValueError(one_line(f"cannot write {joint(deepest)}, nested {max(depth)} deep: a BVH file nests at most {MAX_DEPTH} joints"))
     for field in ("quat_local", "pos_local"):
-        bad = ~np.isfinite(getattr(motion, field))
-        if bad.any():
-            frame, joint = (int(i) for i in np.argwhere(bad)[0][:2])
-            raise ValueError(
-                f"cannot write non-finite {field} at frame {frame}, joint {joint} ({motion.skeleton.names[joint]!r})"
-            )
+        at = _outside(getattr(motion, field))
+        if at is not None:
+            raise ValueError(one_line(f"cannot write non-finite {field} at frame {at[0]}, {joint(at[1])}"))
+    positioned = [j for j, chans in enumerate(motion.channels) if set(chans) & set(POSITION_CHANNELS)]
+    at = _outside(motion.pos_local[:, positioned], POSITION_LIMIT)
+    if at is not None:
+        value, frame, j = motion.pos_local[:, positioned][at], at[0], positioned[at[1]]
+        raise ValueError(one_line(f"cannot write pos_local {value:g} at frame {frame}, {joint(j)}: a position channel is at most {POSITION_LIMIT:g} in size"))
+    offsets = np.asarray(skel.offsets, np.float64)
+    at = _outside(offsets, OFFSET_LIMIT)
+    if at is not None:
+        raise ValueError(one_line(f"cannot write the OFFSET {offsets[at]:g} of {joint(at[-2])}: an OFFSET is finite and at most {OFFSET_LIMIT:g} in size"))
+    sites = np.asarray([offset for _, offset in motion.end_sites], np.float64).reshape(-1, 3)
+    at = _outside(sites, OFFSET_LIMIT)
+    if at is not None:
+        parent = motion.end_sites[at[0]][0]
+        raise ValueError(one_line(f"cannot write the End Site OFFSET {sites[at]:g} under {joint(parent)}: an OFFSET is finite and at most {OFFSET_LIMIT:g} in size"))
 
 
 def format_bvh(motion: BvhMotion, *, precision: int = 6) -> str:
@@ -481,10 +615,16 @@ def format_bvh(motion: BvhMotion, *, precision: int = 6) -> str:
 
     Joints are written depth first; for a skeleton stored in another order the file's
     joint order (and that of a re-read motion) is the depth-first one.
+
+    Raises:
+      ValueError: ``precision`` outside 0…15, or a motion :func:`parse_bvh` would not read
+        back: a value that is not finite or beyond :data:`OFFSET_LIMIT` /
+        :data:`POSITION_LIMIT`, more than :data:`MAX_JOINTS` joints or nesting deeper than
+        :data:`MAX_DEPTH` (the message names the value, joint and frame).
     """
     if not (isinstance(precision, int) and 0 <= precision <= 15):
         raise ValueError(f"precision must be an integer in [0, 15], got {precision!r}")
-    _check_finite(motion)
+    _check_writable(motion)
     skel = motion.skeleton
     offsets = np.asarray(skel.offsets, np.float64)
     order = _dfs_order(skel.parents)
@@ -498,20 +638,24 @@ def format_bvh(motion: BvhMotion, *, precision: int = 6) -> str:
     out = io.StringIO()
     out.write("HIERARCHY\n")
 
-    def write_joint(j: int, depth: int) -> None:
+    # An explicit stack rather than recursion, so that no depth meets Python's recursion limit:
+    # (joint, depth, closing) — a joint is opened, its children written, then it is closed.
+    stack = [(0, 0, False)]
+    while stack:
+        j, depth, closing = stack.pop()
         pad = "\t" * depth
+        if closing:
+            for off in sites.get(j, []):
+                out.write(f"{pad}\tEnd Site\n{pad}\t{{\n{pad}\t\tOFFSET {_format_row(off, precision)}\n{pad}\t}}\n")
+            out.write(f"{pad}}}\n")
+            continue
         keyword = "ROOT" if j == 0 else "JOINT"
         out.write(f"{pad}{keyword} {skel.names[j]}\n{pad}{{\n")
         out.write(f"{pad}\tOFFSET {_format_row(offsets[j], precision)}\n")
         if motion.channels[j]:
             out.write(f"{pad}\tCHANNELS {len(motion.channels[j])} {' '.join(motion.channels[j])}\n")
-        for c in children.get(j, []):
-            write_joint(c, depth + 1)
-        for off in sites.get(j, []):
-            out.write(f"{pad}\tEnd Site\n{pad}\t{{\n{pad}\t\tOFFSET {_format_row(off, precision)}\n{pad}\t}}\n")
-        out.write(f"{pad}}}\n")
-
-    write_joint(0, 0)
+        stack.append((j, depth, True))
+        stack.extend((c, depth + 1, False) for c in reversed(children.get(j, [])))
     frames = motion.num_frames
     out.write(f"MOTION\nFrames: {frames}\nFrame Time: {float(motion.frame_time)!r}\n")  # shortest exact repr
 

@@ -18,6 +18,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float
 
+from bezmotion._src.messages import listed
 from bezmotion.data import lafan1
 from bezmotion.data.windows import foot_contacts
 from bezmotion.geometry.rotations import rot6d_from_quat
@@ -102,7 +103,7 @@ def characteristic_indices(joint_names: Sequence[str], mapping: str | Mapping[st
     names = list(joint_names)
     absent = {role: mapping[role] for role in CHARACTERISTIC_JOINTS if mapping[role] not in names}
     if absent:
-        raise ValueError(f"joints {absent} are not in the skeleton; its joints are {names}")
+        raise ValueError(f"joints {absent} are not in the skeleton; its {len(names)} joints are {listed(names)}")
     indices = tuple(names.index(mapping[role]) for role in CHARACTERISTIC_JOINTS)
     if len(set(indices)) != len(indices):
         raise ValueError(f"characteristic joints must be distinct, got {dict(mapping)}")

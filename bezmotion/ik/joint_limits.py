@@ -23,6 +23,7 @@ from jaxtyping import Array, Float
 
 from bezmotion.geometry.rotations import quat_conjugate, quat_log, quat_mul
 from bezmotion._src.io import atomic_write_text
+from bezmotion._src.structured_files import read_structured_file
 from bezmotion.ik.protocol import Character
 
 # A joint without limits: a range wider than any rotation's logarithm (|log| ≤ π).
@@ -94,9 +95,16 @@ class JointLimits:
 
     @classmethod
     def load(cls, path: str | os.PathLike, character: Character) -> JointLimits:
-        """Read limits written by :meth:`save`."""
-        with open(path, encoding="utf-8") as f:
-            return cls.from_json(json.load(f), character)
+        """Read limits written by :meth:`save`.
+
+        Raises:
+          ValueError: not such a file (naming it), or not one of ``character``'s joints.
+        """
+        try:
+            data = read_structured_file(path)
+        except ValueError as error:
+            raise ValueError(f"{path}: {error}") from None
+        return cls.from_json(data, character)
 
 
 def joint_limits_from_motion(

@@ -66,7 +66,7 @@ import numpy as np
 from flax import nnx
 from jaxtyping import Array, Bool, Float, Int
 
-from bezmotion.training.checkpoint import CheckpointStore, cast_floating, save_model_folder
+from bezmotion.training.checkpoint import cast_floating, open_model_folder, save_model_folder
 from bezmotion.training.step import count_parameters  # its old home, re-exported (__all__)
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.geometry.rotations import matrix_from_rot6d, quat_from_matrix, rot6d_from_matrix, safe_norm
@@ -514,7 +514,8 @@ def character_from_json(data: dict[str, Any]) -> Character:
 
 
 def save_ik_model(directory: str | os.PathLike, model: ProtoResModel, *, storage_dtype: str = "float32") -> None:
-    """Write a trained learned IK (parameters; config and character as JSON) to ``directory``, atomically.
+    """Write a trained learned IK (parameters; config and character as JSON; the checksums
+    of their files) to ``directory``, atomically.
 
     ``storage_dtype="float16"`` halves the file (to bring a large model back from a GPU
     machine, or to bundle one); :func:`load_ik_model` casts the parameters back to float32.
@@ -526,27 +527,30 @@ def save_ik_model(directory: str | os.PathLike, model: ProtoResModel, *, storage
     save_model_folder(directory, {"params": cast_floating(model.params, storage_dtype)}, config)
 
 
-def load_ik_model(directory: str | os.PathLike) -> ProtoResModel:
+def load_ik_model(directory: str | os.PathLike, *, verify: bool = True) -> ProtoResModel:
     """Read a learned IK written by :func:`save_ik_model` (its JSON says how to rebuild it).
+
+    Args:
+      directory: the saved model's folder.
+      verify: check its files against the checksums :func:`save_ik_model` wrote first.
+        ``False`` (it warns) loads a folder without them, saved before models carried them.
 
     Raises:
       FileNotFoundError: ``directory`` holds no saved model.
-      ValueError: the saved description is not a learned IK's.
+      ChecksumError: its files differ from their checksums (naming them), or it has none.
+      ValueError: the saved description is not a learned IK's, or its parameters hold
+        NaN or inf (naming them).
     """
-    try:  # read-only: loading from a wrong path must not leave a folder there
-        store = CheckpointStore(directory, max_to_keep=1, read_only=True)
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{directory}: not a saved learned IK (no such folder)") from None
+    store = open_model_folder(directory, "learned IK", verify=verify)
     try:
         saved = store.config()
-        if saved is None or store.latest_step() is None:
-            raise FileNotFoundError(f"{directory}: not a saved learned IK (config.json and a checkpoint expected)")
         if saved.get("format") != _FORMAT:
             raise ValueError(f"{directory}: config.json has format {saved.get('format')!r}, expected {_FORMAT!r}")
         config = ProtoResConfig(**saved["model"])
         character = character_from_json(saved["character"])
         graphdef, params = init_protores(config, key=jax.random.key(0))
-        restored = store.restore({"params": cast_floating(params, saved.get("storage_dtype", "float32"))})
+        like = {"params": cast_floating(params, saved.get("storage_dtype", "float32"))}
+        restored = store.restore(like, step=store.latest_step(), verify=False)  # the folder's checksums cover it
     finally:
         store.close()
     return ProtoResModel(cast_floating(restored["params"], "float32"), character, graphdef, config)

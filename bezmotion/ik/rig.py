@@ -47,6 +47,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from bezmotion._src.messages import listed
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.data.joint_roles import name_words
 from bezmotion.geometry.rotations import (
@@ -235,7 +236,7 @@ class Rig:
 
 def _joint(skeleton: Skeleton, name: str, where: str) -> int:
     if name not in skeleton.names:
-        raise ValueError(f"unknown joint {name!r} in RigSpec.{where}; this skeleton has {list(skeleton.names)}")
+        raise ValueError(f"unknown joint {name!r} in RigSpec.{where}; this skeleton's {skeleton.num_joints} joints are {listed(skeleton.names)}")
     return skeleton.names.index(name)
 
 

@@ -23,9 +23,8 @@ from the BMM's training skeleton, and results written by file suffix.
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
-import tomllib
+import re
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -34,6 +33,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from bezmotion._src.structured_files import read_structured_file
+from bezmotion._src.messages import listed, one_line
 from bezmotion.assets import PROFILES_DIR
 from bezmotion.assets.registry import resolve_folder
 from bezmotion.bmm.sampling import SampledCurves
@@ -86,16 +87,21 @@ less on them (``experiments/pipeline_eval.py --foot-lock``)."""
 # ------------------------------------------------------------------------------ models
 
 
-def resolve_bmm(name_or_path: str | os.PathLike) -> tuple[Path, str | None]:
+VERIFY_HELP = "check the models' files against their checksums (default); --no-verify loads a model saved without them (with a warning)"
+"""The commands' help for their ``--verify`` / ``--no-verify`` switch."""
+
+
+def resolve_bmm(name_or_path: str | os.PathLike, *, verify: bool = True) -> tuple[Path, str | None]:
     """``(folder, skeleton it was trained on or None)`` of a registered model's name
-    (:data:`bezmotion.assets.registry.REGISTRY`; a bundled one's checksum is checked) or a
-    saved BMM's folder.
+    (:data:`bezmotion.assets.registry.REGISTRY`; a bundled one's checksum is checked unless
+    not ``verify``) or a saved BMM's folder. Load it with
+    :func:`~bezmotion.bmm.sampling.load_model` and the same ``verify``.
 
     Raises:
       ChecksumError: a bundled model's files differ from the manifest.
       FileNotFoundError: a registered model that is not bundled was not trained (naming the command).
     """
-    folder, entry = resolve_folder(name_or_path, "bmm")
+    folder, entry = resolve_folder(name_or_path, "bmm", verify=verify)
     return folder, entry.skeleton if entry is not None else None
 
 
@@ -106,9 +112,10 @@ def ik_model_joint_limits(directory: str | os.PathLike, character: Character) ->
     return JointLimits.load(path, character) if path.is_file() else None
 
 
-def resolve_ik_model(name_or_path: str | os.PathLike) -> Path:
-    """The folder of a registered learned IK's name (checked like :func:`resolve_bmm`) or of a saved one."""
-    return resolve_folder(name_or_path, "ik")[0]
+def resolve_ik_model(name_or_path: str | os.PathLike, *, verify: bool = True) -> Path:
+    """The folder of a registered learned IK's name (checked like :func:`resolve_bmm`) or of a
+    saved one; load it with :func:`~bezmotion.ik.protores.load_ik_model` and the same ``verify``."""
+    return resolve_folder(name_or_path, "ik", verify=verify)[0]
 
 
 def profile_names() -> list[str]:
@@ -152,21 +159,6 @@ class RecognisedCharacter:
     read_off_names: Mapping[str, str] | None = None
 
 
-def read_structured_file(path: str | os.PathLike) -> Any:
-    """A JSON or TOML file's contents (TOML by the ``.toml`` suffix, JSON otherwise).
-
-    Raises:
-      ValueError: not valid JSON / TOML (the parser's message).
-    """
-    path = Path(path)
-    text = path.read_text(encoding="utf-8")
-    try:
-        return tomllib.loads(text) if path.suffix.lower() == ".toml" else json.loads(text)
-    except (json.JSONDecodeError, tomllib.TOMLDecodeError) as error:
-        kind = "TOML" if path.suffix.lower() == ".toml" else "JSON"
-        raise ValueError(f"not valid {kind} ({error})") from None
-
-
 def read_mapping(path: str | os.PathLike) -> tuple[dict[str, str], RigSpec | None]:
     """A skeleton's characteristic joints (and optionally rig chains) from a JSON or TOML file.
 
@@ -188,14 +180,14 @@ def read_mapping(path: str | os.PathLike) -> tuple[dict[str, str], RigSpec | Non
     if "characteristic" in data:
         unknown = sorted(set(data) - {"characteristic", "rig"})
         if unknown:
-            raise ValueError(f"unknown keys {unknown}; a mapping has 'characteristic' and optionally 'rig'")
+            raise ValueError(f"unknown keys {listed(map(repr, unknown))}; a mapping has 'characteristic' and optionally 'rig'")
         roles, rig = data["characteristic"], data.get("rig")
     else:
         roles, rig = data, None
     if not isinstance(roles, dict) or not all(isinstance(v, str) for v in roles.values()):
-        raise ValueError(f"the characteristic joints must map each of {list(CHARACTERISTIC_JOINTS)} to a joint name, got {roles!r}")
+        raise ValueError(f"the characteristic joints must map each of {list(CHARACTERISTIC_JOINTS)} to a joint name, got {one_line(repr(roles), 120)}")
     if rig is not None and not isinstance(rig, dict):
-        raise ValueError(f"'rig' must be a table of chains, got {rig!r}")
+        raise ValueError(f"'rig' must be a table of chains, got {one_line(repr(rig), 120)}")
     return dict(roles), (RigSpec.from_dict(rig) if rig is not None else None)
 
 
@@ -230,9 +222,8 @@ def recognise_character(motion: BvhMotion, mapping: str | os.PathLike | None = N
         make_rig(character, spec)
     except ValueError as why:
         raise ValueError(
-            f"unknown skeleton of {len(names)} joints ({elided(names)}): not the whole hierarchy of a known one "
-            f"({', '.join(PRESET_HIERARCHIES)}), and its six joints cannot be read off their names: {why}; name its "
-            f"{', '.join(CHARACTERISTIC_JOINTS)} joints in a mapping file"
+            f"unknown skeleton of {len(names)} joints ({elided(names, 4)}): not {' or '.join(PRESET_HIERARCHIES)}, and its "
+            f"names do not tell its six joints ({why}); name them in a mapping file"
         ) from None
     return RecognisedCharacter(character, None, spec, read_off_names=roles)
 
@@ -480,10 +471,46 @@ def check_output(path: str | os.PathLike) -> str:
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in WRITERS:
-        raise ValueError(f"unknown output format {path.suffix!r}; write one of {', '.join(WRITERS)}")
+        raise ValueError(f"unknown output format {path.suffix!r}; bezmotion writes {', '.join(WRITERS)}")
     if path.is_dir():
         raise ValueError("is a folder")
     return suffix
+
+
+# A suffix of letters and digits, two letters at least (.fbx, .json, .mp4), names a file
+# format; any other (.v2, .001) is part of a folder's name.
+_FORMAT_SUFFIX = re.compile(r"\.(?=(?:[0-9]*[A-Za-z]){2})[A-Za-z0-9]+")
+_SEPARATORS = tuple(sep for sep in (os.sep, os.altsep) if sep)
+
+
+def output_format(out: str | os.PathLike) -> str | None:
+    """Whether ``out`` (as written, a trailing separator kept) names a file or a folder: the
+    writer's suffix (:data:`WRITERS`) for a file, None for a folder.
+
+    A name that ends in a path separator is a folder. Otherwise a name that ends in one of
+    :data:`WRITERS`' suffixes (any case) is that file; an existing folder is a folder; a name
+    whose suffix looks like a file format, letters and digits with two letters at least
+    (``take.fbx``, ``take.json``, ``take.mp4``), is refused; any other name is a folder
+    (``take``, ``take.v2``, ``run.001``).
+
+    Raises:
+      ValueError: a file format bezmotion does not write, or one it writes naming an
+        existing folder (the message says that a trailing separator makes a folder).
+    """
+    text = os.fspath(out)
+    if text.endswith(_SEPARATORS):
+        return None
+    path = Path(text)
+    if path.suffix.lower() in WRITERS:
+        if path.is_dir():
+            raise ValueError(f"is a folder; {text}{os.sep} writes into it")
+        return path.suffix.lower()
+    if path.is_dir() or not _FORMAT_SUFFIX.fullmatch(path.suffix):
+        return None
+    raise ValueError(
+        f"unknown output format {path.suffix!r}; bezmotion writes {', '.join(WRITERS)} files, and into a folder named with "
+        f"a trailing {os.sep} ({text}{os.sep})"
+    )
 
 
 def write_result(path: str | os.PathLike, result: ResultFiles) -> None:
@@ -513,9 +540,9 @@ __all__ = [
     "make_transfer",
     "motion_poses",
     "motion_window",
+    "output_format",
     "profile_names",
     "read_mapping",
-    "read_structured_file",
     "recognise_character",
     "resolve_bmm",
     "resolve_ik_model",

@@ -78,7 +78,9 @@ class Inbetweener:
     # ------------------------------------------------------------------ construction
 
     @classmethod
-    def pretrained(cls, name: str = "bandai_namco", *, ik: str = "exact", root: str | os.PathLike | None = None) -> Inbetweener:
+    def pretrained(
+        cls, name: str = "bandai_namco", *, ik: str = "exact", root: str | os.PathLike | None = None, verify: bool = True
+    ) -> Inbetweener:
         """A registered model (``bezmotion models`` lists them) for the skeleton it was trained on.
 
         Args:
@@ -86,11 +88,14 @@ class Inbetweener:
           ik: one of :data:`~bezmotion.pipeline.authoring.IK_CHOICES`; ``"exact"`` (default)
             is the learned IK refined until the handles are hit.
           root: the bundled models' root (default: the package's).
+          verify: check the models' files against their checksums (``False``: load a
+            locally trained model saved before models carried them; it warns).
         Raises:
-          ValueError: an unknown name or IK (listing the known ones).
+          ValueError: an unknown name or IK (listing the known ones), or weights holding NaN or inf.
+          ChecksumError: a model's files differ from their checksums, or have none.
           FileNotFoundError: a model that is not bundled and not trained yet (naming the command).
         """
-        parts = load_pretrained(name, root=root)
+        parts = load_pretrained(name, root=root, verify=verify)
         preset = parts.entry.skeleton
         recognised = RecognisedCharacter(parts.character, preset, RigSpec.preset(preset))
         rest = _identity_rotations(parts.character.num_joints)
@@ -109,6 +114,7 @@ class Inbetweener:
         clip_frame: ClipFrame | None = None,
         facing: str = "trained",
         orientation: str = "anatomical",
+        verify: bool = True,
     ) -> Inbetweener:
         """A model for the skeleton of ``clip``, whatever its joint names, units and up axis.
 
@@ -126,9 +132,11 @@ class Inbetweener:
           mapping: a JSON/TOML file naming the six joints, for skeletons whose names do not tell them.
           clip_frame: the clip's units and up axis; default: told from the clip.
           facing, orientation: as in :func:`~bezmotion.pipeline.authoring.make_transfer`.
+          verify: check the models' files against their checksums (as :meth:`pretrained`).
         Raises:
           ValueError: a skeleton whose six joints cannot be told (the message says how to
             name them), an unknown IK, or a learned IK that does not fit the skeleton.
+          ChecksumError: a model's files differ from their checksums, or have none.
         """
         recognised = recognise_character(clip, mapping)
         if clip_frame is None:
@@ -136,7 +144,7 @@ class Inbetweener:
             clip_frame = detect_clip_frame(clip, hips, head, (left_foot, right_foot))
         ours = clip_frame.to_ours(clip)
         recognised = recognise_character(ours, mapping)  # the offsets in cm
-        parts = load_pretrained(model)
+        parts = load_pretrained(model, verify=verify)
         same = recognised.preset == parts.entry.skeleton
         target = None if same else target_profile(recognised, [ours])
         transfer = make_transfer(parts.profile, target, orientation=orientation, facing=facing)
@@ -263,9 +271,11 @@ def _make_ik(kind: str, recognised: RecognisedCharacter, rest: np.ndarray, ik_mo
     return make_ik(kind, recognised, rest_quat_local=rest, ik_model=ik_model, limits=limits if kind == "exact" else None)
 
 
-def pretrained(name: str = "bandai_namco", *, ik: str = "exact", root: str | os.PathLike | None = None) -> Inbetweener:
+def pretrained(
+    name: str = "bandai_namco", *, ik: str = "exact", root: str | os.PathLike | None = None, verify: bool = True
+) -> Inbetweener:
     """:meth:`Inbetweener.pretrained`: ``bm.pretrained("bandai_namco")`` is the bundled model."""
-    return Inbetweener.pretrained(name, ik=ik, root=root)
+    return Inbetweener.pretrained(name, ik=ik, root=root, verify=verify)
 
 
 __all__ = ["HANDLE_SLOTS", "Inbetweener", "pretrained"]

@@ -22,7 +22,6 @@ measure them (:class:`CharacterProfile`, ``Transfer.between(…, orientation=…
 from __future__ import annotations
 
 import dataclasses
-import json
 import os
 from pathlib import Path
 from typing import NamedTuple
@@ -39,6 +38,8 @@ from bezmotion.geometry.rotations import quat_conjugate, quat_from_matrix, quat_
 from bezmotion.ik.protocol import Character, Pose, pose_fk, targets_from_pose
 from bezmotion.ik.rig import derive_rig_spec
 from bezmotion._src.linalg import top_eigenvector
+from bezmotion._src.messages import one_line
+from bezmotion._src.structured_files import read_structured_file
 
 ORIENTATION_CHOICES = ("anatomical", "facing")
 """How :meth:`Transfer.between` aligns two skeletons' joint orientations (see the module docstring)."""
@@ -170,9 +171,9 @@ class CharacterProfile:
         """Read a profile written by ``experiments/character_profiles.py`` (e.g. ``PROFILES_DIR / "lafan1.json"``)."""
         path = Path(path)
         try:
-            return cls.from_json(json.loads(path.read_text()))
-        except (KeyError, ValueError, TypeError) as e:
-            raise ValueError(f"{path}: not a character profile ({e})") from None
+            return cls.from_json(read_structured_file(path))
+        except (KeyError, ValueError, TypeError, IndexError, AttributeError) as e:
+            raise ValueError(f"{path}: not a character profile ({one_line(e, 160)})") from None
 
     @classmethod
     def from_json(cls, data: dict) -> CharacterProfile:

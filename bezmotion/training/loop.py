@@ -2,7 +2,8 @@
 
 ``run_training`` knows no model: it calls a compiled ``step(state, data)``, logs its
 metrics, checkpoints every N steps and on Ctrl-C or SIGTERM, and resumes from the
-latest checkpoint of its store. With more than one device, :func:`data_mesh` and
+newest checkpoint of its store that passes its checksums and holds finite values
+(:meth:`~bezmotion.training.checkpoint.CheckpointStore.restore`: never from a damaged one). With more than one device, :func:`data_mesh` and
 :func:`shard_batch` split the batch over them and XLA all-reduces the gradients; after
 :func:`bezmotion.training.distributed.initialize` the devices are every process's, and
 ``run_training`` replicates the state and data over them.
@@ -103,7 +104,10 @@ def run_training(
       state: the state to start from when ``store`` holds no checkpoint.
       data: passed to every step unchanged.
       num_steps: the step count to stop at (total, not this call's share).
-      store: where to checkpoint and resume from; ``None`` runs without checkpoints.
+      store: where to checkpoint and resume from; ``None`` runs without checkpoints. A
+        damaged latest checkpoint is set aside with a warning and the one before it resumed;
+        with none usable, ``ValueError`` names the folder. A state that turned NaN or inf
+        (a diverged run) is never saved: ``ValueError`` at its checkpoint, the ones before kept.
       checkpoint_every: checkpoint period (steps); also at the end and on Ctrl-C or
         SIGTERM (then raises ``KeyboardInterrupt``).
       config: saved as the store's ``config.json`` with every checkpoint.

@@ -24,6 +24,7 @@ import pytest
 
 from helpers import np_forward_kinematics, turned_about_z
 
+from bezmotion._src.output_sets import OUTPUTS_RECORD
 from bezmotion.assets import DEMO_CLIP
 from bezmotion.cli import main
 from bezmotion.data.bvh import read_bvh, write_bvh
@@ -37,6 +38,13 @@ from bezmotion.pipeline.authoring import RigSpec, derive_rig_spec, read_mapping,
 
 FAST = ["--ik", "rig", "--steps", "2", "--no-progress"]
 HAND, FOOT = "Hand_R", "Foot_L"  # the clip's right hand and left ankle
+
+
+@pytest.fixture(autouse=True)
+def in_a_folder_of_its_own(tmp_path, monkeypatch):
+    """Each test in its own working folder: a run's default ``--out`` (results/inbetween) is
+    then the test's, not whatever an earlier run left in the repository's."""
+    monkeypatch.chdir(tmp_path)
 
 
 def fk_positions(motion) -> np.ndarray:
@@ -112,7 +120,7 @@ def test_two_samples_are_two_different_motions(run):
         assert set(sample["largest_turn_deg"]) == {"deg", "joint", "frames"} and sample["largest_turn_deg"]["deg"] > 0.0
         assert sample["curve_error_max_cm"]["cm"] >= 0.0 and 0 <= sample["curve_error_max_cm"]["frame"] <= 30
     assert sorted(p.name for p in out.iterdir()) == [
-        "inbetween_0.bvh", "inbetween_0.glb", "inbetween_1.bvh", "inbetween_1.glb", "summary.json"
+        OUTPUTS_RECORD, "inbetween_0.bvh", "inbetween_0.glb", "inbetween_1.bvh", "inbetween_1.glb", "summary.json"
     ]  # fmt: skip
 
 
@@ -178,7 +186,7 @@ def test_two_files_and_a_gif(tmp_path):
     motion = read_bvh(tmp_path / "x.bvh")
     hand = motion.skeleton.names.index(HAND)
     np.testing.assert_allclose(fk_positions(motion)[12, hand], straight_line(HAND, 12, 0, 12) + [0, 25, 0], atol=1e-3)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["walk copy.bvh", "x.bvh", "x.gif"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [OUTPUTS_RECORD, "walk copy.bvh", "x.bvh", "x.gif"]
 
 
 # ------------------------------------------------------------------- other skeletons
@@ -534,7 +542,7 @@ def test_a_chain_through_three_keys_keeps_them_and_hits_handles_in_both_windows(
 
 def test_a_chain_refuses_a_handle_on_its_inner_key_and_takes_every_keys_velocity(long_clip):
     argv = [str(long_clip), "--frames", "1", "31", "61", *FAST]
-    with pytest.raises(ValueError, match=r"--handle head@30=\+0,1,0: frame 30 is a key of the chain \(keys at \[0, 30, 60\]\)"):
+    with pytest.raises(ValueError, match=r"--handle head@30=\+0,1,0: frame 30 is a key of the chain \(keys at 0, 30, 60\)"):
         plan(parse_options(InbetweenCommand, [*argv, "--handle", "head@30=+0,1,0"]))
     p = plan(parse_options(InbetweenCommand, [*argv, "--key-velocities", "--handle", "head@59=+0,1,0"]))
     assert len(p.keys) == 3 and p.handles.position.shape == (4, 3)  # (slots, xyz), frames of the whole in-between
@@ -592,17 +600,21 @@ def _cases(tmp):
     return {
         "unknown joint": ([*keys, "--handle", "right_hnd@12=+0,25,0"], "--handle right_hnd@12=+0,25,0: unknown joint 'right_hnd'"),
         "frame out of the clip": ([clip, "--frames", "0", "45"], "--frames 0 45: frame 45 is out of range; the file has frames 0…39"),
+        "a clip without frames": ([f"{tmp}/frameless.bvh", "--frames", "0", "30"], "--frames 0 30: frame 0 is out of range; the file has no frames"),
         "end frame out of the clip": (["--start", f"{clip}@0", "--end", f"{clip}@40"], f"--end {clip}@40: frame 40 is out of range"),
         "handle frame out of the in-between": ([*keys, "--handle", "head@31=+0,1,0"], "--handle head@31=+0,1,0: frame 31 is outside the in-between, frames 0…30"),
         "keys not 30 frames apart": ([clip, "--frames", "0", "20"], "--frames 0 20: the keys are 20 frames apart; the BMM in-betweens 30"),
+        "keys apart near the clip's end": (
+            [clip, "--frames", "20", "35"], "--frames 20 35: the keys are 15 frames apart; the BMM in-betweens 30 (a 31-frame window): use --frames 9 39,"
+        ),
+        "keys on one frame": ([clip, "--frames", "4", "4"], "the keys are 0 frames apart; the BMM in-betweens 30 (a 31-frame window): use --frames 4 34,"),
         "not a BVH file": ([f"{tmp}/notes.bvh", "--frames", "0", "30"], f"CLIP {tmp}/notes.bvh: "),
         "missing clip": ([f"{tmp}/missing.bvh", "--frames", "0", "30"], f"CLIP {tmp}/missing.bvh: no such file"),
         "missing end file": (["--start", f"{clip}@0", "--end", f"{tmp}/nope.bvh@30"], f"--end {tmp}/nope.bvh@30: no such file"),
         "unknown skeleton": (
             [f"{tmp}/numbered.bvh", "--frames", "0", "30"],
-            f"CLIP {tmp}/numbered.bvh: unknown skeleton of 22 joints (j0, j1, j2, j3, j4, j5, j6, j7, … (22 in all)): not the whole "
-            "hierarchy of a known one (lafan1, bandai_namco), and its six joints cannot be read off their names: no joint's name "
-            "reads as the head; name its hips, head, left_hand, right_hand, left_foot, right_foot joints in a mapping file",
+            f"CLIP {tmp}/numbered.bvh: unknown skeleton of 22 joints (j0, j1, j2, j3, … (22 in all)): not lafan1 or bandai_namco, "
+            "and its names do not tell its six joints (no joint's name reads as the head); name them in a mapping file",
         ),
         "missing mapping": ([f"{tmp}/custom.bvh", "--frames", "0", "30", "--mapping", f"{tmp}/map.json"], f"--mapping {tmp}/map.json: no such file"),
         "missing model": ([*keys, "--model", f"{tmp}/models/bmm"], f"--model {tmp}/models/bmm: not a saved BMM (no such folder)"),
@@ -613,7 +625,18 @@ def _cases(tmp):
             [*keys, "--handle", "head@12=+0,20000,0"],
             "--handle head@12=+0,20000,0: head at frame 12 lies 200 m from the straight line between the keys' head positions, farther than 100 m",
         ),
-        "unknown output format": ([*keys, "--out", f"{tmp}/x.fbx"], f"--out {tmp}/x.fbx: unknown output format '.fbx'"),
+        "unknown output format": (
+            [*keys, "--out", f"{tmp}/x.fbx"],
+            f"--out {tmp}/x.fbx: unknown output format '.fbx'; bezmotion writes .bvh, .glb, .gif files, and into a folder named with a trailing /",
+        ),
+        "a file bezmotion did not write": (
+            [*keys, "--out", f"{tmp}/notes.bvh"],
+            f"--out {tmp}/notes.bvh: would replace notes.bvh, which is not bezmotion's own output (unrecorded, or changed since); --force replaces it",
+        ),
+        "the clip as the output": (
+            [f"{tmp}/custom.bvh", "--frames", "0", "30", "--out", f"{tmp}/custom.bvh"],
+            f"--out {tmp}/custom.bvh: would replace custom.bvh, the CLIP file, an input of this run; --force replaces it",
+        ),
         "output under a file": ([*keys, "--out", f"{tmp}/notes.bvh/x.bvh"], f"--out {tmp}/notes.bvh/x.bvh: {tmp}/notes.bvh is a file, not a folder"),
         "output folder under a file": ([*keys, "--out", f"{tmp}/notes.bvh/a/b"], f"--out {tmp}/notes.bvh/a/b: {tmp}/notes.bvh is a file, not a folder"),
         "no samples": ([*keys, "--samples", "0"], "--samples 0: must be at least 1"),
@@ -634,7 +657,9 @@ def _cases(tmp):
         "keys given two ways": ([*keys, "--key", f"{clip}@3", "--key", f"{clip}@9"], f"CLIP {clip}: give the keys one way"),
         "a --key frame out of its file": (["--key", f"{clip}@3", "--key", f"{clip}@40"], f"--key {clip}@40: frame 40 is out of range"),
         "chain keys not 30 frames apart": (
-            [clip, "--frames", "0", "30", "35"], "--frames 0 30 35: the keys 30 and 35 are 5 frames apart; the BMM in-betweens 30"
+            [clip, "--frames", "0", "30", "35"],
+            "--frames 0 30 35: the keys 30 and 35 are 5 frames apart; the BMM in-betweens 30 (a 31-frame window): the clip's 40 frames "
+            "are too few for 3 keys 30 frames apart",
         ),
         "key velocity before the clip": ([*keys, "--key-velocities"], f"--key-velocities: the start key {clip} is the first frame of its file; its velocity needs the frame before it"),
         "key velocity after the clip": (
@@ -647,12 +672,13 @@ CASES = list(_cases("TMP"))
 
 
 @pytest.mark.parametrize("case", CASES)
-def test_a_bad_argument_exits_2_with_one_line_and_writes_nothing(case, tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)  # files a run might write by default land here
+def test_a_bad_argument_exits_2_with_one_line_and_writes_nothing(case, tmp_path):
     renamed_clip(tmp_path), numbered_clip(tmp_path)
     before = sorted(os.listdir(tmp_path))
     argv, message = _cases(str(tmp_path))[case]
     (tmp_path / "notes.bvh").write_text("not a BVH file\n")
+    hierarchy = DEMO_CLIP.read_text().split("MOTION")[0]
+    (tmp_path / "frameless.bvh").write_text(f"{hierarchy}MOTION\nFrames: 0\nFrame Time: 0.0333333\n")
     before = sorted(os.listdir(tmp_path))
     code, stdout, stderr = run_cli("--ik", "rig", "--steps", "2", "--out", tmp_path / "out", *argv)  # argv's own flags win
     assert code == 2
@@ -660,6 +686,19 @@ def test_a_bad_argument_exits_2_with_one_line_and_writes_nothing(case, tmp_path,
     assert message in stderr, stderr
     assert stdout == ""
     assert sorted(os.listdir(tmp_path)) == before  # no folder, no file, no model folder
+
+
+@pytest.mark.parametrize("part, shown", [("resolve_bmm", "the default BMM bandai_namco"), ("resolve_ik_model", "the default learned IK bandai_namco")])
+def test_a_default_models_error_names_no_option_the_user_did_not_give(part, shown, tmp_path, monkeypatch):
+    import bezmotion.cli.plan as plan_module
+
+    def not_here(name, **options):
+        raise FileNotFoundError("not trained here")
+
+    monkeypatch.setattr(plan_module, part, not_here)
+    code, _, err = run_cli(DEMO_CLIP, "--frames", "0", "30", "--steps", "2", "--out", tmp_path / "x.bvh")  # --ik auto: the learned IK first
+    assert code == 2 and f"{shown}: not trained here" in err, err
+    assert "--model" not in err and "--ik" not in err
 
 
 def test_the_learned_ik_refuses_another_skeleton(tmp_path):
@@ -715,3 +754,20 @@ def test_the_bvh_rate_is_the_clips_where_every_in_between_frame_is_one_of_its_fr
     assert bvh_frame_rate("30", 120.0) == 30.0
     with pytest.raises(ValueError, match="--bvh-fps must be clip or 30, got '60'"):
         bvh_frame_rate("60", 60.0)
+
+
+def test_a_model_without_checksums_needs_no_verify(tmp_path):
+    """A saved model folder without its checksums is refused in the command's words; with
+    ``--no-verify`` it is loaded (with a warning) and planned as any other."""
+    from bezmotion.assets import BUNDLED_BMM
+
+    model = tmp_path / "old_bmm"
+    shutil.copytree(BUNDLED_BMM, model)
+    (model / "checksums.json").unlink()
+    argv = [str(DEMO_CLIP), "--frames", "0", "30", "--model", str(model), *FAST]
+    code, _, err = run_cli(*argv)
+    assert code == 2
+    assert err.strip() == f"bezmotion: error: --model {model}: no checksums.json (saved before models carried checksums); --no-verify loads it if you trust its files"
+    with pytest.warns(UserWarning, match="unverified"):
+        p = plan(parse_options(InbetweenCommand, [*argv, "--no-verify"]))
+    assert p.models["bmm"] == str(model)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import stat
 
 import numpy as np
@@ -12,10 +13,12 @@ import pytest
 from bezmotion.assets import DEMO_CLIP
 from bezmotion.cli import main
 from bezmotion.data.bvh import read_bvh
-from bezmotion.cli.demo import demo
+from bezmotion.cli.demo import DEMO_FILES, demo
+from bezmotion._src.messages import MESSAGE_CHARS, listed
 from bezmotion.geometry.rotations import quat_from_axis_angle
 from bezmotion.ik.protocol import Character
 from bezmotion._src.io import _umask
+from bezmotion._src.output_sets import OUTPUTS_RECORD
 from bezmotion.evaluation.window_figures import largest_turn
 
 
@@ -172,3 +175,49 @@ def test_largest_turn_names_the_joint_and_the_frames():
     turn = largest_turn(character, quat)
     assert turn["joint"] == character.skeleton.names[7] and turn["frames"] == [2, 3]
     assert turn["deg"] == pytest.approx(30.0, abs=1e-3)
+
+
+def test_demo_again_in_its_folder_replaces_its_own_files_with_a_note(demo_run, tmp_path, capsys):
+    """A second demo in the first one's folder (copied) replaces its set, says so on stderr,
+    and leaves the user's file there alone."""
+    _, first, _ = demo_run
+    out = shutil.copytree(first, tmp_path / "demo")
+    (out / "notes.txt").write_text("mine\n")
+    capsys.readouterr()
+    assert main(["demo", "--out", str(out), "--steps", "2", "--seed", "1"]) == 0
+    err = capsys.readouterr().err
+    assert f"bezmotion demo: note: replaced {listed(DEMO_FILES)} in {out}" in err
+    assert sorted(os.listdir(out)) == sorted([*DEMO_FILES, OUTPUTS_RECORD, "notes.txt"])
+    assert (out / "notes.txt").read_text() == "mine\n"
+    assert (out / "inbetween.bvh").read_bytes() != (first / "inbetween.bvh").read_bytes()  # another seed
+
+
+def test_demo_refuses_files_it_did_not_write_without_force(tmp_path, capsys):
+    (tmp_path / "inbetween.bvh").write_text("the user's own\n")
+    assert main(["demo", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert err == (
+        f"bezmotion: error: --out {tmp_path}: would replace inbetween.bvh, which is not bezmotion's own output (unrecorded, or changed since); "
+        "--force replaces it\n"
+    )
+    assert sorted(os.listdir(tmp_path)) == ["inbetween.bvh"]
+
+
+def test_an_error_is_one_line_of_about_300_characters(monkeypatch, capsys):
+    """The last guard in ``main``: a message of 5,000 characters is cut in its middle, keeping
+    what failed (its start) and why (its end); argparse's own errors too."""
+    import bezmotion.cli as cli
+
+    def long_error(args):
+        raise ValueError(f"--handle {'x' * 5000}: the end says why")
+
+    monkeypatch.setattr(cli, "run_inbetween", long_error)
+    assert main(["inbetween", str(DEMO_CLIP), "--frames", "0", "30"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("bezmotion: error: --handle xxx") and err.endswith(": the end says why\n") and err.count("\n") == 1
+    assert len(err) <= len("bezmotion: error: \n") + MESSAGE_CHARS
+    with pytest.raises(SystemExit) as exit_:
+        main(["inbetween", "--ik", "x" * 5000])
+    err = capsys.readouterr().err
+    assert exit_.value.code == 2 and err.startswith("bezmotion: error: argument --ik: invalid choice") and err.count("\n") == 1
+    assert len(err) <= len("bezmotion: error:  (see bezmotion inbetween --help)\n") + MESSAGE_CHARS

@@ -15,7 +15,8 @@ import pytest
 from helpers import SHARED_DATA, assert_same_rotation, np_forward_kinematics, np_matrix_from_euler, np_matrix_from_quat
 
 from bezmotion.assets import DEMO_CLIP
-from bezmotion.data.bvh import BvhMotion, format_bvh, parse_bvh, read_bvh, write_bvh
+from bezmotion._src.messages import MESSAGE_CHARS
+from bezmotion.data.bvh import MAX_DEPTH, MAX_JOINT_FRAMES, MAX_JOINTS, BvhMotion, format_bvh, parse_bvh, read_bvh, write_bvh
 from bezmotion.geometry.skeleton import Skeleton, forward_kinematics
 
 FIXTURE = DEMO_CLIP  # the bundled real clip (attribution: bezmotion/assets/README.md)
@@ -337,6 +338,13 @@ MALFORMED = {
     "hour-long frame": (_replace(18, "Frame Time: 3600"), 18, r"Frame Time must lie in 1e-05 … 60 s, got 3600"),
     "duplicate joint": (_replace(6, "\tJOINT Hips"), 6, r"joint name 'Hips' is used twice"),
     "bad frame count": (_replace(17, "Frames: many"), 17, r"expected 'Frames: <count>'"),
+    "huge offset": (_replace(8, "\t\tOFFSET 0 1e300 0"), 8, r"OFFSET: 1e300 is out of range, beyond ±1e\+06$"),
+    "hips offset -1e308": (_replace(4, "\tOFFSET -1e308 0 0"), 4, r"OFFSET: -1e308 is out of range"),
+    "infinite offset": (_replace(12, "\t\t\tOFFSET 0 inf 0"), 12, r"OFFSET: non-finite value 'inf' in '0 inf 0'"),
+    "huge position": (_replace(19, "0 1e9 0 0 0 0 0 0 0"), 19, r"frame 0: Hips Yposition 1e9 is out of range, beyond ±1e\+08$"),
+    "huge angle": (_replace(20, "1 90 0 10 0 0 0 0 -2e6"), 20, r"frame 1: Chest Yrotation -2e6 is out of range, beyond ±1e\+06 degrees"),
+    "infinite angle": (_replace(20, "1 90 0 10 0 0 -inf 0 0"), 20, r"frame 1: non-finite value '-inf' in Chest Zrotation"),
+    "5,000-digit frame count": (_replace(17, "Frames: " + "9" * 5000), 17, r"expected 'Frames: <count>', got 'Frames: 9+ … 9+'$"),
 }
 
 
@@ -357,6 +365,59 @@ def test_malformed_file_names_file_line_and_problem(case: str, tmp_path: Path):
     message = str(info.value)
     assert message.startswith(f"{path}:{line}: "), message
     assert re.search(phrase, message), message
+    assert "\n" not in message and len(message) <= MESSAGE_CHARS, message
+
+
+@pytest.mark.parametrize(
+    "content, problem",
+    [(b"", "the file is empty"), (b"\r", "the file has only blank lines"), (b"\r\r\r", "the file has only blank lines"), (b" \r\n\t\n", "the file has only blank lines")],
+)
+def test_an_empty_file_is_reported_at_line_1(content: bytes, problem: str, tmp_path: Path):
+    path = tmp_path / "empty.bvh"
+    path.write_bytes(content)
+    with pytest.raises(ValueError, match=rf"^{re.escape(str(path))}:1: {problem}$"):
+        read_bvh(path)
+
+
+def _nested(depth: int, siblings: int = 0) -> str:
+    """A BVH text: a root, ``depth`` joints nested one in another below it (no channels), and
+    ``siblings`` more side by side under the root."""
+    chain = [f"JOINT j{i}\n{{\nOFFSET 0 1 0\nCHANNELS 0" for i in range(depth)]
+    side = [f"JOINT s{i}\n{{\nOFFSET 1 0 0\n}}" for i in range(siblings)]
+    hierarchy = "\n".join(["HIERARCHY", "ROOT root", "{", "OFFSET 0 0 0", "CHANNELS 3 Xposition Yposition Zposition", *side, *chain])
+    return hierarchy + "\n" + "}\n" * (depth + 1) + "MOTION\nFrames: 1\nFrame Time: 0.0333333\n0 0 0\n"
+
+
+def test_nesting_deeper_than_max_depth_is_refused_at_its_line_not_by_recursion(tmp_path: Path):
+    """Thousands of nested joints (Python's recursion limit is about 1,000) give one line at
+    the first joint too deep; ``MAX_DEPTH`` nested joints read and write back."""
+    deep = tmp_path / "deep.bvh"
+    deep.write_text(_nested(5_000))
+    first_too_deep = 6 + 4 * (MAX_DEPTH - 1)  # "JOINT j255": the root is depth 1
+    with pytest.raises(ValueError, match=rf"^{re.escape(str(deep))}:{first_too_deep}: joints nested more than {MAX_DEPTH} deep$"):
+        read_bvh(deep)
+    deepest = parse_bvh(_nested(MAX_DEPTH - 1), "deepest.bvh")
+    assert deepest.skeleton.num_joints == MAX_DEPTH
+    assert parse_bvh(format_bvh(deepest), "again.bvh").skeleton.parents == deepest.skeleton.parents
+
+
+def test_more_joints_than_max_joints_are_refused(tmp_path: Path):
+    path = tmp_path / "wide.bvh"
+    path.write_text(_nested(0, siblings=MAX_JOINTS))
+    with pytest.raises(ValueError, match=rf"^{re.escape(str(path))}:{6 + 4 * (MAX_JOINTS - 1)}: more than {MAX_JOINTS} joints$"):
+        read_bvh(path)
+
+
+def test_a_long_line_is_cut_in_the_middle_of_its_message(tmp_path: Path):
+    """A 5,000-character line is quoted in part: the message keeps the file, the line and
+    what is wrong on one line."""
+    path = tmp_path / "long.bvh"
+    path.write_text("\n".join(_replace(9, "\t\t" + "y" * 5000 + " CHANNELS")(TEMPLATE)) + "\n")
+    with pytest.raises(ValueError) as info:
+        read_bvh(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}:9: unexpected 'yyy") and message.endswith("yyy CHANNELS' inside 'Chest'"), message
+    assert len(message) <= MESSAGE_CHARS and " … " in message
 
 
 # ------------------------------------------------------------------------------- writing
@@ -375,6 +436,34 @@ def test_failed_write_leaves_the_old_file_and_no_temp_file(fixture_motion: BvhMo
     assert [p.name for p in tmp_path.iterdir()] == ["out.bvh"]
 
 
+def _with(array, index, value) -> np.ndarray:
+    """A copy of ``array`` with ``array[index] = value``."""
+    changed = np.array(array, np.float64)
+    changed[index] = value
+    return changed
+
+
+@pytest.mark.parametrize(
+    "change, problem",
+    [
+        (lambda m: dataclasses.replace(m, pos_local=m.pos_local + np.where(np.arange(22) == 1, 2e8, 0.0)[:, None]),
+         r"cannot write pos_local 2(\.\d+)?e\+08 at frame 0, joint 1 \('Hips'\): a position channel is at most 1e\+08 in size"),
+        (lambda m: dataclasses.replace(m, skeleton=dataclasses.replace(m.skeleton, offsets=_with(m.skeleton.offsets, (1, 1), -1e308))),
+         r"cannot write the OFFSET -1e\+308 of joint 1 \('Hips'\): an OFFSET is finite and at most 1e\+06 in size"),
+        (lambda m: dataclasses.replace(m, end_sites=m.end_sites[:1] + ((m.end_sites[1][0], (0.0, np.inf, 0.0)),)),
+         r"cannot write the End Site OFFSET inf under joint 9 \('Hand_L'\): an OFFSET is finite"),
+        (lambda m: dataclasses.replace(m, skeleton=dataclasses.replace(m.skeleton, names=("Hips", "Left\nUpLeg", *m.skeleton.names[2:]))),
+         r"cannot write joint 1 \('Left\\nUpLeg'\): a joint's name is words joined by single spaces"),
+        (lambda m: dataclasses.replace(m, skeleton=dataclasses.replace(m.skeleton, names=("Hips", "Spine {", *m.skeleton.names[2:]))),
+         r"cannot write joint 1 \('Spine \{'\): a joint's name is words joined by single spaces, not ending in '\{'"),
+    ],
+)
+def test_writing_refuses_what_reading_would(fixture_motion: BvhMotion, change, problem: str, tmp_path: Path):
+    with pytest.raises(ValueError, match=problem):
+        write_bvh(tmp_path / "out.bvh", change(fixture_motion))
+    assert not list(tmp_path.iterdir())
+
+
 def test_write_interrupted_mid_file_leaves_the_old_file(fixture_motion: BvhMotion, tmp_path: Path, monkeypatch):
     import bezmotion._src.io
 
@@ -389,3 +478,15 @@ def test_write_interrupted_mid_file_leaves_the_old_file(fixture_motion: BvhMotio
         write_bvh(path, fixture_motion)
     assert path.read_text() == "old contents\n"
     assert [p.name for p in tmp_path.iterdir()] == ["out.bvh"]
+
+
+def test_more_joint_frames_than_the_bound_are_refused_before_any_row_is_read(tmp_path: Path):
+    """A frame count that would need tens of gigabytes is refused at its line, before the rows."""
+    hierarchy = DEMO_CLIP.read_text().split("MOTION")[0]
+    joints = hierarchy.count("ROOT") + hierarchy.count("JOINT")
+    frames = MAX_JOINT_FRAMES // joints + 1
+    path = tmp_path / "long.bvh"
+    path.write_text(f"{hierarchy}MOTION\nFrames: {frames}\nFrame Time: 0.0333333\n0 0 0\n")
+    line = hierarchy.count("\n") + 2
+    with pytest.raises(ValueError, match=rf"^{path}:{line}: {frames} frames of {joints} joints: more than 50,000,000 joint-frames; split the file$"):
+        read_bvh(path)

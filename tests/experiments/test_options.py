@@ -171,9 +171,12 @@ def test_presets_are_the_configs_classmethods_by_name():
 
 # ---------------------------------------------------------------- the real scripts
 
-EXPERIMENTS = ("ablations", "bezier_stride", "bmm_lafan1", "chained_segments", "character_profiles", "clip_frame_detection", "cross_skeleton", "delta_anidance",
-               "delta_lafan1", "ik_subsets", "lafan1_baselines", "motion_features", "table1", "train_ik")  # fmt: skip
-BENCHMARKS = ("bezier_fit", "bmm_inference", "bvh_parse", "delta_inference", "fk", "ik_exact", "inbetween")
+def _scripts(folder: str) -> tuple[str, ...]:
+    """Every script in a folder of the repository (its helper modules, ``_*.py``, aside)."""
+    return tuple(sorted(p.stem for p in (REPO_ROOT / folder).glob("*.py") if not p.name.startswith("_")))
+
+
+EXPERIMENTS, BENCHMARKS = _scripts("experiments"), _scripts("benchmarks")
 _SIBLINGS = ("_common", "_delta", "_timing")  # the helper modules beside the scripts
 
 
