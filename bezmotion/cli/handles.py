@@ -170,7 +170,8 @@ def resolve_handles(
         local = r.frame - span * window  # the frame in its window (0 and 30 are the window's keys)
         line = line_between_keys(key_positions, CHARACTERISTIC_JOINTS.index(role), r.frame, span)
         position = np.asarray(r.value, np.float64) + (line if r.relative else 0.0)
-        away = float(np.linalg.norm((position - line) / HANDLE_FARTHEST_CM)) * HANDLE_FARTHEST_CM  # scaled: 1e300 cm squared overflows
+        dx, dy, dz = position - line
+        away = float(np.hypot(np.hypot(dx, dy), dz))  # hypot: 1e200 cm squared would overflow
         if away > HANDLE_FARTHEST_CM:  # a slip of units or digits: no window's motion goes that far
             raise ValueError(
                 f"{r.source}: {role} at frame {r.frame} lies {away / 100:.6g} m from the straight line between the keys' "
