@@ -5,9 +5,10 @@
 A first run writes a complete set into an ``--out`` folder (``inbetween.bvh``,
 ``inbetween.glb``, ``preview.gif``, ``summary.json``) beside a file of the user's own. Each
 later run (another seed, so every file of its set differs) is killed by SIGKILL: half of
-them at a random moment of the whole run, half a random 0…``--write-window`` s after its
-staging folder appears (while the set is being written and moved into place, the moments
-that matter). Then the folder is looked at as the next run would first look at it
+them at a random moment of the whole run, half a random moment after its staging folder
+appears, over 1.1 times the first run's writing phase (from its staging folder to its exit:
+while the set is written and moved into place, the moments that matter; some of those runs
+finish first). Then the folder is looked at as the next run would first look at it
 (:func:`~bezmotion._src.output_sets.existing_outputs`: what killed runs left is finished or
 removed) and classified:
 
@@ -49,15 +50,12 @@ USER_FILE = "notes.txt"
 @options
 class Options:
     kills: int = option(20, help="runs killed (default 20)")
-    write_window: float = option(1.5, help="seconds after the staging folder appears within which a write-time kill falls (default 1.5)")
     seed: int = option(0, help="the kill moments' seed")
     out: str | None = option(None, help="write the result as JSON to this file (atomically)")
 
     def __post_init__(self):
         if self.kills < 1:
             raise ValueError(f"--kills must be at least 1, got {self.kills}")
-        if not self.write_window > 0:
-            raise ValueError(f"--write-window must be positive, got {self.write_window}")
 
 
 def command(folder: Path, seed: int) -> list[str]:
@@ -92,17 +90,23 @@ def leftovers(folder: Path) -> list[str]:
     return [p.name for p in folder.iterdir() if p.name.startswith(STAGING_PREFIX) or p.name.endswith(".tmp")]
 
 
-def run_killed(folder: Path, seed: int, rng: random.Random, at_write: bool, whole_run_s: float, window: float) -> dict:
+def start(folder: Path, seed: int) -> subprocess.Popen:
+    return subprocess.Popen(command(folder, seed), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+
+
+def until_staging(folder: Path, process: subprocess.Popen) -> None:
+    """Wait until the run's staging folder appears (or the run ends)."""
+    while process.poll() is None and not any(p.name.startswith(STAGING_PREFIX) for p in folder.iterdir()):
+        time.sleep(0.005)
+
+
+def run_killed(folder: Path, seed: int, rng: random.Random, at_write: bool, whole_run_s: float, write_s: float) -> dict:
     """One run, killed at a random moment (of the whole run, or of its writing); what it left."""
-    process = subprocess.Popen(command(folder, seed), stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    process = start(folder, seed)
     started = time.monotonic()
     if at_write:
-        while process.poll() is None and not any(p.name.startswith(STAGING_PREFIX) for p in folder.iterdir()):
-            time.sleep(0.005)
-        delay = rng.uniform(0.0, window)
-    else:
-        delay = rng.uniform(0.0, whole_run_s)
-    time.sleep(delay)
+        until_staging(folder, process)
+    time.sleep(rng.uniform(0.0, 1.1 * write_s if at_write else whole_run_s))
     killed = process.poll() is None
     if killed:
         os.killpg(process.pid, signal.SIGKILL)
@@ -118,12 +122,16 @@ def main(argv: list[str] | None = None) -> dict:
         folder.mkdir()
         (folder / USER_FILE).write_text("the user's own notes\n")
         started = time.monotonic()
-        subprocess.run(command(folder, 0), check=True, stdout=subprocess.DEVNULL)
-        whole_run_s = time.monotonic() - started
+        first = start(folder, 0)
+        until_staging(folder, first)
+        writing = time.monotonic()
+        if first.wait() != 0:
+            raise SystemExit(f"the first run failed: {' '.join(command(folder, 0))}")
+        whole_run_s, write_s = time.monotonic() - started, time.monotonic() - writing
         old = hashes(folder)
         runs = []
         for k in range(1, args.kills + 1):
-            run = run_killed(folder, k, rng, at_write=k % 2 == 0, whole_run_s=whole_run_s, window=args.write_window)
+            run = run_killed(folder, k, rng, at_write=k % 2 == 0, whole_run_s=whole_run_s, write_s=write_s)
             run["outcome"] = classify(folder, old)
             run["left"] = leftovers(folder)
             run["user_file_kept"] = (folder / USER_FILE).read_text() == "the user's own notes\n"
@@ -136,7 +144,7 @@ def main(argv: list[str] | None = None) -> dict:
         "killed": sum(r["killed"] for r in runs),
         "temporaries_left": sum(bool(r["left"]) for r in runs),
         "user_file_lost": sum(not r["user_file_kept"] for r in runs),
-        "whole_run_s": round(whole_run_s, 2), "runs": runs, "machine": machine_info(),
+        "whole_run_s": round(whole_run_s, 2), "write_s": round(write_s, 3), "runs": runs, "machine": machine_info(),
     }  # fmt: skip
     summary = {k: v for k, v in result.items() if k not in ("runs", "machine")}
     return report(result, summary, args.out)
