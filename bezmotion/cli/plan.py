@@ -9,9 +9,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
 
 from bezmotion.assets.registry import trained_for
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, load_model
@@ -19,7 +17,7 @@ from bezmotion.data.bvh import BvhMotion, read_bvh
 from bezmotion.data.clip_frame import CM_PER_UNIT, TYPICAL_PERSON_CM, UP_AXES, ClipFrame, cm_per_unit, detect_units, detect_up, skeleton_size
 from bezmotion.data.resample import TRAINED_FPS, resample_motion
 from bezmotion.ik.exact import exact_settings
-from bezmotion.ik.protocol import Character, Pose, targets_from_pose
+from bezmotion.ik.protocol import Character, Pose
 from bezmotion.ik.protores import load_ik_model
 from bezmotion.ik.rig import make_rig
 from bezmotion._src.io import check_writable_folder
@@ -31,6 +29,7 @@ from bezmotion.evaluation.window_figures import (
     reach_chains,
 )
 from bezmotion.pipeline.authoring import (
+    clip_key_velocities,
     CHANNEL_CHOICES,
     EXACT_HELP,
     VERIFY_HELP,
@@ -387,7 +386,12 @@ def plan(args: InbetweenCommand) -> Plan:
     start_motion, f0, f1 = keys[0][3], keys[0][4], keys[-1][4]
     reference = motion_window(start_motion, f0, f1 - f0 + 1) if args.clip is not None else None
     key_poses = tuple(motion_poses(m, character, f) for _, _, _, m, f in keys)
-    key_velocity = _clip_key_velocities(character, keys) if args.key_velocities else None
+    key_velocity = None
+    if args.key_velocities:
+        try:
+            key_velocity = clip_key_velocities(character, [(m, f) for _, _, _, m, f in keys], names=[text for _, text, _, _, _ in keys])
+        except ValueError as error:
+            raise ValueError(f"--key-velocities: {error}") from None
     trained_on = args.trained_on if args.trained_on is not None else bundled_trained_on
     transfer = None
     transferred = trained_on is not None and trained_on != recognised.preset
@@ -587,33 +591,6 @@ def _at_trained_rate(
                 warnings.append(f"{path}: {motion.nominal_fps:g} fps, resampled to the BMM's {TRAINED_FPS:g} fps; {written}")
         out.append((argument, text, path, resampled, at))
     return out, warnings
-
-
-def _clip_key_velocities(character: Character, keys: Sequence[tuple[str, str, Path, BvhMotion, int]]) -> Float[Array, "keys 6 3"]:
-    """``--key-velocities``: the six joints' velocities (cm/frame) at each key (as
-    :func:`_read_keys` gives them) from its clip's frames around it: outwards at the first
-    and last key (the frame before the first, the one after the last: the motion kept
-    around the in-between), the central difference at a chain's inner keys (the velocity
-    both its windows take).
-
-    Raises:
-      ValueError: a key whose clip lacks a frame it needs, naming the key.
-    """
-    def position(motion: BvhMotion, frame: int) -> Array:
-        return targets_from_pose(character, motion_poses(motion, character, frame)).position  # (6, 3)
-
-    velocities = []
-    last = len(keys) - 1
-    for i, (_, text, _, motion, frame) in enumerate(keys):
-        before, after = (frame - 1 if i < last else frame), (frame + 1 if i > 0 else frame)
-        role = "start key" if i == 0 else "end key" if i == last else "key"
-        needs = {"start key": "the frame before it", "end key": "the frame after it", "key": "the frames on both sides"}[role]
-        if before < 0:
-            raise ValueError(f"--key-velocities: the {role} {text} is the first frame of its file; its velocity needs {needs}")
-        if after >= motion.num_frames:
-            raise ValueError(f"--key-velocities: the {role} {text} is the last frame ({frame}) of its file; its velocity needs {needs}")
-        velocities.append((position(motion, after) - position(motion, before)) / (after - before))
-    return jnp.stack(velocities)
 
 
 # -------------------------------------------------------------------------------- run

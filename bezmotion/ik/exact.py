@@ -565,14 +565,24 @@ class ExactIKFn:
         return ExactIKResult(pose, *_errors(params.character, pose, targets))
 
     def solve_window(
-        self, params: ExactIKParams, targets: IKTargets, keys: tuple[Pose, Pose] | Pose | None = None, key_blend_frames: int = 0
+        self,
+        params: ExactIKParams,
+        targets: IKTargets,
+        keys: tuple[Pose, Pose] | Pose | None = None,
+        key_blend_frames: int = 0,
+        start: Pose | None = None,
     ) -> Pose:
         """A window ``(frames, …)``: the inner IK's poses smoothed over time, then solved per
         frame (the :func:`~bezmotion.ik.protocol.solve_frames` protocol)."""
-        return self.solve_window_with_residual(params, targets, keys, key_blend_frames).pose
+        return self.solve_window_with_residual(params, targets, keys, key_blend_frames, start).pose
 
     def solve_window_with_residual(
-        self, params: ExactIKParams, targets: IKTargets, keys: tuple[Pose, Pose] | Pose | None = None, key_blend_frames: int = 0
+        self,
+        params: ExactIKParams,
+        targets: IKTargets,
+        keys: tuple[Pose, Pose] | Pose | None = None,
+        key_blend_frames: int = 0,
+        start: Pose | None = None,
     ) -> ExactIKResult:
         """:meth:`solve_window` with what is left of each target, per frame.
 
@@ -588,10 +598,22 @@ class ExactIKFn:
         keys' and handles' frames kept (:func:`~bezmotion.ik.temporal.limit_turns`).
         With keys and the rig as the inner IK (``exact_rig``), the rig's arms first bend their
         elbows the way the keys around each frame do (:func:`~bezmotion.ik.rig.elbows_from_keys`).
+
+        ``start``: ``(frames, …)`` poses to begin from instead of the inner IK's, a warm start
+        (e.g. this solve's result for targets that have since moved a little: an editor's
+        drag); the filters and passes then run on them as on the inner IK's poses.
+
+        Raises:
+          ValueError: a ``start`` that is not ``(frames, joints, …)`` poses of the targets' frames.
         """
-        pose = jax.vmap(self.inner, in_axes=(None, 0))(params.inner, targets)
-        if keys is not None and isinstance(params.inner, Rig):  # the rig's elbows bend as the keys' do
-            pose = elbows_from_keys(params.inner, pose, targets, key_chain(keys))
+        if start is None:
+            pose = jax.vmap(self.inner, in_axes=(None, 0))(params.inner, targets)
+            if keys is not None and isinstance(params.inner, Rig):  # the rig's elbows bend as the keys' do
+                pose = elbows_from_keys(params.inner, pose, targets, key_chain(keys))
+        elif start.quat_local.shape != (targets.position.shape[0], params.character.num_joints, 4):
+            raise ValueError(f"start must be poses of the targets' {targets.position.shape[0]} frames, got quat_local {start.quat_local.shape}")
+        else:
+            pose = start
         frames = pose.root_pos.shape[0]
         hold = jnp.zeros(frames, pose.root_pos.dtype)
         at_key = jnp.zeros(frames, bool)

@@ -44,7 +44,7 @@ from bezmotion.data.joint_roles import elided, guess_characteristic_joints
 from bezmotion.data.clip_frame import ClipFrame
 from bezmotion.data.resample import resample_motion
 from bezmotion.geometry.skeleton import ancestors, forward_kinematics
-from bezmotion.ik.protocol import Character, IKFn, Pose, pose_fk, pose_from_motion
+from bezmotion.ik.protocol import Character, IKFn, Pose, pose_fk, pose_from_motion, targets_from_pose
 from bezmotion.ik.exact import exact_ik
 from bezmotion.ik.joint_limits import JointLimits
 from bezmotion.ik.protores import ProtoResModel, protores_ik_fn, protores_refined_ik_fn
@@ -240,6 +240,32 @@ def motion_poses(motion: BvhMotion, character: Character, frames: slice | Sequen
     return pose_from_motion(
         character, jnp.asarray(motion.quat_local[index], jnp.float32), jnp.asarray(motion.pos_local[index], jnp.float32)
     )
+
+
+def clip_key_velocities(character: Character, keys: Sequence[tuple[BvhMotion, int]], names: Sequence[str] | None = None) -> jax.Array:
+    """``(keys, 6, 3)`` cm/frame: the six joints' velocities at each key ``(motion, frame)``
+    from its clip's frames around it: outwards at the first and last key (the frame before
+    the first, the one after the last: the motion kept around the in-between), the central
+    difference at a chain's inner keys (the velocity both its windows take).
+
+    Raises:
+      ValueError: a key whose clip lacks a frame it needs, naming it (``names[i]``, default
+        its frame).
+    """
+    names = [f"at frame {frame}" for _, frame in keys] if names is None else names
+    velocities = []
+    last = len(keys) - 1
+    for i, ((motion, frame), name) in enumerate(zip(keys, names, strict=True)):
+        before, after = (frame - 1 if i < last else frame), (frame + 1 if i > 0 else frame)
+        role = "start key" if i == 0 else "end key" if i == last else "key"
+        needs = {"start key": "the frame before it", "end key": "the frame after it", "key": "the frames on both sides"}[role]
+        if before < 0:
+            raise ValueError(f"the {role} {name} is the first frame of its file; its velocity needs {needs}")
+        if after >= motion.num_frames:
+            raise ValueError(f"the {role} {name} is the last frame ({frame}) of its file; its velocity needs {needs}")
+        six = targets_from_pose(character, motion_poses(motion, character, [before, after])).position  # (2, 6, 3)
+        velocities.append((six[1] - six[0]) / (after - before))
+    return jnp.stack(velocities)
 
 
 def motion_window(motion: BvhMotion, first: int, count: int) -> BvhMotion:
@@ -538,6 +564,7 @@ __all__ = [
     "make_ik",
     "FACING_CHOICES",
     "make_transfer",
+    "clip_key_velocities",
     "motion_poses",
     "motion_window",
     "output_format",

@@ -178,11 +178,10 @@ def _window_in_target(
     ends = jnp.asarray([0, cfg.num_controls - 1])
     if key_tangent is not None:  # exactly, undoing the scale round trip's rounding
         # Where a handle next to a key moved that key's tangent in the sampler, the moved one.
-        held = held_key_tangents(handles, cfg.num_controls, curves.ctrl_pos.shape[1], cfg.stride)
-        held = held if shared is None else held | shared  # a chain's shared key keeps its tangent
+        held = _kept_tangents(cfg, handles, shared, keyed=True)
         keyed = curves.ctrl_tangent.at[ends].set(key_tangent)
         curves = curves._replace(ctrl_tangent=jnp.where(held[..., None], keyed, curves.ctrl_tangent))
-        shared = held if shared is None else shared | held
+        shared = held
     # The end control points are the given poses themselves: their positions exactly
     # (undoing the scale round trip's rounding) and their orientations (which, without
     # ``key_orientations``, the BMM never saw).
@@ -190,16 +189,72 @@ def _window_in_target(
         ctrl_pos=curves.ctrl_pos.at[ends].set(jnp.stack([first.position, last.position])),
         ctrl_rot6d=curves.ctrl_rot6d.at[ends].set(jnp.stack([first.rot6d, last.rot6d])),
     )
-    # The handles exactly again after the transfer: control frames overwritten, handles
-    # between them by the minimum-norm correction; the keys' control points stay put.
+    # The handles exactly again after the transfer.
+    return _through_handles(cfg, curves, handles, shared)
+
+
+def _kept_tangents(cfg: Any, handles: Handles, shared: Bool[Array, "controls 6"] | None, *, keyed: bool) -> Bool[Array, "controls 6"] | None:
+    """The control tangents of one window that the handle projection keeps: a chain's shared
+    keys' (``shared``) and, where the keys' tangents were given (``keyed``), every key's
+    except those a handle next to the key moved (:func:`held_key_tangents`)."""
+    if not keyed:
+        return shared
+    held = held_key_tangents(handles, cfg.num_controls, cfg.num_joints, cfg.stride)
+    return held if shared is None else held | shared  # a chain's shared key keeps its tangent
+
+
+def _through_handles(cfg: Any, curves: SampledCurves, handles: Handles, kept: Bool[Array, "controls 6"] | None) -> WindowCurves:
+    """One window's curves (target character) through its handles exactly, and their dense
+    trajectories: control frames overwritten, handles between them by the minimum-norm
+    correction; the keys' control points, and the tangents ``kept``, stay put."""
     layout = BezierLayout.from_controls(cfg.num_controls, cfg.stride)
+    ends = jnp.asarray([0, cfg.num_controls - 1])
     keys_fixed = jnp.zeros(curves.ctrl_pos.shape[:2], bool).at[ends].set(True)
     ctrl_pos, ctrl_tangent = project_onto_handles(
-        layout, curves.ctrl_pos, curves.ctrl_tangent, handles, fixed=keys_fixed, fixed_tangent=shared,
+        layout, curves.ctrl_pos, curves.ctrl_tangent, handles, fixed=keys_fixed, fixed_tangent=kept,
     )  # fmt: skip
     curves = curves._replace(ctrl_pos=ctrl_pos, ctrl_tangent=ctrl_tangent)
     positions, rot6d = reconstruct_dense(layout, curves.ctrl_pos, curves.ctrl_tangent, curves.ctrl_rot6d)
     return WindowCurves(curves, positions, rot6d)
+
+
+def reproject_curves(
+    bmm: BezierMotionModel,
+    curves: SampledCurves,
+    handles: Handles,
+    options: InbetweenOptions = InbetweenOptions(),
+    *,
+    keyed: bool = False,
+) -> WindowCurves:
+    """Curves already sampled (:attr:`InbetweenResult.curves`, batched ``(K − 1, controls, …)``,
+    target character, cm) moved onto other handle positions by the same exact projection
+    :func:`curves_traced` ends with, no diffusion: what an editor shows while a handle is
+    dragged. Traceable.
+
+    The keys' control points stay, and so do the tangents the in-between held (a coupled
+    chain's shared keys; with ``keyed``, the keys' given velocities, as ``key_velocity`` held
+    them). Handles on the same joints and frames as those the curves were sampled with give
+    what projecting the sample itself onto the new positions gives.
+
+    Args:
+      curves: the sampled curves of every window.
+      handles: each window's, ``(K − 1, slots)`` in its own frames (:func:`window_handles`).
+      options: those of the in-between (``coupled`` is read).
+      keyed: the in-between was given ``key_velocity``.
+    Returns:
+      :class:`WindowCurves` batched ``(K − 1, …)``.
+    """
+    cfg = bmm.config
+    windows = curves.ctrl_pos.shape[0]
+    coupled = options.coupled and windows > 1
+    shared = shared_key_mask(windows, cfg.num_controls, cfg.num_joints) if coupled else None
+
+    def one(window: SampledCurves, window_handles: Handles, window_shared: Array | None) -> WindowCurves:
+        return _through_handles(cfg, window, window_handles, _kept_tangents(cfg, window_handles, window_shared, keyed=keyed))
+
+    if shared is None:
+        return jax.vmap(lambda c, h: one(c, h, None))(curves, handles)
+    return jax.vmap(one)(curves, handles, shared)
 
 
 def pinned_frames(handles: Handles, num_frames: int) -> Bool[Array, "frames 6"]:
@@ -289,6 +344,7 @@ def pose_from_curves(
     keep_keyframes: bool = True,
     key_blend_frames: int = KEY_BLEND_FRAMES,
     handles: Handles | None = None,
+    start: Pose | None = None,
 ) -> Pose:
     """The second half of :func:`inbetween`, traceable: one IK over the joined frames of
     every window, then (``keep_keyframes``) each window's frames blended to its two keys.
@@ -299,9 +355,15 @@ def pose_from_curves(
       keys: :class:`~bezmotion.ik.protocol.Pose` of every key, batched ``(K, …)``.
       handles: each window's handles ``(K − 1, slots)`` in its own frames, which the IK is
         told it must hit first (``IKTargets.pinned``); ``None``: none.
+      start: ``((K − 1)·(window_frames − 1) + 1, …)`` poses for an IK that solves whole
+        windows from a warm start (``ik_fn.solve_window(…, start=…)``, as
+        :class:`~bezmotion.ik.exact.ExactIKFn`'s does) to begin from instead of its own first
+        guess: e.g. its solution for curves that have moved a little since; ``None``: none.
     Returns:
       ``((K − 1)·(window_frames − 1) + 1, …)`` poses, the given keys exactly at the key
       frames with ``keep_keyframes``.
+    Raises:
+      ValueError: a ``start`` for an IK that does not solve whole windows.
     """
     positions, rot6d = join_windows(windows.positions), join_windows(windows.rot6d)
     frames = windows.positions.shape[1]
@@ -310,9 +372,13 @@ def pose_from_curves(
     # window joined to its two keys: the fades of neighbouring windows meet only at their
     # shared key, where both put that key exactly. An IK that solves whole windows (the
     # exact one) starts from poses already joined to the keys and holds their neighbours.
-    return solve_frames(
-        ik_fn, ik_params, IKTargets(positions, rot6d, pinned), keys=keys if keep_keyframes else None, key_blend_frames=key_blend_frames
-    )
+    targets, joined = IKTargets(positions, rot6d, pinned), keys if keep_keyframes else None
+    if start is None:
+        return solve_frames(ik_fn, ik_params, targets, keys=joined, key_blend_frames=key_blend_frames)
+    window = getattr(ik_fn, "solve_window", None)
+    if window is None:
+        raise ValueError(f"a start pose needs an IK that solves whole windows (one with solve_window), got {type(ik_fn).__name__}")
+    return window(ik_params, targets, keys=joined, key_blend_frames=key_blend_frames, start=start)
 
 
 def inbetween_traced(
@@ -329,10 +395,26 @@ def inbetween_traced(
     as its rest pose (:func:`~bezmotion.ik.rig.with_rest_pose`)."""
     transfer = Transfer.identity() if model.transfer is None else model.transfer
     windows = curves_traced(model.bmm, model.character, keys, handles, transfer, key, options, key_velocity)
+    return result_from_curves(model, windows, keys, handles, options)
+
+
+def result_from_curves(
+    model: Inbetweener,
+    windows: WindowCurves,
+    keys: Pose,
+    handles: Handles,
+    options: InbetweenOptions = InbetweenOptions(),
+    *,
+    start: Pose | None = None,
+) -> InbetweenResult:
+    """The IK half of :func:`inbetween_traced`, traceable: ``model``'s IK over the curves of
+    every window (:func:`pose_from_curves`, its rig's rest pose the first key's), and the
+    result. ``windows``: :func:`curves_traced`'s or :func:`reproject_curves`'; ``handles``:
+    each window's ``(K − 1, slots)``; ``start``: a warm start for an IK that takes one."""
     ik_params = with_rest_pose(model.ik_params, keys.quat_local[0])
     pose = pose_from_curves(
         model.ik_fn, ik_params, windows, keys, keep_keyframes=options.keep_keyframes, key_blend_frames=options.key_blend_frames,
-        handles=handles,
+        handles=handles, start=start,
     )  # fmt: skip
     return InbetweenResult(pose, windows.curves, join_windows(windows.positions), join_windows(windows.rot6d))
 
