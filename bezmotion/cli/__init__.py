@@ -3,6 +3,7 @@
     bezmotion demo [--out DIR] [--force] [--joint J --frame F --offset X Y Z] [--ik exact|refined|learned|rig] [--exact NAME=VALUE …] [--channels clip]
     bezmotion inbetween CLIP.bvh --frames 0 30 [--handle JOINT@FRAME=X,Y,Z …] [--out out.bvh|out.glb|DIR/] [--force]
     bezmotion inbetween --start A.bvh@F --end B.bvh@G [--handles FILE] [--samples N] [--ik rig] [--mapping MAP.json]
+    bezmotion edit CLIP.bvh [--frames 0 30] [--model NAME|PATH] [--out DIR] [--host H] [--port P]   # the browser editor
     bezmotion models [--check | --write-manifest]   # the pretrained models: bundled or not, size, data, licence, retraining
 
 Errors are one line of about 300 characters at most (:func:`~bezmotion._src.messages.one_line`),
@@ -24,6 +25,7 @@ from bezmotion._src.compilation_cache import use_compilation_cache
 from bezmotion._src.messages import one_line
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.cli.demo import demo
+from bezmotion.cli.edit import EDIT_HELP, add_edit_arguments, run_edit
 from bezmotion.cli.inbetween import InbetweenCommand, run_inbetween
 from bezmotion._src.options import add_options, option, options, options_from
 from bezmotion.ik.exact import exact_settings
@@ -99,6 +101,7 @@ def main(argv: list[str] | None = None) -> int:
         description=InbetweenCommand.__doc__, epilog=INBETWEEN_EXAMPLES, formatter_class=argparse.RawDescriptionHelpFormatter,
     )  # fmt: skip
     add_options(p_inbetween, InbetweenCommand)
+    add_edit_arguments(sub.add_parser("edit", help=EDIT_HELP, description=EDIT_HELP))
     p_models = sub.add_parser(
         "models", help="list the pretrained models: bundled or how to train them, size, data, licence, retrain commands",
         description="The pretrained models by name (bezmotion.pretrained(NAME) in Python; --model NAME, --ik-model NAME here).",
@@ -107,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
     manifest.add_argument("--check", action="store_true", help="check every bundled model's files against the checksum manifest")
     manifest.add_argument("--write-manifest", action="store_true", help="rewrite the checksum manifest from the bundled files (after retraining one)")
     parsed = parser.parse_args(argv)
-    if parsed.command in ("demo", "inbetween"):
+    if parsed.command in ("demo", "inbetween", "edit"):
         use_compilation_cache()  # the next run loads what this one compiles
 
     try:
@@ -120,6 +123,8 @@ def main(argv: list[str] | None = None) -> int:
             )  # fmt: skip
         elif parsed.command == "inbetween":
             run_inbetween(options_from(p_inbetween, InbetweenCommand, parsed))
+        elif parsed.command == "edit":
+            run_edit(parsed)
         elif parsed.command == "models":
             if parsed.write_manifest:
                 print(f"wrote {write_manifest()}")

@@ -145,6 +145,7 @@ def pose_local(character: Character, pose: Pose) -> tuple[Float[Array, "*batch j
     return pose.quat_local, pos_local.at[..., character.hips, :].set(hips_local)
 
 
+@jax.jit  # eagerly (handles checked against the keys, the editor's edits) one program per shape, not a scan traced each call
 def pose_fk(character: Character, pose: Pose) -> tuple[Float[Array, "*batch joints 4"], Float[Array, "*batch joints 3"]]:
     """Global ``(quat, pos)`` of every joint of ``pose`` (cm)."""
     quat_local, pos_local = pose_local(character, pose)
