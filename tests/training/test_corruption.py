@@ -22,6 +22,7 @@ from bezmotion.training import checkpoint
 from bezmotion.training import CheckpointStore, TrainState, apply_gradients, compile_train_step, run_training
 
 from bmm.common import TINY
+from helpers import load_experiment
 
 OPTIMIZER = optax.adam(0.05)
 
@@ -42,24 +43,9 @@ def at_step(state: TrainState, step: int) -> TrainState:
     return TrainState(state.params, state.opt_state, state.ema, jnp.asarray(step, jnp.int32), state.key)
 
 
-def data_file(folder):
-    """The largest file holding array data (orbax's ``d/`` folders) under ``folder``."""
-    return max((p for p in folder.rglob("*") if p.is_file() and p.parent.name == "d"), key=lambda p: p.stat().st_size)
 
-
-def damage(path, how: str) -> None:
-    data = bytearray(path.read_bytes())
-    if how == "flip":
-        start = len(data) // 3
-        for i in range(start, min(start + 64, len(data))):
-            data[i] ^= 0xFF
-        path.write_bytes(bytes(data))
-    elif how == "truncate":
-        path.write_bytes(bytes(data[: len(data) // 2]))
-    elif how == "zero":
-        path.write_bytes(b"")
-    elif how == "delete":
-        path.unlink()
+_benchmark = load_experiment("corruption", "benchmarks")
+damage, data_file = _benchmark.damage, _benchmark.data_file  # the benchmark's: one definition of each kind of damage
 
 
 def flip_bit(path, bit: int) -> None:
