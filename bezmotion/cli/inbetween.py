@@ -107,6 +107,12 @@ def _stderr(message: str) -> None:
     print(f"bezmotion inbetween: {message}", file=sys.stderr, flush=True)
 
 
+def sample_key(seed: int, sample: int = 0) -> jax.Array:
+    """The PRNG key of sample ``sample`` of ``bezmotion inbetween --seed SEED`` (the editor
+    draws its first, so that an export reproduces with the command)."""
+    return jax.random.fold_in(jax.random.key(seed), sample)
+
+
 def run_inbetween(args: InbetweenCommand, *, say: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Run ``bezmotion inbetween`` (see the module docstring); returns its summary.
 
@@ -145,7 +151,7 @@ def run_inbetween(args: InbetweenCommand, *, say: Callable[[str], None] | None =
         t0 = time.perf_counter()
         say(f"sample {k + 1}/{n}" + (" (compiling first, about a minute on a CPU) …" if k == 0 else " …"))
         result = inbetween(
-            model, keys, p.handles, key=jax.random.fold_in(jax.random.key(args.seed), k), options=options, key_velocity=p.key_velocity
+            model, keys, p.handles, key=sample_key(args.seed, k), options=options, key_velocity=p.key_velocity
         )
         curves = result.joined_curves()  # one curve through every key (C¹ there)
         seconds = time.perf_counter() - t0

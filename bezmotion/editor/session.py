@@ -51,6 +51,7 @@ from bezmotion._src.messages import listed, one_line
 from bezmotion._src.output_sets import existing_outputs, output_set
 from bezmotion._src.xla_options import inference_jit
 from bezmotion.bmm.sampling import Handles, SampledCurves
+from bezmotion.cli.inbetween import sample_key
 from bezmotion.cli.handles import (
     HandleRequest,
     handle_conflicts,
@@ -208,11 +209,6 @@ def _measured(character: Character, pose: Pose, handles: Handles, reach: ReachCh
 def _joint_positions(character: Character, pose: Pose) -> tuple[Array, Array]:
     """``(joints (frames, joints, 3), six (frames, 6, 3))`` world positions, cm."""
     return pose_fk(character, pose)[1], targets_from_pose(character, pose).position
-
-
-def _sample_key(seed: int) -> Array:
-    """The PRNG key of the sample ``bezmotion inbetween --seed SEED`` draws first."""
-    return jax.random.fold_in(jax.random.key(seed), 0)
 
 
 # ------------------------------------------------------------------------------- session
@@ -618,7 +614,7 @@ class EditSession:
         key_velocity = self._key_velocity(state.keys) if state.key_velocities else None
         records = self._records(state)
         handles = self._padded(records)
-        result = inbetween(model, keys, handles, key=_sample_key(state.seed), options=state.options, key_velocity=key_velocity)
+        result = inbetween(model, keys, handles, key=sample_key(state.seed), options=state.options, key_velocity=key_velocity)
         shown = _Shown(self._view(state, result, handles), result, keys, key_velocity)
         self._shown[state] = shown
         while len(self._shown) > VIEWS_KEPT:
