@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -17,7 +17,7 @@ from bezmotion.training.checkpoint import CheckpointStore
 from bezmotion.delta.train import DeltaTrainConfig, init_delta_train_states, make_delta_train_step, run_delta_training
 from bezmotion.delta.model import DeltaConfig
 from bezmotion._src.options import option, options, presets
-from bezmotion.training import compile_train_step
+from bezmotion.training import compile_train_step, train_with_learning_curve
 from _common import runs_dir
 
 MODE_NAMES = {"last": "Last", "none": "No", "interpolation": "I"}
@@ -51,12 +51,15 @@ class DeltaOptions:
         None, help="checkpoints (default: <cache>/runs/<script>_<config>; {name} and {config} in a given path are filled in)"
     )
     checkpoint_every: int = 500
+    eval_every: int = option(0, help="learning curve: evaluate every N steps into <run-dir>/<mode>/learning_curve.json (0 = only at the end)")
     eval_batch: int = option(256, help="test windows per vectorised chunk at evaluation")
     lengths: tuple[int, ...] = option(help="transition lengths")
     no_cache: bool = option(False, help="re-parse the corpus instead of using the cache")
     no_progress: bool = False
 
     def __post_init__(self):
+        if self.eval_every < 0:
+            raise ValueError(f"--eval-every must be ≥ 0, got {self.eval_every}")
         # The run directory's placeholders: {name} the script's RUN_NAME, {config} --config.
         template = self.run_dir if self.run_dir is not None else str(runs_dir("{name}_{config}"))
         object.__setattr__(self, "run_dir", template.format(name=self.RUN_NAME, config=self.config))
@@ -91,8 +94,15 @@ class ModeRun:
             store.close()
 
 
-def train_delta_mode(args: DeltaOptions, run: ModeRun, model_config: DeltaConfig, train_config: DeltaTrainConfig, data, *, window_frames: int):
-    """Train (or resume) one Δ-mode for all seeds at once; returns ``(graphdef, state, history, seconds)``."""
+def train_delta_mode(
+    args: DeltaOptions, run: ModeRun, model_config: DeltaConfig, train_config: DeltaTrainConfig, data, *, window_frames: int,
+    evaluate: Callable[[Any, Any], dict] | None = None,
+):
+    """Train (or resume) one Δ-mode for all seeds at once; returns ``(graphdef, state, history, seconds, curve)``.
+
+    With ``args.eval_every`` > 0 and ``evaluate(graphdef, state)`` (→ a JSON-able dict), the
+    run also writes a learning curve beside its checkpoints (``curve`` is then that curve,
+    else ``None``); it resumes with the run."""
     graphdef, state = init_delta_train_states(model_config, train_config, args.seeds)
     step = compile_train_step(
         make_delta_train_step(graphdef, model_config, train_config, window_frames=window_frames), num_seeds=len(args.seeds)
@@ -101,13 +111,19 @@ def train_delta_mode(args: DeltaOptions, run: ModeRun, model_config: DeltaConfig
     run.check_resumable()
     store = CheckpointStore(run.directory)
     started = time.perf_counter()
+    kwargs = dict(num_steps=args.steps, store=store, checkpoint_every=args.checkpoint_every, config=run.config, progress=not args.no_progress)
     # Restored checkpoints are device-committed; commit fresh states too (one compilation).
-    state, history = run_delta_training(
-        lambda s, d: step(jax.device_put(s, device), d), state, data, num_steps=args.steps, store=store,
-        checkpoint_every=args.checkpoint_every, config=run.config, progress=not args.no_progress,
-    )  # fmt: skip
+    step_fn = lambda s, d: step(jax.device_put(s, device), d)  # noqa: E731
+    curve = None
+    if args.eval_every and evaluate is not None:
+        state, history, curve = train_with_learning_curve(
+            step_fn, state, data, eval_every=args.eval_every, evaluate=lambda s: evaluate(graphdef, s),
+            curve_file=run.directory.parent / "learning_curve.json", **kwargs,
+        )  # fmt: skip
+    else:
+        state, history = run_delta_training(step_fn, state, data, **kwargs)
     store.close()
-    return graphdef, state, history, time.perf_counter() - started
+    return graphdef, state, history, time.perf_counter() - started, curve
 
 
 def mean_over_seeds(per_seed: list[Any]) -> Any:

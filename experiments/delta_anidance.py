@@ -203,7 +203,7 @@ def main(argv: list[str] | None = None) -> dict:
     }
     for model_config in model_configs:
         mode = (model_config.input_delta, model_config.output_delta)
-        graphdef, state, history, train_s = train_delta_mode(
+        graphdef, state, history, train_s, _ = train_delta_mode(
             args, plan(model_config), model_config, train_config, data, window_frames=TRAIN_WINDOW
         )
         entry: dict = {"train_s_this_run": train_s, "history": history}

@@ -126,18 +126,29 @@ def main(argv: list[str] | None = None) -> dict:
         "baselines": {v: evaluate_baselines(bench, lengths, variant=v) for v in METRIC_VARIANTS},
         "ablation": {},
     }
+
+    def per_seed_metrics(graphdef, state, variant: str) -> dict:
+        """``{seed: metrics}`` of every trained seed on the test windows under ``variant``."""
+        per_seed = {}
+        for i, seed in enumerate(args.seeds):
+            params = jax.tree.map(lambda x, i=i: x[i], state.params)
+            results["model"]["params"] = count_parameters(params)
+            inbetween = delta_inbetweener(graphdef, params, skeleton, batch_size=args.eval_batch)
+            per_seed[str(seed)] = evaluate_transitions(bench, inbetween, lengths, variant=variant)
+        return per_seed
+
+    def curve_point(graphdef, state) -> dict:
+        return {"official": mean_over_seeds(list(per_seed_metrics(graphdef, state, "official").values()))}
+
     for mode in modes:
         model_config = CONFIGS[args.config](input_delta=mode[0], output_delta=mode[1])
         run = ModeRun.plan(args, model_config, train_config)
-        graphdef, state, history, train_s = train_delta_mode(args, run, model_config, train_config, data, window_frames=TRAIN_WINDOW)
-        entry: dict = {"train_s_this_run": train_s, "history": history}
+        graphdef, state, history, train_s, curve = train_delta_mode(
+            args, run, model_config, train_config, data, window_frames=TRAIN_WINDOW, evaluate=curve_point
+        )
+        entry: dict = {"train_s_this_run": train_s, "history": history, **({"learning_curve": curve} if curve else {})}
         for variant in METRIC_VARIANTS:
-            per_seed = {}
-            for i, seed in enumerate(args.seeds):
-                params = jax.tree.map(lambda x, i=i: x[i], state.params)
-                results["model"]["params"] = count_parameters(params)
-                inbetween = delta_inbetweener(graphdef, params, skeleton, batch_size=args.eval_batch)
-                per_seed[str(seed)] = evaluate_transitions(bench, inbetween, lengths, variant=variant)
+            per_seed = per_seed_metrics(graphdef, state, variant)
             entry[variant] = {"mean": mean_over_seeds(list(per_seed.values())), "seeds": per_seed}
         results["ablation"][mode_label(mode)] = entry
         print(f"{mode_label(mode)}: trained in {train_s:.0f} s this run", flush=True)
