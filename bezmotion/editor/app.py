@@ -11,21 +11,26 @@ resamples, undoes and redoes, toggles foot lock and key velocities, exports, and
 handles missed and the warnings. Every session call holds one lock (viser runs callbacks in
 threads); gizmo moves queue in order and a move superseded by a later one is dropped.
 
-viser serves no authentication: anyone who can reach the port can edit and export. It
-listens on 127.0.0.1 unless told otherwise; another host is the caller's explicit choice.
+Every request needs the session's random token (:mod:`bezmotion.editor.access`), which
+:attr:`EditorApp.url` carries; the server listens on 127.0.0.1 unless told otherwise.
 The scene is in metres (the session's cm × 0.01), Y up.
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
 import queue
+import sys
 import threading
 from typing import Any, Callable, NamedTuple
+from urllib.parse import quote
 
 import numpy as np
 
 from bezmotion._src.messages import one_line
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
+from bezmotion.editor.access import TokenGate, gated_viser
 from bezmotion.editor.session import EditSession, EditView
 
 SCALE = 0.01
@@ -111,13 +116,14 @@ class EditorApp:
 
     Attributes:
       server: the ``viser.ViserServer``.
+      gate: the token check every request passes.
       session: the session edited (call it only under :attr:`lock`).
       lock: held around every session call.
       message: the last action's outcome or error, as the panel shows it.
     """
 
-    def __init__(self, session: EditSession, server: Any) -> None:
-        self.session, self.server = session, server
+    def __init__(self, session: EditSession, server: Any, gate: TokenGate) -> None:
+        self.session, self.server, self.gate = session, server, gate
         self.lock = threading.RLock()
         self.message = ""
         self._moves: queue.SimpleQueue[GizmoMove | None] = queue.SimpleQueue()
@@ -125,6 +131,9 @@ class EditorApp:
         self._flushes: queue.SimpleQueue[threading.Event] = queue.SimpleQueue()
         self._gizmos: dict[int, Any] = {}
         server.scene.set_up_direction("+y")
+        # viser's share button opens a public tunnel to the session: not from the editor.
+        server.gui.configure_theme(show_share_button=False)
+        server.request_share_url = self._refuse_share
         self._build_gui()
         self._worker = threading.Thread(target=self._drain_moves, name="bezmotion-gizmos", daemon=True)
         self._worker.start()
@@ -137,10 +146,19 @@ class EditorApp:
 
     @property
     def url(self) -> str:
-        """The address to open in a browser."""
+        """The address to open in a browser, with the token."""
+        return f"{self.base_url}/?token={quote(self.gate.token, safe='')}"
+
+    @property
+    def base_url(self) -> str:
+        """The server's address without the token (which answers 403)."""
         host = self.server.get_host()
-        host = "127.0.0.1" if host in ("0.0.0.0", "") else host
+        host = "127.0.0.1" if host in ("0.0.0.0", "") else f"[{host}]" if ":" in host else host
         return f"http://{host}:{self.server.get_port()}"
+
+    def _refuse_share(self, *_: Any, **__: Any) -> None:
+        self.message = "sharing is off: the editor stays on its own address"
+        return None
 
     def stop(self) -> None:
         """Stop playing, the gizmo worker and the server."""
@@ -329,28 +347,37 @@ class EditorApp:
             self.handle.value = names[-1]
 
 
-def serve(session: EditSession, host: str = "127.0.0.1", port: int = 8080, *, verbose: bool = False) -> EditorApp:
+def serve(session: EditSession, host: str = "127.0.0.1", port: int = 8080, *, token: str | None = None, verbose: bool = False) -> EditorApp:
     """Serve the browser editor of ``session`` on ``host:port`` (``port=0``: any free one) and
     return it; it runs in the background until :meth:`EditorApp.stop`.
 
-    viser has no authentication, so a host other than the loopback lets anyone who reaches
-    it edit the session and write exports to its folder; pass one only on a trusted network.
+    Every request needs ``token`` (default: a fresh random one), which :attr:`EditorApp.url`
+    carries. A host other than the loopback lets whoever reaches it and knows the token edit
+    the session and export into its folder; the token travels unencrypted (plain HTTP).
 
     Raises:
-      ValueError: a port outside 0–65535.
+      ValueError: a port outside 0–65535, or an empty token.
       ImportError: viser is not installed (``pip install -e '.[editor]'``).
+      RuntimeError: this viser version starts its server in a way the token check cannot wrap.
     """
     if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
         raise ValueError(f"a port is an integer in 0…65535, got {one_line(repr(port), 40)}")
+    if token is not None and not (isinstance(token, str) and token):
+        raise ValueError(f"a token is a non-empty string, got {one_line(repr(token), 40)}")
     try:
         import viser
     except ImportError:
         raise ImportError("the browser editor needs viser: pip install -e '.[editor]'") from None
-    server = viser.ViserServer(host=host, port=port, verbose=verbose)
+    gate = TokenGate.new() if token is None else TokenGate(token)
+    server = None
     try:
-        return EditorApp(session, server)
+        # viser prints its own banner with the address sans token (which answers 403): hush it.
+        with gated_viser(gate), contextlib.redirect_stdout(sys.stdout if verbose else io.StringIO()):
+            server = viser.ViserServer(host=host, port=port, verbose=verbose)
+        return EditorApp(session, server, gate)
     except BaseException:
-        server.stop()
+        if server is not None:
+            server.stop()
         raise
 
 
