@@ -5,11 +5,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any, NamedTuple, Protocol, runtime_checkable
 
-import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
+from bezmotion._src.problems import Problem, raised_in_program
 from bezmotion.bezier import BezierLayout
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 
@@ -206,11 +206,11 @@ def line_between_keys(key_positions: np.ndarray, joint: int, frame: int, span: i
     return (1.0 - t) * key_positions[window, joint] + t * key_positions[window + 1, joint]
 
 
-def checked_handles(
+def handle_problems(
     handles: Handles, *, num_frames: int, num_joints: int, span: int | None = None, line: Float[Array, "*batch slots 3"] | None = None
-) -> Handles:
-    """``handles`` with run-time checks of their valid slots (``eqx.error_if``, inside a
-    computation as outside: one path), each naming the first slot that fails it.
+) -> list[Problem]:
+    """What is wrong with ``handles``' valid slots: a :class:`~bezmotion._src.problems.Problem`
+    per rule, flagging each slot that breaks it (over any batch), its message naming the slot.
 
     Args:
       num_frames: frames of the motion the handles' frames count in (a window's 31, or a
@@ -229,7 +229,7 @@ def checked_handles(
     joint, frame, position, valid = handles.joint, handles.frame, handles.position, handles.valid.astype(bool)
     same = (joint[..., :, None] == joint[..., None, :]) & (frame[..., :, None] == frame[..., None, :]) & valid[..., :, None] & valid[..., None, :]
     differ = jnp.any(position[..., :, None, :] != position[..., None, :, :], axis=-1)
-    checks = [
+    rules = [
         (valid & ((joint < 0) | (joint >= num_joints)), f"joint index outside 0 … {num_joints - 1}"),
         (valid & ((frame <= 0) | (frame >= last) | (frame % span == 0)), f"frame outside 1 … {last - 1} or on a key (every {span}th frame)"),
         (valid & ~jnp.isfinite(position).all(axis=-1), "position not finite"),
@@ -237,12 +237,18 @@ def checked_handles(
     ]
     if line is not None:
         far = valid & (jnp.linalg.norm(position - line, axis=-1) > HANDLE_FARTHEST_CM)
-        checks.append((far, f"farther than {HANDLE_FARTHEST_CM / 100:.0f} m from the straight line between its keys (positions are in cm)"))
+        rules.append((far, f"farther than {HANDLE_FARTHEST_CM / 100:.0f} m from the straight line between its keys (positions are in cm)"))
     slots = handles.valid.shape[-1]
-    for bad, what in checks:
-        flat = bad.reshape(-1, slots).any(axis=0)  # per slot, over any batch
-        handles = eqx.branched_error_if(handles, flat.any(), jnp.argmax(flat), [f"handle {i}: {what}" for i in range(slots)])
-    return handles
+    return [Problem(bad.reshape(-1, slots).any(axis=0), tuple(f"handle {i}: {what}" for i in range(slots))) for bad, what in rules]
 
 
-__all__ = ["HANDLE_FARTHEST_CM", "Handles", "WindowShape", "checked_handles", "grid_conditions", "line_between_keys", "on_control_frame", "straight_line"]
+def checked_handles(
+    handles: Handles, *, num_frames: int, num_joints: int, span: int | None = None, line: Float[Array, "*batch slots 3"] | None = None
+) -> Handles:
+    """``handles`` with run-time checks of their valid slots (``eqx.error_if``, inside a
+    computation as outside: one path), each naming the first slot that fails it; the rules
+    and arguments are :func:`handle_problems`'."""
+    return raised_in_program(handles, handle_problems(handles, num_frames=num_frames, num_joints=num_joints, span=span, line=line))
+
+
+__all__ = ["HANDLE_FARTHEST_CM", "Handles", "WindowShape", "checked_handles", "handle_problems", "grid_conditions", "line_between_keys", "on_control_frame", "straight_line"]

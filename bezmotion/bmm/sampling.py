@@ -14,7 +14,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import os
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -31,7 +31,8 @@ from bezmotion.diffusion.projection import CurveMetric, curve_metric, project_of
 from bezmotion.bmm.foot_lock import lock_anchor, lock_feet
 from bezmotion.diffusion.schedule import cosine_schedule
 from bezmotion.bmm.denoiser import BMMConfig, init_denoiser
-from bezmotion.handles import Handles, checked_handles, straight_line
+from bezmotion._src.problems import Problem, raised_in_program
+from bezmotion.handles import Handles, handle_problems, straight_line
 from bezmotion.bmm.features import (
     FeatureStats,
     from_tokens,
@@ -405,6 +406,7 @@ def sample_chained_curves(
     foot_lock: bool | str = False,
     key_rot6d: Float[Array, "*batch keys 6 6"] | None = None,
     key_tangent: Float[Array, "*batch keys 6 3"] | None = None,
+    checked: bool = True,
 ) -> SampledCurves:
     """Sample the curves of a chain of windows through ``keys`` key poses, one window
     (``model.config.num_frames`` frames, 31) between each pair of consecutive keys, all in
@@ -454,6 +456,9 @@ def sample_chained_curves(
         curves leave and reach each key at its own velocity. A joint's handle within a
         stride of a key takes precedence (:func:`held_key_tangents`); both windows of a
         shared key take its tangent, so a coupled chain keeps it.
+      checked: check the handles' values in the computation (:func:`window_handle_problems`,
+        ``eqx.error_if``); ``False`` when the caller checked them already, which leaves the
+        program free of host callbacks (XLA's persistent cache then stores it).
     Returns:
       :class:`SampledCurves` batched ``(*batch, keys − 1, controls, …)``, world frame; window
       ``i``'s last control point and window ``i + 1``'s first are the same key.
@@ -464,15 +469,26 @@ def sample_chained_curves(
     """
     return _sample_chained_curves(
         model, key_pos, handles, key_rot6d, key_tangent,
-        key=key, steps=steps, guidance=guidance, coupled=coupled, overwrite=overwrite, foot_lock=lock_anchor(foot_lock),
+        key=key, steps=steps, guidance=guidance, coupled=coupled, overwrite=overwrite, foot_lock=lock_anchor(foot_lock), checked=checked,
     )  # fmt: skip
+
+
+def window_handle_problems(config: Any, key_pos: Float[Array, "*batch keys 6 3"], handles: Handles) -> list[Problem]:
+    """What is wrong with each window's ``handles`` (batched ``(*batch, keys − 1, slots)``)
+    between consecutive ``key_pos`` in a chain of ``config.num_frames``-frame windows:
+    :func:`~bezmotion.handles.handle_problems`, the straight line from each window's keys."""
+    start, end = key_pos[..., :-1, :, :], key_pos[..., 1:, :, :]
+    frames = config.num_frames
+    return handle_problems(handles, num_frames=frames, num_joints=config.num_joints, line=straight_line(start, end, handles, frames))
 
 
 CHAIN_AXIS = "chain_window"  # the vmap axis the windows of one chain are coupled over
 
 
-@functools.partial(inference_jit, static_argnames=("steps", "guidance", "coupled", "overwrite", "foot_lock"))
-def _sample_chained_curves(model, key_pos, handles, key_rot6d, key_tangent, *, key, steps, guidance, coupled, overwrite, foot_lock) -> SampledCurves:
+@functools.partial(inference_jit, static_argnames=("steps", "guidance", "coupled", "overwrite", "foot_lock", "checked"))
+def _sample_chained_curves(
+    model, key_pos, handles, key_rot6d, key_tangent, *, key, steps, guidance, coupled, overwrite, foot_lock, checked=True
+) -> SampledCurves:
     joints = model.config.num_joints
     if key_pos.ndim < 3 or key_pos.shape[-2:] != (joints, 3) or key_pos.shape[-3] < 2:
         raise ValueError(f"key_pos must be (..., keys ≥ 2, {joints}, 3), got {key_pos.shape}")
@@ -491,8 +507,8 @@ def _sample_chained_curves(model, key_pos, handles, key_rot6d, key_tangent, *, k
         raise ValueError("a coupled chain needs overwrite=True (the coupling is part of the overwrite); use coupled=False")
     windows = num_keys - 1
     start, end = key_pos[..., :-1, :, :], key_pos[..., 1:, :, :]
-    frames = model.config.num_frames
-    handles = checked_handles(handles, num_frames=frames, num_joints=joints, line=straight_line(start, end, handles, frames))
+    if checked:
+        handles = raised_in_program(handles, window_handle_problems(model.config, key_pos, handles))
     window_ends = lambda x: None if x is None else jnp.stack([x[..., :-1, :, :], x[..., 1:, :, :]], axis=-3)  # noqa: E731
     rot6d_pairs, tangent_pairs = window_ends(key_rot6d), window_ends(key_tangent)
     one = functools.partial(

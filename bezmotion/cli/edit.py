@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import signal
 import sys
 import threading
 import webbrowser
@@ -33,7 +34,7 @@ def has_display() -> bool:
 
 
 def run_edit(parsed: argparse.Namespace) -> None:
-    """Open the session, compile its drag ahead, serve it and wait for Ctrl-C."""
+    """Open the session, serve it (its first view and drag compiling meanwhile) and wait for Ctrl-C."""
     from bezmotion.editor.session import EditSession  # here: the session imports the command's handle checks
 
     try:
@@ -44,15 +45,14 @@ def run_edit(parsed: argparse.Namespace) -> None:
     if not 0 <= parsed.port <= 65535:
         raise ValueError(f"--port is in 0…65535, got {parsed.port}")
     session = EditSession.open(parsed.clip, parsed.out, keys=tuple(parsed.frames), model=parsed.model)
-    print("compiling the editor (the first run takes a while)…", flush=True)
-    session.warm_up()
     try:
-        app = serve(session, host=parsed.host, port=parsed.port)
+        app = serve(session, host=parsed.host, port=parsed.port, background=True)  # the page first, then the in-between
     except OSError as error:
         raise ValueError(f"--host {parsed.host} --port {parsed.port}: cannot listen there ({error.strerror or error})") from None
     if parsed.host not in LOOPBACK:
         print(f"warning: listening on {parsed.host}: whoever reaches it with the address below can edit and export (plain HTTP)", flush=True)
     print(f"bezmotion edit: open {app.url} (Ctrl-C stops)", flush=True)
+    print("the page shows the clip at once and the in-between once it is sampled (a first run compiles for about a minute)", flush=True)
     if not parsed.no_browser and has_display():
         webbrowser.open(app.url)
     try:
@@ -60,4 +60,5 @@ def run_edit(parsed: argparse.Namespace) -> None:
     except KeyboardInterrupt:
         pass
     finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # a second Ctrl-C does not break off the stop
         app.stop()

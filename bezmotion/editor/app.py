@@ -120,9 +120,10 @@ class EditorApp:
       session: the session edited (call it only under :attr:`lock`).
       lock: held around every session call.
       message: the last action's outcome or error, as the panel shows it.
+      ready: set once the session's first view is drawn.
     """
 
-    def __init__(self, session: EditSession, server: Any, gate: TokenGate) -> None:
+    def __init__(self, session: EditSession, server: Any, gate: TokenGate, *, background: bool = False) -> None:
         self.session, self.server, self.gate = session, server, gate
         self.lock = threading.RLock()
         self.message = ""
@@ -139,10 +140,30 @@ class EditorApp:
         self._worker.start()
         self._player = threading.Thread(target=self._play_loop, name="bezmotion-play", daemon=True)
         self._player.start()
+        self.ready = threading.Event()
+        if background:
+            self._aim_camera(self.session.ghost[:, session.character.hips])
+            self._draw_ghost(int(self.frame.value))
+            self.status.content = "sampling the in-between…"
+            threading.Thread(target=self._first_view_then_warm_up, name="bezmotion-first-view", daemon=True).start()
+        else:
+            self._first_view()
+
+    def _first_view(self) -> None:
         with self.lock:
             view = self.session.view
-            self._aim_camera(view)
+            self._aim_camera(view.positions[:, 0])
             self._redraw(view, gizmos=True)
+        self.ready.set()
+
+    def _first_view_then_warm_up(self) -> None:
+        try:
+            self._first_view()
+            with self.lock:
+                self.session.warm_up()
+        except Exception as error:  # noqa: BLE001 - shown on the page: the thread has no caller
+            self.message = one_line(f"{type(error).__name__}: {error}")
+            self.status.content = self.message
 
     @property
     def url(self) -> str:
@@ -281,9 +302,9 @@ class EditorApp:
 
     # --------------------------------------------------------------------- drawing
 
-    def _aim_camera(self, view: EditView) -> None:
-        """Look at the hips' path from the side, far enough to see all of it (3 m at least)."""
-        hips = view.positions[:, 0] * SCALE
+    def _aim_camera(self, hips_cm: np.ndarray) -> None:
+        """Look at the hips' path ``(frames, 3)`` cm from the side, far enough to see all of it (3 m at least)."""
+        hips = hips_cm * SCALE
         centre = hips.mean(axis=0)
         distance = max(3.0, 2.0 * float(np.ptp(hips, axis=0).max()))
         self.server.initial_camera.look_at = centre
@@ -315,9 +336,13 @@ class EditorApp:
         parents, hips = self.session.character.skeleton.parents, self.session.character.hips
         scene = self.server.scene
         scene.add_line_segments("/body", bone_segments(view.joints[frame], parents, hips), (30, 30, 30), thickness=0.02)
-        ghost = self.session.ghost
-        scene.add_line_segments("/ghost", bone_segments(ghost[min(frame, ghost.shape[0] - 1)], parents, hips), (170, 170, 170), thickness=0.01)
+        self._draw_ghost(frame)
         scene.add_point_cloud("/now", view.positions[frame] * SCALE, (20, 20, 20), point_size=0.04)
+
+    def _draw_ghost(self, frame: int) -> None:
+        ghost, character = self.session.ghost, self.session.character
+        segments = bone_segments(ghost[min(frame, ghost.shape[0] - 1)], character.skeleton.parents, character.hips)
+        self.server.scene.add_line_segments("/ghost", segments, (170, 170, 170), thickness=0.01)
 
     def _draw_curves(self, view: EditView) -> None:
         ctrl_pos, ctrl_tangent = np.asarray(view.curves.ctrl_pos), np.asarray(view.curves.ctrl_tangent)
@@ -347,9 +372,15 @@ class EditorApp:
             self.handle.value = names[-1]
 
 
-def serve(session: EditSession, host: str = "127.0.0.1", port: int = 8080, *, token: str | None = None, verbose: bool = False) -> EditorApp:
+def serve(
+    session: EditSession, host: str = "127.0.0.1", port: int = 8080, *, token: str | None = None, background: bool = False, verbose: bool = False
+) -> EditorApp:
     """Serve the browser editor of ``session`` on ``host:port`` (``port=0``: any free one) and
     return it; it runs in the background until :meth:`EditorApp.stop`.
+
+    It returns once the session's first view is drawn; with ``background``, at once, the page
+    showing the clip while a thread samples the first view (:attr:`EditorApp.ready` is set
+    then) and compiles the drag (:meth:`EditSession.warm_up`); edits wait for both.
 
     Every request needs ``token`` (default: a fresh random one), which :attr:`EditorApp.url`
     carries. A host other than the loopback lets whoever reaches it and knows the token edit
@@ -374,7 +405,7 @@ def serve(session: EditSession, host: str = "127.0.0.1", port: int = 8080, *, to
         # viser prints its own banner with the address sans token (which answers 403): hush it.
         with gated_viser(gate), contextlib.redirect_stdout(sys.stdout if verbose else io.StringIO()):
             server = viser.ViserServer(host=host, port=port, verbose=verbose)
-        return EditorApp(session, server, gate)
+        return EditorApp(session, server, gate, background=background)
     except BaseException:
         if server is not None:
             server.stop()

@@ -20,12 +20,12 @@ import dataclasses
 import functools
 from typing import TYPE_CHECKING, Any, NamedTuple
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
+from bezmotion._src.problems import Problem, raise_first, raised_in_program
 from bezmotion._src.xla_options import inference_jit
 from bezmotion.bezier import BezierLayout, reconstruct_dense, tangent_from_velocity
 from bezmotion.bmm.sampling import (
@@ -35,6 +35,7 @@ from bezmotion.bmm.sampling import (
     held_key_tangents,
     sample_chained_curves,
     shared_key_mask,
+    window_handle_problems,
 )
 from bezmotion.diffusion.projection import project_onto_handles
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
@@ -279,6 +280,14 @@ def window_handles(handles: Handles, windows: int, span: int) -> Handles:
     )
 
 
+def _source_frame(character: Character, keys: Pose, transfer: Transfer):
+    """``(targets, anchor, source)``: the keys' six joints (target character), the transfer's
+    anchor (the first key's hips), and the map of target positions into the BMM's space."""
+    targets = targets_from_pose(character, keys)  # (keys, 6, ·)
+    anchor = placement(transfer, targets.position[0])
+    return targets, anchor, functools.partial(to_source_space, transfer, anchor)
+
+
 def curves_traced(
     bmm: BezierMotionModel,
     character: Character,
@@ -288,8 +297,9 @@ def curves_traced(
     key: Array,
     options: InbetweenOptions = InbetweenOptions(),
     key_velocity: Float[Array, "keys 6 3"] | None = None,
+    checked: bool = True,
 ) -> WindowCurves:
-    """The first half of :func:`inbetween`, traceable and unchecked: the curves of every
+    """The first half of :func:`inbetween`, traceable: the curves of every
     window between consecutive ``keys`` (batched ``(K, …)``) and their dense trajectories,
     batched ``(K − 1, …)``, which any number of IK modules can then share
     (:func:`pose_from_curves`).
@@ -298,11 +308,10 @@ def curves_traced(
     One transfer anchor (the first key's hips on the floor) for the whole motion, so a
     shared key is one point in the BMM's space too. ``key_velocity``: optionally
     ``(K, 6, 3)`` the six joints' velocities at every key (cm/frame, target character),
-    conditions met exactly, by both windows of a shared key.
+    conditions met exactly, by both windows of a shared key. ``checked``: check the handles'
+    values in the computation (``False``: the caller did, :func:`input_problems`).
     """
-    targets = targets_from_pose(character, keys)  # (keys, 6, ·)
-    anchor = placement(transfer, targets.position[0])
-    source = functools.partial(to_source_space, transfer, anchor)
+    targets, anchor, source = _source_frame(character, keys, transfer)
     key_rot6d = orientations_to_source_space(transfer, targets.rot6d, anchor.turn) if options.key_orientations else None
     windows, cfg = targets.position.shape[0] - 1, bmm.config
     layout = BezierLayout.from_controls(cfg.num_controls, cfg.stride)
@@ -311,6 +320,7 @@ def curves_traced(
         bmm, source(targets.position), handles._replace(position=source(handles.position)),
         key=key, steps=options.steps, guidance=options.guidance, coupled=options.coupled, foot_lock=options.foot_lock,
         key_rot6d=key_rot6d, key_tangent=None if key_tangent is None else _tangent_to_source(transfer, anchor, key_tangent),
+        checked=checked,
     )  # fmt: skip
     first = jax.tree.map(lambda a: a[:-1], targets)
     last = jax.tree.map(lambda a: a[1:], targets)
@@ -388,13 +398,14 @@ def inbetween_traced(
     key: Array,
     options: InbetweenOptions = InbetweenOptions(),
     key_velocity: Float[Array, "keys 6 3"] | None = None,
+    checked: bool = True,
 ) -> InbetweenResult:
-    """:func:`inbetween` without its checks and its compilation, for callers that trace it
-    into their own ``jax.jit`` or ``jax.vmap``: ``handles`` are each window's already
+    """:func:`inbetween` without its checks of the keys and its compilation, for callers that
+    trace it into their own ``jax.jit`` or ``jax.vmap``: ``handles`` are each window's already
     (``(K − 1, slots)``, :func:`window_handles`). The IK's rig (if any) takes the first key
-    as its rest pose (:func:`~bezmotion.ik.rig.with_rest_pose`)."""
-    transfer = Transfer.identity() if model.transfer is None else model.transfer
-    windows = curves_traced(model.bmm, model.character, keys, handles, transfer, key, options, key_velocity)
+    as its rest pose (:func:`~bezmotion.ik.rig.with_rest_pose`). ``checked``: as :func:`curves_traced`'s."""
+    transfer = _transfer(model)
+    windows = curves_traced(model.bmm, model.character, keys, handles, transfer, key, options, key_velocity, checked=checked)
     return result_from_curves(model, windows, keys, handles, options)
 
 
@@ -441,36 +452,54 @@ def _check_shapes(model: Inbetweener, keys: Pose, handles: Handles, key_velocity
     return root[0]
 
 
-def _checked_values(keys: Pose, handles: Handles, key_velocity, span: int) -> tuple[Pose, Handles, Any]:
-    """The inputs, each with a run-time check of its values (``eqx.error_if``): finite keys
-    (naming the first that is not), valid handles on frames between the keys (a handle on a
-    key's frame would fall out of every window; the sampler checks the rest of each handle,
-    :func:`~bezmotion.handles.checked_handles`), a finite ``key_velocity``."""
+def _transfer(model: Inbetweener) -> Transfer:
+    return Transfer.identity() if model.transfer is None else model.transfer
+
+
+def _value_problems(keys: Pose, handles: Handles, key_velocity, span: int) -> list[Problem]:
+    """What is wrong with the inputs' values: a key not finite (naming the first), a valid
+    handle outside the in-between or on a key's frame (a handle there would fall out of every
+    window; the sampler's :func:`~bezmotion.bmm.sampling.window_handle_problems` has the rest of
+    each handle's rules), a ``key_velocity`` not finite."""
     num_keys = keys.root_pos.shape[0]
     finite = jnp.isfinite(keys.root_pos).all(axis=-1) & jnp.isfinite(keys.quat_local).all(axis=(-1, -2))
-    keys = eqx.branched_error_if(
-        keys, ~finite.all(), jnp.argmin(finite), [f"key {k} contains non-finite values" for k in range(num_keys)]
-    )
     last = span * (num_keys - 1)
     frame, valid = handles.frame, handles.valid
     misplaced = valid & ((frame <= 0) | (frame >= last) | (frame % span == 0))
-    handles = eqx.error_if(
-        handles, misplaced.any(),
-        f"a handle's frame is outside the in-between or on a key: handles go on frames 1 … {last - 1}, "
-        f"not on the keys' frames {list(range(0, last + 1, span))}",
-    )  # fmt: skip
-    # Every other check of a handle runs where the sampler takes each window's (checked_handles).
+    problems = [
+        Problem(~finite, [f"key {k} contains non-finite values" for k in range(num_keys)]),
+        Problem(
+            misplaced.any(keepdims=True),
+            [f"a handle's frame is outside the in-between or on a key: handles go on frames 1 … {last - 1}, "
+             f"not on the keys' frames {list(range(0, last + 1, span))}"],
+        ),  # fmt: skip
+    ]
     if key_velocity is not None:
-        key_velocity = eqx.error_if(key_velocity, ~jnp.isfinite(key_velocity).all(), "key_velocity contains non-finite values")
-    return keys, handles, key_velocity
+        problems.append(Problem(~jnp.isfinite(key_velocity).all(keepdims=True), ["key_velocity contains non-finite values"]))
+    return problems
 
 
-@functools.partial(inference_jit, static_argnames=("options",))
-def _inbetween(model, keys, handles, key, options, key_velocity) -> InbetweenResult:
+@jax.jit
+def input_problems(model: Inbetweener, keys: Pose, handles: Handles, key_velocity=None) -> list[Problem]:
+    """Every check :func:`inbetween` makes of its inputs' values, as problems
+    (:mod:`bezmotion._src.problems`) computed in a program of their own: the keys', then each
+    window's handles' in the BMM's space, as its sampler checks them. ``handles``: the whole
+    in-between's ``(slots,)``."""
     span = model.bmm.config.num_frames - 1
-    keys, handles, key_velocity = _checked_values(keys, handles, key_velocity, span)
+    problems = _value_problems(keys, handles, key_velocity, span)
     windows = window_handles(handles, keys.root_pos.shape[0] - 1, span)
-    return inbetween_traced(model, keys, windows, key, options, key_velocity)
+    targets, _, source = _source_frame(model.character, keys, _transfer(model))
+    in_source = windows._replace(position=source(windows.position))
+    return problems + window_handle_problems(model.bmm.config, source(targets.position), in_source)
+
+
+@functools.partial(inference_jit, static_argnames=("options", "checked"))
+def _inbetween(model, keys, handles, key, options, key_velocity, checked=True) -> InbetweenResult:
+    span = model.bmm.config.num_frames - 1
+    if checked:
+        keys, handles, key_velocity = raised_in_program((keys, handles, key_velocity), _value_problems(keys, handles, key_velocity, span))
+    windows = window_handles(handles, keys.root_pos.shape[0] - 1, span)
+    return inbetween_traced(model, keys, windows, key, options, key_velocity, checked=checked)
 
 
 def inbetween(
@@ -513,4 +542,8 @@ def inbetween(
     _check_shapes(model, keys, handles, key_velocity)
     if key_velocity is not None:
         key_velocity = jnp.asarray(key_velocity, keys.root_pos.dtype)
-    return _inbetween(model, keys, handles, key, options, key_velocity)
+    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((model, keys, handles, key, key_velocity))):
+        return _inbetween(model, keys, handles, key, options, key_velocity)
+    # Checked here first, the in-between's program holds no host callback: XLA's cache keeps it.
+    raise_first(input_problems(model, keys, handles, key_velocity))
+    return _inbetween(model, keys, handles, key, options, key_velocity, checked=False)

@@ -7,6 +7,8 @@ The BMM is tiny and untrained and the IK puts only the hips in place: plumbing, 
 
 from __future__ import annotations
 
+import functools
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -97,3 +99,21 @@ def test_key_velocities_are_met_exactly_and_bad_ones_raise(case):
         run_with(velocity[0])
     with pytest.raises(ValueError, match="key_velocity contains non-finite values"):
         run_with(velocity.at[1, 2, 0].set(jnp.nan))
+
+
+def test_checked_on_the_host_the_inbetweens_program_holds_no_host_callback(case):
+    """XLA's persistent cache stores no program with a host callback; ``eqx.error_if`` is
+    one. With concrete inputs ``inbetween`` checks them in a program of their own, so the
+    in-between's compiles without them (and a caller's jit keeps them)."""
+    from bezmotion.pipeline.inbetweening import _inbetween
+
+    bmm, character, rest, start, end = case
+    keys = jax.tree.map(lambda a, b: jnp.stack([a, b]), start, end)
+    model = Inbetweener(bmm, hips_only_ik, rest, character)
+
+    def text(checked: bool) -> str:
+        program = functools.partial(_inbetween.__wrapped__, options=InbetweenOptions(steps=STEPS), key_velocity=None, checked=checked)
+        return str(jax.make_jaxpr(program)(model, keys, Handles.empty(), jax.random.key(1)))
+
+    assert "callback" in text(True)  # the in-program checks are what the cache cannot store
+    assert "callback" not in text(False)
