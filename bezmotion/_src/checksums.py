@@ -106,10 +106,35 @@ def checksum_problem(folder: str | os.PathLike) -> str | None:
     return listed(problems, shown=2, sep="; ") if problems else None
 
 
+def add_checked_file(folder: str | os.PathLike, relative: str, text: str) -> Path:
+    """Write ``text`` to ``folder/relative`` (atomically) and, where ``folder`` carries a
+    :data:`CHECKSUM_FILE`, list that file in it too: something added to a saved model later
+    (a learned IK's joint limits) is then checked like the rest.
+
+    The files listed already are checked first, so a damaged folder is not listed anew as if
+    it were sound. Returns the file's path.
+
+    Raises:
+      ChecksumError: the folder's listed files do not match their checksums (nothing written).
+    """
+    folder = Path(folder)
+    checked = has_checksums(folder)
+    if checked and (problem := checksum_problem(folder)) is not None:
+        raise ChecksumError(f"{folder}: {problem}; not adding {relative} to it")
+    target = folder / relative
+    atomic_write_text(target, text)
+    if checked:
+        files = json.loads((folder / CHECKSUM_FILE).read_text(encoding="utf-8"))["files"]
+        files[Path(relative).as_posix()] = {"bytes": target.stat().st_size, "sha256": file_sha256(target)}
+        atomic_write_text(folder / CHECKSUM_FILE, _render(files))
+    return target
+
+
 __all__ = [
     "CHECKSUM_FILE",
     "ChecksumError",
     "MissingChecksums",
+    "add_checked_file",
     "checksum_problem",
     "file_sha256",
     "folder_digest",

@@ -14,6 +14,7 @@ import dataclasses
 import json
 import os
 from collections.abc import Mapping
+from pathlib import Path
 from typing import Any
 
 import jax
@@ -22,7 +23,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from bezmotion.geometry.rotations import quat_conjugate, quat_log, quat_mul
-from bezmotion._src.io import atomic_write_text
+from bezmotion._src.checksums import add_checked_file
 from bezmotion._src.structured_files import read_structured_file
 from bezmotion.ik.protocol import Character
 
@@ -90,8 +91,11 @@ class JointLimits:
         return cls(jnp.asarray(center, jnp.float32), jnp.asarray(lower, jnp.float32), jnp.asarray(upper, jnp.float32))
 
     def save(self, path: str | os.PathLike, character: Character) -> None:
-        """Write :meth:`to_json` to ``path`` (atomically)."""
-        atomic_write_text(path, json.dumps(self.to_json(character), indent=1) + "\n")
+        """Write :meth:`to_json` to ``path`` (atomically). In a saved model's folder (one with
+        checksums) the file joins its checksums, after the folder is checked
+        (:func:`~bezmotion._src.checksums.add_checked_file`; a damaged folder raises)."""
+        path = Path(path)
+        add_checked_file(path.parent, path.name, json.dumps(self.to_json(character), indent=1) + "\n")
 
     @classmethod
     def load(cls, path: str | os.PathLike, character: Character) -> JointLimits:

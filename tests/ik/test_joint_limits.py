@@ -49,3 +49,24 @@ def test_json_round_trip_and_bad_entries(demo, tmp_path):
         JointLimits.from_json({"joints": {"Hips": {"center": [1, 0, 0, 0], "lower": [1, 1, 1], "upper": [0, 0, 0]}}}, character)
     with pytest.raises(ValueError, match="'joints' mapping"):
         JointLimits.from_json({"joint": {}}, character)
+
+
+def test_limits_saved_into_a_checked_model_folder_join_its_checksums(demo, tmp_path):
+    from bezmotion._src.checksums import ChecksumError, checksum_problem, write_checksums
+
+    character, quat = demo
+    limits = joint_limits_from_motion(character, quat)
+    folder = tmp_path / "model"
+    folder.mkdir()
+    (folder / "params.bin").write_bytes(b"weights")
+    write_checksums(folder)
+    limits.save(folder / "joint_limits.json", character)
+    assert checksum_problem(folder) is None and "joint_limits.json" in (folder / "checksums.json").read_text()
+    (folder / "joint_limits.json").write_text((folder / "joint_limits.json").read_text().replace("0", "1", 1))
+    assert "joint_limits.json differs" in checksum_problem(folder)  # a change to the limits is caught now
+
+    (folder / "params.bin").write_bytes(b"damaged")
+    before = (folder / "checksums.json").read_text()
+    with pytest.raises(ChecksumError, match="params.bin"):  # a damaged folder is not listed anew as sound
+        limits.save(folder / "joint_limits.json", character)
+    assert (folder / "checksums.json").read_text() == before
