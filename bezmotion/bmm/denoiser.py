@@ -211,15 +211,20 @@ class BMMDenoiser(nnx.Module):
         conditions: Handles,
         *,
         key: Array | None = None,
+        control_frames: Real[ArrayLike, "controls"] | None = None,
     ) -> tuple[Float[Array, "controls features"], Float[Array, "controls 2"]]:
         """Predict normalised x₀ and foot-contact logits.
 
         Args:
-          x_t: ``(controls, 6·12)`` the noisy normalised frame tokens.
+          x_t: ``(controls, 6·12)`` the noisy normalised frame tokens; any number of
+            control points, each at its frame of ``control_frames``.
           t: the diffusion timestep (original numbering, 0…T−1).
           conditions: condition slots with positions already normalised (see
             :class:`~bezmotion.bmm.features.FeatureStats`).
           key: dropout key; ``None`` runs deterministically (evaluation, sampling).
+          control_frames: ``(controls,)`` the frame of each control point, for its positional
+            encoding (a window of another length: :attr:`~bezmotion.bezier.BezierLayout.control_frames`);
+            default every ``stride`` frames from 0.
         Returns:
           ``(x̂₀ (controls, features), contact logits (controls, 2))``; with
           ``prediction="residual"`` the first is x̂₀ minus the interpolation prior, and
@@ -227,7 +232,13 @@ class BMMDenoiser(nnx.Module):
         """
         cfg = self.config
         w = cfg.width
-        frames = jnp.arange(cfg.num_controls, dtype=jnp.float32) * cfg.stride
+        controls = x_t.shape[0]
+        if control_frames is None:
+            frames = jnp.arange(controls, dtype=jnp.float32) * cfg.stride
+        else:
+            frames = jnp.asarray(control_frames, jnp.float32)
+            if frames.shape != (controls,):
+                raise ValueError(f"control_frames must be ({controls},), one per control point, got {frames.shape}")
         time_token = self.time_linear2(jax.nn.silu(self.time_linear1(sinusoidal_encoding(t, w))))
         frame_tokens = self.frame_encoder(x_t) + sinusoidal_encoding(frames, w)
         # Padding slots become zero tokens whatever they hold (NaN, out-of-range indices):
@@ -245,9 +256,9 @@ class BMMDenoiser(nnx.Module):
         )
         cond_tokens = jnp.where(valid_cond[:, None], cond_tokens, 0.0)
         tokens = jnp.concatenate([time_token[None], frame_tokens, cond_tokens], axis=0)
-        valid = jnp.concatenate([jnp.ones(1 + cfg.num_controls, bool), conditions.valid])
+        valid = jnp.concatenate([jnp.ones(1 + controls, bool), conditions.valid])
         keys = [None] * cfg.num_layers if key is None else list(jax.random.split(key, cfg.num_layers))
-        frames_only = slice(1, 1 + cfg.num_controls)
+        frames_only = slice(1, 1 + controls)
         for i, (layer, layer_key) in enumerate(zip(self.layers, keys)):
             tokens = layer(tokens, valid, layer_key, frames_only if i == cfg.num_layers - 1 else slice(None))
         out = self.decoder(tokens)
@@ -268,6 +279,7 @@ def apply_denoiser(
     conditions: Handles,
     *,
     key: Array | None = None,
+    control_frames: Real[ArrayLike, "controls"] | None = None,
 ) -> tuple[Float[Array, "controls features"], Float[Array, "controls 2"]]:
     """Pure call of the denoiser on one motion (see :meth:`BMMDenoiser.__call__`)."""
-    return nnx.merge(graphdef, params)(x_t, t, conditions, key=key)
+    return nnx.merge(graphdef, params)(x_t, t, conditions, key=key, control_frames=control_frames)

@@ -247,12 +247,18 @@ def predict_x0(
     conditions: Handles,
     *,
     key: Array | None = None,
+    layout: BezierLayout | None = None,
 ) -> tuple[Float[Array, "controls features"], Float[Array, "controls 2"]]:
     """x̂₀ and contact logits from a denoiser of either ``prediction`` kind (the BMM's
     transformer, or CondMDIᴳ's UNet, which predicts x₀): training and sampling both call
-    this, so they cannot disagree on what the network outputs."""
-    x0, logits = denoiser(x_t, t, conditions, key=key)
-    if denoiser.config.prediction == "residual":
-        cfg = denoiser.config
-        x0 = x0 + interpolation_prior(stats, conditions, BezierLayout.from_controls(cfg.num_controls, cfg.stride), off_grid=cfg.off_grid_prior)
+    this, so they cannot disagree on what the network outputs. ``layout``: a window of
+    another length than the config's (the BMM's transformer only), its control points' frames."""
+    cfg = denoiser.config
+    if layout is None:
+        layout = BezierLayout.from_controls(cfg.num_controls, cfg.stride)
+        x0, logits = denoiser(x_t, t, conditions, key=key)
+    else:
+        x0, logits = denoiser(x_t, t, conditions, key=key, control_frames=layout.control_frames)
+    if cfg.prediction == "residual":
+        x0 = x0 + interpolation_prior(stats, conditions, layout, off_grid=cfg.off_grid_prior)
     return x0, logits

@@ -32,7 +32,7 @@ from bezmotion.bmm.foot_lock import lock_anchor, lock_feet
 from bezmotion.diffusion.schedule import cosine_schedule
 from bezmotion.bmm.denoiser import BMMConfig, init_denoiser
 from bezmotion._src.problems import Problem, raised_in_program
-from bezmotion.handles import Handles, handle_problems, straight_line
+from bezmotion.handles import Handles, grid_conditions, handle_problems, straight_line
 from bezmotion.bmm.features import (
     FeatureStats,
     from_tokens,
@@ -164,7 +164,7 @@ def _projector(
     joint, valid = gather(conditions.joint).reshape(-1), gather(conditions.valid).reshape(-1)
     frame = (gather(conditions.frame) + (jnp.arange(chain.size) * step * layout.stride)[:, None]).reshape(-1)  # the chain's frames
     chain_conditions = Handles(joint, frame, None, valid)  # positions: each call's targets
-    near = gather(handles_next_to_keys(conditions, k, j, layout.stride))  # (windows, 2, J)
+    near = gather(handles_next_to_keys(conditions, k, j, layout.stride, num_frames=layout.num_frames))  # (windows, 2, J)
     over_chain = jnp.any(near[:-1, 1] | near[1:, 0], axis=0)  # (J,)
     shared = jnp.zeros(whole.num_controls, bool).at[jnp.arange(1, chain.size) * step].set(True)
     held_tangent = held_tangent | (shared[:, None] & ~over_chain[None, :])
@@ -204,7 +204,9 @@ def _projector(
     return project
 
 
-def held_key_tangents(handles: Handles, num_controls: int, num_joints: int, stride: int) -> Bool[Array, "controls joints"]:
+def held_key_tangents(
+    handles: Handles, num_controls: int, num_joints: int, stride: int, *, num_frames: int | None = None
+) -> Bool[Array, "controls joints"]:
     """Which key tangents (``key_tangent``: the first and last control point's) the handle
     projection keeps as they are: every joint's, except where the joint has a handle between
     that key and the control frame next to it (frames 1…stride−1 after the start, the same
@@ -217,19 +219,24 @@ def held_key_tangents(handles: Handles, num_controls: int, num_joints: int, stri
     moved the key's instead, in the model's normalised space it moved the next control
     point, cheaper there, and the curve still swung 2.2 m). A key two windows of a chain
     share keeps its tangent all the same (the sampler adds them back): both windows must
-    leave and reach it alike.
+    leave and reach it alike. ``num_frames``: the window's (default ``(num_controls − 1)·stride + 1``).
     """
-    released = handles_next_to_keys(handles, num_controls, num_joints, stride)
+    released = handles_next_to_keys(handles, num_controls, num_joints, stride, num_frames=num_frames)
     return jnp.zeros((num_controls, num_joints), bool).at[jnp.asarray([0, num_controls - 1])].set(~released)
 
 
-def handles_next_to_keys(handles: Handles, num_controls: int, num_joints: int, stride: int) -> Bool[Array, "2 joints"]:
-    """``(2, joints)``: which joints have a (valid) handle within a stride after the first key
-    (frames 1…stride−1) and before the last (row 1)."""
+def handles_next_to_keys(
+    handles: Handles, num_controls: int, num_joints: int, stride: int, *, num_frames: int | None = None
+) -> Bool[Array, "2 joints"]:
+    """``(2, joints)``: which joints have a (valid) handle between the first key and the
+    control frame after it (frames 1…stride−1), and between the last key and the control
+    frame before it (row 1). ``num_frames``: the window's (default ``(num_controls − 1)·stride + 1``;
+    another length's last segment may be shorter)."""
     joint, frame, _, valid = handles
-    last = (num_controls - 1) * stride
-    near_start = valid & (frame > 0) & (frame < stride)
-    near_end = valid & (frame > last - stride) & (frame < last)
+    last = (num_controls - 1) * stride if num_frames is None else num_frames - 1
+    before_last = ((last - 1) // stride) * stride  # the control frame before the last key
+    near_start = valid & (frame > 0) & (frame < min(stride, last))
+    near_end = valid & (frame > before_last) & (frame < last)
     return jnp.zeros((2, num_joints), bool).at[0, joint].max(near_start).at[1, joint].max(near_end)
 
 
@@ -267,30 +274,32 @@ def _sample_one(
     guidance,
     overwrite,
     foot_lock,
+    layout: BezierLayout,
     chain: _Chain | None = None,
 ):
-    """One window; with ``chain`` (inside ``jax.vmap`` over its windows) its boundary
-    tangents, orientations and contacts are shared with the neighbouring windows."""
+    """One window of ``layout``'s frames; with ``chain`` (inside ``jax.vmap`` over its
+    windows) its boundary tangents, orientations and contacts are shared with the
+    neighbouring windows."""
     cfg, stats = model.config, model.stats
-    ends = jnp.asarray([0, cfg.num_controls - 1])
-    layout = BezierLayout.from_controls(cfg.num_controls, cfg.stride)
+    controls = layout.num_controls
+    ends = jnp.asarray([0, controls - 1])
     translation = start[HIPS] * jnp.asarray([1.0, 0.0, 1.0], start.dtype)
-    world = inbetween_conditions(cfg.num_frames, start, end, handles)
+    world = inbetween_conditions(layout.num_frames, start, end, handles)
     normalized = normalize_conditions(stats, world, translation)
-    mask, target = normalized.to_grid(cfg.num_controls, cfg.num_joints, cfg.stride)
-    _, world_target = world.to_grid(cfg.num_controls, cfg.num_joints, cfg.stride)
+    mask, target = grid_conditions(layout, normalized, cfg.num_joints)
+    _, world_target = grid_conditions(layout, world, cfg.num_joints)
     # The conditions where x̂₀'s positions are measured from (cm): the window's own frame; a
     # chain's windows, each in its own, are met together in the world frame.
     x0_target = world.position - translation if chain is None else world.position
     x0_pos_mean = stats.mean[:, :3] if chain is None else stats.mean[:, :3] + translation
-    denoiser = functools.partial(predict_x0, nnx.merge(model.graphdef, model.params), stats)
+    denoiser = functools.partial(predict_x0, nnx.merge(model.graphdef, model.params), stats, layout=layout)
     # The keys' tangents are conditions: the projection keeps them too (but a handle next to
     # a key may release it, held_key_tangents). A key two windows of a chain share keeps its
     # given tangent whatever the handles: both windows must leave and reach it alike.
     held = None
     if key_tangent is not None:
-        held = held_key_tangents(world, cfg.num_controls, cfg.num_joints, cfg.stride)
-        held = held if chain is None else held | _shared_keys(chain, cfg.num_controls, cfg.num_joints)
+        held = held_key_tangents(world, controls, cfg.num_joints, cfg.stride, num_frames=layout.num_frames)
+        held = held if chain is None else held | _shared_keys(chain, controls, cfg.num_joints)
     couple = (lambda x: x) if chain is None else functools.partial(_couple, chain=chain)
     # A chain's joints with a handle next to a shared key are met over the whole chain, each
     # shared tangent one variable (_projector); the others window by window. In x̂₀'s
@@ -327,7 +336,7 @@ def _sample_one(
             tangent = tangent.at[ends].set(jnp.where(held[ends][..., None], key_tangent, tangent[ends]))
         return project_world(pos, couple(tangent), world.position)
 
-    x_T = jax.random.normal(key, (cfg.num_controls, cfg.frame_features))
+    x_T = jax.random.normal(key, (controls, cfg.frame_features))
     x0, logits = ddim_sample(
         denoise, cosine_schedule(cfg.num_timesteps), x_T, steps=steps, overwrite=fix if overwrite else None, has_aux=True
     )
@@ -407,6 +416,7 @@ def sample_chained_curves(
     key_rot6d: Float[Array, "*batch keys 6 6"] | None = None,
     key_tangent: Float[Array, "*batch keys 6 3"] | None = None,
     checked: bool = True,
+    num_frames: int | None = None,
 ) -> SampledCurves:
     """Sample the curves of a chain of windows through ``keys`` key poses, one window
     (``model.config.num_frames`` frames, 31) between each pair of consecutive keys, all in
@@ -459,6 +469,11 @@ def sample_chained_curves(
       checked: check the handles' values in the computation (:func:`window_handle_problems`,
         ``eqx.error_if``); ``False`` when the caller checked them already, which leaves the
         program free of host callbacks (XLA's persistent cache then stores it).
+      num_frames: frames of each window, keys ``num_frames − 1`` apart (default the model's,
+        31): a control point every ``stride`` frames, the last segment shorter where the
+        span is not a multiple of it (:class:`~bezmotion.bezier.BezierLayout`). Handles are
+        met exactly at any length; the model was trained at its own. A coupled chain needs
+        spans that are multiples of ``stride``.
     Returns:
       :class:`SampledCurves` batched ``(*batch, keys − 1, controls, …)``, world frame; window
       ``i``'s last control point and window ``i + 1``'s first are the same key.
@@ -470,24 +485,40 @@ def sample_chained_curves(
     return _sample_chained_curves(
         model, key_pos, handles, key_rot6d, key_tangent,
         key=key, steps=steps, guidance=guidance, coupled=coupled, overwrite=overwrite, foot_lock=lock_anchor(foot_lock), checked=checked,
+        num_frames=window_frames(model.config, num_frames),
     )  # fmt: skip
 
 
-def window_handle_problems(config: Any, key_pos: Float[Array, "*batch keys 6 3"], handles: Handles) -> list[Problem]:
+MAX_WINDOW_FRAMES = 901
+"""The longest window :func:`sample_chained_curves` samples (30 s at 30 fps)."""
+
+
+def window_frames(config: Any, num_frames: Any = None) -> int:
+    """``num_frames`` checked (an integer in 3 … :data:`MAX_WINDOW_FRAMES`), or the config's
+    window length when it is ``None``."""
+    if num_frames is None:
+        return config.num_frames
+    if isinstance(num_frames, (bool, np.bool_)) or not isinstance(num_frames, (int, np.integer)) or not 3 <= num_frames <= MAX_WINDOW_FRAMES:
+        raise ValueError(f"a window's num_frames is an integer in 3 … {MAX_WINDOW_FRAMES} (keys 2 … {MAX_WINDOW_FRAMES - 1} frames apart), got {num_frames!r}")
+    return int(num_frames)
+
+
+def window_handle_problems(config: Any, key_pos: Float[Array, "*batch keys 6 3"], handles: Handles, num_frames: int | None = None) -> list[Problem]:
     """What is wrong with each window's ``handles`` (batched ``(*batch, keys − 1, slots)``)
-    between consecutive ``key_pos`` in a chain of ``config.num_frames``-frame windows:
-    :func:`~bezmotion.handles.handle_problems`, the straight line from each window's keys."""
+    between consecutive ``key_pos`` in a chain of ``num_frames``-frame windows (default
+    ``config.num_frames``): :func:`~bezmotion.handles.handle_problems`, the straight line
+    from each window's keys."""
     start, end = key_pos[..., :-1, :, :], key_pos[..., 1:, :, :]
-    frames = config.num_frames
+    frames = config.num_frames if num_frames is None else num_frames
     return handle_problems(handles, num_frames=frames, num_joints=config.num_joints, line=straight_line(start, end, handles, frames))
 
 
 CHAIN_AXIS = "chain_window"  # the vmap axis the windows of one chain are coupled over
 
 
-@functools.partial(inference_jit, static_argnames=("steps", "guidance", "coupled", "overwrite", "foot_lock", "checked"))
+@functools.partial(inference_jit, static_argnames=("steps", "guidance", "coupled", "overwrite", "foot_lock", "checked", "num_frames"))
 def _sample_chained_curves(
-    model, key_pos, handles, key_rot6d, key_tangent, *, key, steps, guidance, coupled, overwrite, foot_lock, checked=True
+    model, key_pos, handles, key_rot6d, key_tangent, *, key, steps, guidance, coupled, overwrite, foot_lock, checked=True, num_frames=None
 ) -> SampledCurves:
     joints = model.config.num_joints
     if key_pos.ndim < 3 or key_pos.shape[-2:] != (joints, 3) or key_pos.shape[-3] < 2:
@@ -506,13 +537,19 @@ def _sample_chained_curves(
     if coupled and not overwrite:
         raise ValueError("a coupled chain needs overwrite=True (the coupling is part of the overwrite); use coupled=False")
     windows = num_keys - 1
+    layout = BezierLayout(window_frames(model.config, num_frames), model.config.stride)
+    if coupled and windows > 1 and (layout.num_frames - 1) % layout.stride:
+        raise ValueError(
+            f"a coupled chain's windows span a multiple of the stride ({layout.stride} frames); "
+            f"got {layout.num_frames - 1}: use coupled=False"
+        )
     start, end = key_pos[..., :-1, :, :], key_pos[..., 1:, :, :]
     if checked:
-        handles = raised_in_program(handles, window_handle_problems(model.config, key_pos, handles))
+        handles = raised_in_program(handles, window_handle_problems(model.config, key_pos, handles, layout.num_frames))
     window_ends = lambda x: None if x is None else jnp.stack([x[..., :-1, :, :], x[..., 1:, :, :]], axis=-3)  # noqa: E731
     rot6d_pairs, tangent_pairs = window_ends(key_rot6d), window_ends(key_tangent)
     one = functools.partial(
-        _sample_one, model, steps=steps, guidance=guidance, overwrite=overwrite, foot_lock=foot_lock,
+        _sample_one, model, steps=steps, guidance=guidance, overwrite=overwrite, foot_lock=foot_lock, layout=layout,
         chain=_Chain(CHAIN_AXIS, windows) if coupled and windows > 1 else None,  # one window: the window alone
     )  # fmt: skip
 

@@ -29,6 +29,7 @@ from bezmotion._src.problems import Problem, raise_first, raised_in_program
 from bezmotion._src.xla_options import inference_jit
 from bezmotion.bezier import BezierLayout, reconstruct_dense, tangent_from_velocity
 from bezmotion.bmm.sampling import (
+    MAX_WINDOW_FRAMES,
     BezierMotionModel,
     Handles,
     SampledCurves,
@@ -159,6 +160,21 @@ def _tangent_to_source(transfer: Transfer, anchor: Placement, tangent: Float[Arr
     return quat_rotate(anchor.turn.astype(tangent.dtype), tangent) / transfer.scale
 
 
+def window_layout(config: Any, span: int | None = None) -> BezierLayout:
+    """The layout of one window whose keys are ``span`` frames apart (default the model's,
+    ``config.num_frames − 1``): a control point every ``config.stride`` frames, the last
+    segment shorter where ``span`` is not a multiple of it.
+
+    Raises:
+      ValueError: a span that is not an integer in 2 … :data:`~bezmotion.bmm.sampling.MAX_WINDOW_FRAMES` − 1.
+    """
+    if span is None:
+        return BezierLayout(config.num_frames, config.stride)
+    if isinstance(span, (bool, np.bool_)) or not isinstance(span, (int, np.integer)) or not 2 <= span < MAX_WINDOW_FRAMES:
+        raise ValueError(f"span, the frames from one key to the next, is an integer in 2 … {MAX_WINDOW_FRAMES - 1}, got {span!r}")
+    return BezierLayout(int(span) + 1, config.stride)
+
+
 def _window_in_target(
     bmm: BezierMotionModel,
     transfer: Transfer,
@@ -169,17 +185,19 @@ def _window_in_target(
     handles: Handles,
     shared: Bool[Array, "controls 6"] | None = None,
     key_tangent: Float[Array, "2 6 3"] | None = None,
+    *,
+    layout: BezierLayout,
 ) -> WindowCurves:
-    """Sampled curves of one window (BMM's space) → the target character's, through its
-    keys and handles exactly, and their dense trajectories. ``shared``: control tangents a
-    chain shares with the neighbouring windows, which the handle projection keeps;
+    """Sampled curves of one window of ``layout`` (BMM's space) → the target character's,
+    through its keys and handles exactly, and their dense trajectories. ``shared``: control
+    tangents a chain shares with the neighbouring windows, which the handle projection keeps;
     ``key_tangent``: the keys' own tangents (target character), set and kept likewise."""
     cfg = bmm.config
     curves = curves_to_target(transfer, anchor, curves)
-    ends = jnp.asarray([0, cfg.num_controls - 1])
+    ends = jnp.asarray([0, layout.num_controls - 1])
     if key_tangent is not None:  # exactly, undoing the scale round trip's rounding
         # Where a handle next to a key moved that key's tangent in the sampler, the moved one.
-        held = _kept_tangents(cfg, handles, shared, keyed=True)
+        held = _kept_tangents(cfg, layout, handles, shared, keyed=True)
         keyed = curves.ctrl_tangent.at[ends].set(key_tangent)
         curves = curves._replace(ctrl_tangent=jnp.where(held[..., None], keyed, curves.ctrl_tangent))
         shared = held
@@ -191,25 +209,26 @@ def _window_in_target(
         ctrl_rot6d=curves.ctrl_rot6d.at[ends].set(jnp.stack([first.rot6d, last.rot6d])),
     )
     # The handles exactly again after the transfer.
-    return _through_handles(cfg, curves, handles, shared)
+    return _through_handles(layout, curves, handles, shared)
 
 
-def _kept_tangents(cfg: Any, handles: Handles, shared: Bool[Array, "controls 6"] | None, *, keyed: bool) -> Bool[Array, "controls 6"] | None:
+def _kept_tangents(
+    cfg: Any, layout: BezierLayout, handles: Handles, shared: Bool[Array, "controls 6"] | None, *, keyed: bool
+) -> Bool[Array, "controls 6"] | None:
     """The control tangents of one window that the handle projection keeps: a chain's shared
     keys' (``shared``) and, where the keys' tangents were given (``keyed``), every key's
     except those a handle next to the key moved (:func:`held_key_tangents`)."""
     if not keyed:
         return shared
-    held = held_key_tangents(handles, cfg.num_controls, cfg.num_joints, cfg.stride)
+    held = held_key_tangents(handles, layout.num_controls, cfg.num_joints, layout.stride, num_frames=layout.num_frames)
     return held if shared is None else held | shared  # a chain's shared key keeps its tangent
 
 
-def _through_handles(cfg: Any, curves: SampledCurves, handles: Handles, kept: Bool[Array, "controls 6"] | None) -> WindowCurves:
-    """One window's curves (target character) through its handles exactly, and their dense
-    trajectories: control frames overwritten, handles between them by the minimum-norm
-    correction; the keys' control points, and the tangents ``kept``, stay put."""
-    layout = BezierLayout.from_controls(cfg.num_controls, cfg.stride)
-    ends = jnp.asarray([0, cfg.num_controls - 1])
+def _through_handles(layout: BezierLayout, curves: SampledCurves, handles: Handles, kept: Bool[Array, "controls 6"] | None) -> WindowCurves:
+    """One window's curves (target character, ``layout``) through its handles exactly, and
+    their dense trajectories: control frames overwritten, handles between them by the
+    minimum-norm correction; the keys' control points, and the tangents ``kept``, stay put."""
+    ends = jnp.asarray([0, layout.num_controls - 1])
     keys_fixed = jnp.zeros(curves.ctrl_pos.shape[:2], bool).at[ends].set(True)
     ctrl_pos, ctrl_tangent = project_onto_handles(
         layout, curves.ctrl_pos, curves.ctrl_tangent, handles, fixed=keys_fixed, fixed_tangent=kept,
@@ -226,6 +245,7 @@ def reproject_curves(
     options: InbetweenOptions = InbetweenOptions(),
     *,
     keyed: bool = False,
+    span: int | None = None,
 ) -> WindowCurves:
     """Curves already sampled (:attr:`InbetweenResult.curves`, batched ``(K − 1, controls, …)``,
     target character, cm) moved onto other handle positions by the same exact projection
@@ -242,16 +262,18 @@ def reproject_curves(
       handles: each window's, ``(K − 1, slots)`` in its own frames (:func:`window_handles`).
       options: those of the in-between (``coupled`` is read).
       keyed: the in-between was given ``key_velocity``.
+      span: frames between its keys (default the model's window, 30).
     Returns:
       :class:`WindowCurves` batched ``(K − 1, …)``.
     """
     cfg = bmm.config
+    layout = window_layout(cfg, span)
     windows = curves.ctrl_pos.shape[0]
     coupled = options.coupled and windows > 1
-    shared = shared_key_mask(windows, cfg.num_controls, cfg.num_joints) if coupled else None
+    shared = shared_key_mask(windows, layout.num_controls, cfg.num_joints) if coupled else None
 
     def one(window: SampledCurves, window_handles: Handles, window_shared: Array | None) -> WindowCurves:
-        return _through_handles(cfg, window, window_handles, _kept_tangents(cfg, window_handles, window_shared, keyed=keyed))
+        return _through_handles(layout, window, window_handles, _kept_tangents(cfg, layout, window_handles, window_shared, keyed=keyed))
 
     if shared is None:
         return jax.vmap(lambda c, h: one(c, h, None))(curves, handles)
@@ -298,6 +320,7 @@ def curves_traced(
     options: InbetweenOptions = InbetweenOptions(),
     key_velocity: Float[Array, "keys 6 3"] | None = None,
     checked: bool = True,
+    span: int | None = None,
 ) -> WindowCurves:
     """The first half of :func:`inbetween`, traceable: the curves of every
     window between consecutive ``keys`` (batched ``(K, …)``) and their dense trajectories,
@@ -310,28 +333,29 @@ def curves_traced(
     ``(K, 6, 3)`` the six joints' velocities at every key (cm/frame, target character),
     conditions met exactly, by both windows of a shared key. ``checked``: check the handles'
     values in the computation (``False``: the caller did, :func:`input_problems`).
+    ``span``: frames from one key to the next (default the model's window, 30).
     """
     targets, anchor, source = _source_frame(character, keys, transfer)
     key_rot6d = orientations_to_source_space(transfer, targets.rot6d, anchor.turn) if options.key_orientations else None
     windows, cfg = targets.position.shape[0] - 1, bmm.config
-    layout = BezierLayout.from_controls(cfg.num_controls, cfg.stride)
+    layout = window_layout(cfg, span)
     key_tangent = None if key_velocity is None else tangent_from_velocity(layout, key_velocity)
     curves = sample_chained_curves(
         bmm, source(targets.position), handles._replace(position=source(handles.position)),
         key=key, steps=options.steps, guidance=options.guidance, coupled=options.coupled, foot_lock=options.foot_lock,
         key_rot6d=key_rot6d, key_tangent=None if key_tangent is None else _tangent_to_source(transfer, anchor, key_tangent),
-        checked=checked,
+        checked=checked, num_frames=layout.num_frames,
     )  # fmt: skip
     first = jax.tree.map(lambda a: a[:-1], targets)
     last = jax.tree.map(lambda a: a[1:], targets)
     tangent_pairs = None if key_tangent is None else jnp.stack([key_tangent[:-1], key_tangent[1:]], axis=1)  # (windows, 2, 6, 3)
-    finish = functools.partial(_window_in_target, bmm, transfer, anchor)
+    finish = functools.partial(_window_in_target, bmm, transfer, anchor, layout=layout)
     if windows == 1:  # a window alone: nothing shared, and no vmap of one
         one = lambda x: None if x is None else jax.tree.map(lambda a: a[0], x)  # noqa: E731
         window = finish(one(curves), one(first), one(last), one(handles), None, one(tangent_pairs))
         return jax.tree.map(lambda a: a[None], window)
     # The handle projection after the transfer must keep the tangents the chain shares.
-    shared = shared_key_mask(windows, cfg.num_controls, cfg.num_joints) if options.coupled else None
+    shared = shared_key_mask(windows, layout.num_controls, cfg.num_joints) if options.coupled else None
     return jax.vmap(finish)(curves, first, last, handles, shared, tangent_pairs)
 
 
@@ -399,13 +423,14 @@ def inbetween_traced(
     options: InbetweenOptions = InbetweenOptions(),
     key_velocity: Float[Array, "keys 6 3"] | None = None,
     checked: bool = True,
+    span: int | None = None,
 ) -> InbetweenResult:
     """:func:`inbetween` without its checks of the keys and its compilation, for callers that
     trace it into their own ``jax.jit`` or ``jax.vmap``: ``handles`` are each window's already
     (``(K − 1, slots)``, :func:`window_handles`). The IK's rig (if any) takes the first key
-    as its rest pose (:func:`~bezmotion.ik.rig.with_rest_pose`). ``checked``: as :func:`curves_traced`'s."""
+    as its rest pose (:func:`~bezmotion.ik.rig.with_rest_pose`). ``checked``, ``span``: as :func:`curves_traced`'s."""
     transfer = _transfer(model)
-    windows = curves_traced(model.bmm, model.character, keys, handles, transfer, key, options, key_velocity, checked=checked)
+    windows = curves_traced(model.bmm, model.character, keys, handles, transfer, key, options, key_velocity, checked=checked, span=span)
     return result_from_curves(model, windows, keys, handles, options)
 
 
@@ -479,27 +504,28 @@ def _value_problems(keys: Pose, handles: Handles, key_velocity, span: int) -> li
     return problems
 
 
-@jax.jit
-def input_problems(model: Inbetweener, keys: Pose, handles: Handles, key_velocity=None) -> list[Problem]:
+@functools.partial(jax.jit, static_argnames=("span",))
+def input_problems(model: Inbetweener, keys: Pose, handles: Handles, key_velocity=None, span: int | None = None) -> list[Problem]:
     """Every check :func:`inbetween` makes of its inputs' values, as problems
     (:mod:`bezmotion._src.problems`) computed in a program of their own: the keys', then each
     window's handles' in the BMM's space, as its sampler checks them. ``handles``: the whole
-    in-between's ``(slots,)``."""
-    span = model.bmm.config.num_frames - 1
+    in-between's ``(slots,)``; ``span``: frames from one key to the next (default the model's window, 30)."""
+    layout = window_layout(model.bmm.config, span)
+    span = layout.num_frames - 1
     problems = _value_problems(keys, handles, key_velocity, span)
     windows = window_handles(handles, keys.root_pos.shape[0] - 1, span)
     targets, _, source = _source_frame(model.character, keys, _transfer(model))
     in_source = windows._replace(position=source(windows.position))
-    return problems + window_handle_problems(model.bmm.config, source(targets.position), in_source)
+    return problems + window_handle_problems(model.bmm.config, source(targets.position), in_source, layout.num_frames)
 
 
-@functools.partial(inference_jit, static_argnames=("options", "checked"))
-def _inbetween(model, keys, handles, key, options, key_velocity, checked=True) -> InbetweenResult:
-    span = model.bmm.config.num_frames - 1
+@functools.partial(inference_jit, static_argnames=("options", "checked", "span"))
+def _inbetween(model, keys, handles, key, options, key_velocity, checked=True, span=None) -> InbetweenResult:
+    span = window_layout(model.bmm.config, span).num_frames - 1
     if checked:
         keys, handles, key_velocity = raised_in_program((keys, handles, key_velocity), _value_problems(keys, handles, key_velocity, span))
     windows = window_handles(handles, keys.root_pos.shape[0] - 1, span)
-    return inbetween_traced(model, keys, windows, key, options, key_velocity, checked=checked)
+    return inbetween_traced(model, keys, windows, key, options, key_velocity, checked=checked, span=span)
 
 
 def inbetween(
@@ -510,6 +536,7 @@ def inbetween(
     key: Array,
     options: InbetweenOptions = InbetweenOptions(),
     key_velocity: Float[ArrayLike, "keys 6 3"] | None = None,
+    span: int | None = None,
 ) -> InbetweenResult:
     """In-between ``model``'s character through ``keys`` and ``handles``.
 
@@ -517,18 +544,24 @@ def inbetween(
       model: the BMM, IK, character and transfer (:class:`~bezmotion.pipeline.model.Inbetweener`,
         e.g. ``bm.pretrained("bandai_namco")`` or ``bm.Inbetweener.from_bvh(clip)``).
       keys: :class:`~bezmotion.ik.protocol.Pose` of ``K ≥ 2`` key poses batched ``(K, …)``,
-        ``bmm.config.num_frames − 1`` (30) frames apart: two keys are one window, more a
-        chain whose windows are joined C¹ at the shared keys.
+        ``span`` frames apart: two keys are one window, more a chain whose windows are
+        joined C¹ at the shared keys.
       handles: where joints must be, in the in-between's frames (key ``k`` at frame
-        ``30·k``; handles on the frames between keys), target character's world frame, cm
+        ``span·k``; handles on the frames between keys), target character's world frame, cm
         (:meth:`~bezmotion.pipeline.model.Inbetweener.handles`); ``None``: none.
       key: PRNG key of the diffusion sampler.
       options: :class:`InbetweenOptions`.
       key_velocity: optionally ``(K, 6, 3)`` the six joints' velocities at every key
         (cm/frame, e.g. :func:`chain_key_velocities` of a clip around the keys): the curves
         pass every key at that velocity, which keeps limbs from popping next to the keys.
+      span: frames from one key to the next, 2 … 900 (default the model's window,
+        ``bmm.config.num_frames − 1``: 30). Another span samples the model over a window of
+        that length (its control grid extended, :func:`window_layout`): handles are met
+        exactly at any span, the motion is as good as the model at that length (the
+        bundled ones learned 30). A chain's span is a multiple of the stride (6) unless
+        ``options.coupled`` is off.
     Returns:
-      :class:`InbetweenResult` of ``(K − 1)·30 + 1`` frames; its curves pass through every
+      :class:`InbetweenResult` of ``(K − 1)·span + 1`` frames; its curves pass through every
       handle exactly, so the full-body handle error is the IK module's alone.
 
     Raises:
@@ -539,11 +572,12 @@ def inbetween(
         those value checks run with the computation (``eqx.error_if``, the same messages).
     """
     handles = Handles.empty() if handles is None else handles
+    span = window_layout(model.bmm.config, span).num_frames - 1
     _check_shapes(model, keys, handles, key_velocity)
     if key_velocity is not None:
         key_velocity = jnp.asarray(key_velocity, keys.root_pos.dtype)
     if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((model, keys, handles, key, key_velocity))):
-        return _inbetween(model, keys, handles, key, options, key_velocity)
+        return _inbetween(model, keys, handles, key, options, key_velocity, span=span)
     # Checked here first, the in-between's program holds no host callback: XLA's cache keeps it.
-    raise_first(input_problems(model, keys, handles, key_velocity))
-    return _inbetween(model, keys, handles, key, options, key_velocity, checked=False)
+    raise_first(input_problems(model, keys, handles, key_velocity, span))
+    return _inbetween(model, keys, handles, key, options, key_velocity, checked=False, span=span)

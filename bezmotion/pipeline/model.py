@@ -44,7 +44,7 @@ from bezmotion.pipeline.authoring import (
     target_profile,
 )
 from bezmotion.pipeline.export import pose_to_bvh
-from bezmotion.pipeline.inbetweening import InbetweenOptions, InbetweenResult, inbetween
+from bezmotion.pipeline.inbetweening import InbetweenOptions, InbetweenResult, inbetween, window_layout
 from bezmotion.pipeline.transfer import Transfer
 
 HANDLE_SLOTS = 4
@@ -178,11 +178,12 @@ class Inbetweener:
         return motion_poses(self.clip_frame.to_ours(clip), self.character, frames)
 
     def handles(
-        self, where: Mapping[str, tuple[int, Any] | Sequence[tuple[int, Any]]], *, relative_to: Pose | None = None
+        self, where: Mapping[str, tuple[int, Any] | Sequence[tuple[int, Any]]], *, relative_to: Pose | None = None, span: int | None = None
     ) -> Handles:
         """Handles from joint roles: ``{"right_hand": (12, (x, y, z)), "left_foot": [(8, …), (20, …)]}``.
 
-        Frames count from the first key (key ``k`` at frame ``30·k``); positions are in cm,
+        Frames count from the first key (key ``k`` at frame ``span·k``; ``span`` as
+        :meth:`inbetween`'s, default :attr:`span`: 30); positions are in cm,
         Y up, in the model's world frame (the clip's, converted to cm). With
         ``relative_to`` (the keys), a position is an offset from the straight line between
         the joint's positions at the keys around its frame.
@@ -191,6 +192,7 @@ class Inbetweener:
           ValueError: an unknown role, a frame on a key or outside the keys (when
             ``relative_to`` tells how many there are), or a position that is not 3 finite numbers.
         """
+        span = window_layout(self.bmm.config, span).num_frames - 1
         roles, frames, positions = [], [], []
         for role, entries in where.items():
             if role not in CHARACTERISTIC_JOINTS:
@@ -199,13 +201,13 @@ class Inbetweener:
                 position = np.asarray(position, np.float64)
                 if position.shape != (3,) or not np.isfinite(position).all():
                     raise ValueError(f"{role} at frame {frame}: a position is 3 finite numbers (cm), got {np.asarray(position).tolist()}")
-                if isinstance(frame, bool) or not isinstance(frame, int | np.integer) or frame <= 0 or frame % self.span == 0:
-                    raise ValueError(f"{role} at frame {frame!r}: handles go on integer frames between the keys (frames 0, {self.span}, … are keys)")
+                if isinstance(frame, bool) or not isinstance(frame, int | np.integer) or frame <= 0 or frame % span == 0:
+                    raise ValueError(f"{role} at frame {frame!r}: handles go on integer frames between the keys (frames 0, {span}, … are keys)")
                 roles.append(CHARACTERISTIC_JOINTS.index(role))
                 frames.append(int(frame))
                 positions.append(position)
         if relative_to is not None:
-            positions = self._offsets_to_positions(relative_to, roles, frames, positions)
+            positions = self._offsets_to_positions(relative_to, roles, frames, positions, span)
         slots = HANDLE_SLOTS * max(1, -(-len(roles) // HANDLE_SLOTS))
         pad = slots - len(roles)
         return Handles(
@@ -215,14 +217,14 @@ class Inbetweener:
             valid=jnp.asarray([True] * len(roles) + [False] * pad, bool),
         )
 
-    def _offsets_to_positions(self, keys: Pose, roles: list[int], frames: list[int], offsets: list[np.ndarray]) -> list[np.ndarray]:
+    def _offsets_to_positions(self, keys: Pose, roles: list[int], frames: list[int], offsets: list[np.ndarray], span: int) -> list[np.ndarray]:
         key_positions = np.asarray(targets_from_pose(self.character, keys).position, np.float64)  # (K, 6, 3)
-        last = self.span * (key_positions.shape[0] - 1)
+        last = span * (key_positions.shape[0] - 1)
         out = []
         for role, frame, offset in zip(roles, frames, offsets):
             if frame >= last:
                 raise ValueError(f"{CHARACTERISTIC_JOINTS[role]} at frame {frame}: outside the in-between, frames 0 … {last} (the keys' last)")
-            out.append(offset + line_between_keys(key_positions, role, frame, self.span))
+            out.append(offset + line_between_keys(key_positions, role, frame, span))
         return out
 
     def inbetween(
@@ -233,9 +235,11 @@ class Inbetweener:
         key: Array,
         options: InbetweenOptions = InbetweenOptions(),
         key_velocity: Float[Array, "keys 6 3"] | None = None,
+        span: int | None = None,
     ) -> InbetweenResult:
-        """:func:`~bezmotion.pipeline.inbetweening.inbetween` of this model."""
-        return inbetween(self, keys, handles, key=key, options=options, key_velocity=key_velocity)
+        """:func:`~bezmotion.pipeline.inbetweening.inbetween` of this model (``span``: frames
+        from one key to the next, default the model's window, 30)."""
+        return inbetween(self, keys, handles, key=key, options=options, key_velocity=key_velocity, span=span)
 
     def to_bvh(self, result: InbetweenResult | Pose, *, template: BvhMotion | None = None, fps: float = 30.0) -> BvhMotion:
         """The motion as a BVH (:func:`~bezmotion.data.bvh.write_bvh` writes it), in the
