@@ -7,8 +7,10 @@ The 3-D view shows the body at the timeline's frame (its bones as line segments)
 own motion as a grey ghost, the six Bézier curves with their control points, and a gizmo
 per handle: dragging one calls :meth:`EditSession.drag` (the curves and body follow), letting
 go :meth:`EditSession.release` (a full resample). The panel adds and deletes handles,
-resamples, undoes and redoes, toggles foot lock and key velocities, exports, and lists the
-handles missed and the warnings. Every session call holds one lock (viser runs callbacks in
+resamples and flips back to an earlier seed, undoes and redoes, sets the keys (a chain),
+toggles foot lock, key velocities and the IK, exports and reopens a handles file, and lists
+the handles missed and the warnings; clicking a joint's ball adds a handle on it at the
+timeline's frame. Every session call holds one lock (viser runs callbacks in
 threads); gizmo moves queue in order and a move superseded by a later one is dropped.
 
 Every request needs the session's random token (:mod:`bezmotion.editor.access`), which
@@ -131,6 +133,7 @@ class EditorApp:
         self._stopped = threading.Event()
         self._flushes: queue.SimpleQueue[threading.Event] = queue.SimpleQueue()
         self._gizmos: dict[int, Any] = {}
+        self._balls: dict[str, Any] = {}
         server.scene.set_up_direction("+y")
         # viser's share button opens a public tunnel to the session: not from the editor.
         server.gui.configure_theme(show_share_button=False)
@@ -202,15 +205,21 @@ class EditorApp:
             self.add_button = gui.add_button("Add handle", hint="a handle on the joint's curve at the timeline's frame")
             self.handle = gui.add_dropdown("Handle", ("none",), initial_value="none")
             self.delete_button = gui.add_button("Delete handle")
+        with gui.add_folder("Keys"):
+            self.keys = gui.add_text("Key frames", initial_value=" ".join(map(str, session.state.keys)), hint="clip frames, 30 apart: more than two make a chain")
+            self.keys_button = gui.add_button("Set keys")
         with gui.add_folder("Sample"):
             self.resample_button = gui.add_button("Resample")
+            self.seed = gui.add_dropdown("Seed", tuple(map(str, session.seeds)) or (str(session.state.seed),), initial_value=str(session.state.seed))
             self.undo_button = gui.add_button("Undo")
             self.redo_button = gui.add_button("Redo")
             self.foot_lock = gui.add_checkbox("Foot lock", initial_value=session.state.options.foot_lock)
             self.key_velocities = gui.add_checkbox("Key velocities", initial_value=session.state.key_velocities)
-        with gui.add_folder("Export"):
-            self.export_name = gui.add_text("Name", initial_value="edit")
+            self.ik = gui.add_dropdown("IK", session.ik_choices, initial_value=session.state.ik)
+        with gui.add_folder("Files"):
+            self.export_name = gui.add_text("Name", initial_value="edit", hint="a plain name: files go in the output folder")
             self.export_button = gui.add_button("Export")
+            self.open_button = gui.add_button("Open handles", hint="NAME.handles.json from the output folder")
         self.status = gui.add_markdown("")
         self.frame.on_update(lambda _: self._redraw_frame())
         self.add_button.on_click(lambda _: self._edit(self._add_handle))
@@ -221,6 +230,44 @@ class EditorApp:
         self.foot_lock.on_update(lambda _: self._edit(lambda: self.session.set_foot_lock(bool(self.foot_lock.value))))
         self.key_velocities.on_update(lambda _: self._edit(lambda: self.session.set_key_velocities(bool(self.key_velocities.value))))
         self.export_button.on_click(lambda _: self._edit(self._export))
+        self.open_button.on_click(lambda _: self._edit(self._open_handles))
+        self.keys_button.on_click(lambda _: self._edit(self._set_keys))
+        self.seed.on_update(lambda _: self._edit(self._use_seed))
+        self.ik.on_update(lambda _: self._edit(self._set_ik))
+
+    def _set_keys(self) -> str:
+        text = str(self.keys.value)
+        try:
+            frames = [int(word) for word in text.replace(",", " ").split()]
+        except ValueError:
+            raise ValueError(f"key frames are whole numbers, e.g. 0 30, got {one_line(repr(text), 60)}") from None
+        self.session.set_keys(frames)
+        return f"keys at clip frames {' '.join(map(str, frames))}"
+
+    def _use_seed(self) -> str | None:
+        seed = int(self.seed.value)
+        if seed == self.session.state.seed:
+            return None  # the dropdown following a resample or an undo
+        self.session.use_seed(seed)
+        return f"seed {seed}"
+
+    def _set_ik(self) -> str | None:
+        if self.ik.value == self.session.state.ik:
+            return None
+        self.session.set_ik(str(self.ik.value))
+        return f"IK {self.ik.value}"
+
+    def _open_handles(self) -> str:
+        name = str(self.export_name.value)
+        file = name if name.endswith((".json", ".toml")) else f"{name}.handles.json"  # an export's name, or a file's
+        self.session.open_handles(file)
+        return f"opened {file}"
+
+    def _add_handle_on(self, joint: str) -> str:
+        """A handle on ``joint`` at the timeline's frame (a click on the joint's ball)."""
+        if self.joint.value != joint:
+            self.joint.value = joint
+        return self._add_handle()
 
     def _add_handle(self) -> str:
         handle_id = self.session.add_handle(self.joint.value, int(self.frame.value))
@@ -237,11 +284,14 @@ class EditorApp:
         return "exported " + ", ".join(path.name for path in files.values())
 
     def _edit(self, action: Callable[[], Any]) -> None:
-        """Run ``action`` (a session edit; its string, if any, is the message) under the lock,
-        then redraw; a ``ValueError`` becomes the message and changes nothing."""
+        """Run ``action`` (a session edit; its string, if any, is the message; ``None``: it had
+        nothing to do) under the lock, then redraw; a ``ValueError`` becomes the message and
+        changes nothing."""
         with self.lock:
             try:
                 outcome = action()
+                if outcome is None:  # nothing to do (a control following the state): no message, no redraw
+                    return
                 self.message = outcome if isinstance(outcome, str) else ""
             except ValueError as error:
                 self.message = f"error: {one_line(str(error))}"
@@ -255,6 +305,16 @@ class EditorApp:
             self.foot_lock.value = state.options.foot_lock
         if self.key_velocities.value != state.key_velocities:
             self.key_velocities.value = state.key_velocities
+        seeds = tuple(map(str, self.session.seeds)) or (str(state.seed),)
+        if tuple(self.seed.options) != seeds:
+            self.seed.options = seeds
+        if self.seed.value != str(state.seed):
+            self.seed.value = str(state.seed)
+        if self.ik.value != state.ik:
+            self.ik.value = state.ik
+        keys = " ".join(map(str, state.keys))
+        if self.keys.value.split() != keys.split():
+            self.keys.value = keys
 
     # --------------------------------------------------------------------- gizmos
 
@@ -337,7 +397,20 @@ class EditorApp:
         scene = self.server.scene
         scene.add_line_segments("/body", bone_segments(view.joints[frame], parents, hips), (30, 30, 30), thickness=0.02)
         self._draw_ghost(frame)
-        scene.add_point_cloud("/now", view.positions[frame] * SCALE, (20, 20, 20), point_size=0.04)
+        self._draw_joint_balls(view.positions[frame])
+
+    def _draw_joint_balls(self, positions_cm: np.ndarray) -> None:
+        """A ball on each of the six joints' curves at the timeline's frame; clicking one adds
+        a handle there (made once, then moved)."""
+        for j, name in enumerate(CHARACTERISTIC_JOINTS):
+            position = positions_cm[j] * SCALE
+            ball = self._balls.get(name)
+            if ball is None:
+                ball = self.server.scene.add_icosphere(f"/joints/{name}", radius=0.025, color=CURVE_COLOURS[j], position=position)
+                ball.on_click(lambda _, name=name: self._edit(lambda: self._add_handle_on(name)))
+                self._balls[name] = ball
+            elif not np.allclose(ball.position, position):
+                ball.position = position
 
     def _draw_ghost(self, frame: int) -> None:
         ghost, character = self.session.ghost, self.session.character
