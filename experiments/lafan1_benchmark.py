@@ -10,8 +10,8 @@ target frame, n = 5 / 15 / 30 / 45 missing frames; L2Q, L2P and NPSS. Rows:
 - ``delta``: the Δ-interpolator trained by ``experiments/delta_lafan1.py``, restored from
   its run folder (``--delta-run``; the newest checkpoint, every seed in it, metrics averaged
   over seeds), with the steps and epochs it had trained;
-- ``bmm``: the BMM needs keys ``n + 1`` frames apart, and today's models take keys 30
-  frames apart only, so the row is absent and ``missing`` says why.
+- ``bmm``: the keys are ``n + 1`` frames apart, and the BMMs here learned 31-frame windows
+  only, so the row is absent and ``missing`` says why.
 
 ``published`` holds the records on the full LaFAN1 test set (2,232 windows;
 ``../shared/REFERENCE.md`` §1 and §6), which our subset's windows are not: compare the
@@ -65,8 +65,8 @@ PUBLISHED_NAMES = {
 }  # fmt: skip
 
 BMM_MISSING = (
-    "the BMM in-betweens keys 30 frames apart only (one 31-frame window); the benchmark's keys are n + 1 "
-    "frames apart (6, 16, 31, 46): the row waits for windows of any length (issue 68)"
+    "the benchmark's keys are n + 1 frames apart (6, 16, 31, 46); the BMM samples windows of any length, but the "
+    "BMMs here learned 31-frame windows (and none of LaFAN1 is trained locally): the row waits for a LaFAN1 BMM trained on windows of those lengths"
 )
 
 
