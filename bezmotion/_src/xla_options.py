@@ -17,6 +17,7 @@ import functools
 import logging
 import re
 from collections.abc import Callable
+from typing import Any
 
 import jax
 
@@ -36,6 +37,11 @@ def inference_compiler_options() -> tuple[tuple[str, str], ...]:
     return tuple(sorted(CPU_INFERENCE_OPTIONS.items()))
 
 
+def traced(tree: Any) -> bool:
+    """Whether any leaf of ``tree`` is a tracer (the call is inside a caller's ``jax.jit``)."""
+    return any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(tree))
+
+
 def inference_jit(fn: Callable | None = None, *, static_argnames: tuple[str, ...] = ()):
     """``jax.jit(fn)`` compiled with the backend's inference options, for entry points.
 
@@ -53,7 +59,7 @@ def inference_jit(fn: Callable | None = None, *, static_argnames: tuple[str, ...
 
     @functools.wraps(fn)
     def call(*args, **kwargs):
-        if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((args, kwargs))):
+        if traced((args, kwargs)):
             return compiled(())(*args, **kwargs)
         try:
             return jax.block_until_ready(compiled(inference_compiler_options())(*args, **kwargs))

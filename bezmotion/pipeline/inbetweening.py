@@ -26,7 +26,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Bool, Float
 
 from bezmotion._src.problems import Problem, raise_first, raised_in_program
-from bezmotion._src.xla_options import inference_jit
+from bezmotion._src.xla_options import inference_jit, traced
 from bezmotion.bezier import BezierLayout, reconstruct_dense, tangent_from_velocity
 from bezmotion.bmm.sampling import (
     MAX_WINDOW_FRAMES,
@@ -576,7 +576,7 @@ def inbetween(
     _check_shapes(model, keys, handles, key_velocity)
     if key_velocity is not None:
         key_velocity = jnp.asarray(key_velocity, keys.root_pos.dtype)
-    if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves((model, keys, handles, key, key_velocity))):
+    if traced((model, keys, handles, key, key_velocity)):
         return _inbetween(model, keys, handles, key, options, key_velocity, span=span)
     # Checked here first, the in-between's program holds no host callback: XLA's cache keeps it.
     raise_first(input_problems(model, keys, handles, key_velocity, span))
