@@ -78,6 +78,21 @@ class BezierLayout:
         return self.num_controls - 1
 
     @property
+    def last_control(self) -> int:
+        """Index of the last control point (:class:`PaddedLayout`'s is traced)."""
+        return self.num_controls - 1
+
+    @property
+    def control_valid(self) -> np.ndarray:
+        """``(controls,)`` which control points are the window's: all (padding in :class:`PaddedLayout`)."""
+        return np.ones(self.num_controls, bool)
+
+    @property
+    def frame_valid(self) -> np.ndarray:
+        """``(frames,)`` which frames are the window's: all (padding in :class:`PaddedLayout`)."""
+        return np.ones(self.num_frames, bool)
+
+    @property
     def segment_lengths(self) -> np.ndarray:
         """``(segments,)`` frames spanned by each segment (all ``stride`` except maybe the last)."""
         return np.diff(self.control_frames)
@@ -92,6 +107,66 @@ class BezierLayout:
         if num_controls < 2:
             raise ValueError(f"a curve needs at least 2 control points, got {num_controls}")
         return cls((num_controls - 1) * stride + 1, stride)
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class PaddedLayout(BezierLayout):
+    """The layout of a window whose length is a traced value, on a fixed-size grid: what one
+    compiled training step uses to learn windows of many lengths at once.
+
+    The window has ``num_frames`` frames (a traced int32 scalar, 2 … ``max_frames``) and its
+    control points are :class:`BezierLayout`'s for that length; the arrays are padded to
+    ``BezierLayout(max_frames, stride)``'s control count and to ``max_frames`` frames. The
+    padding continues the grid past the last frame (``last + stride``, ``last + 2·stride``,
+    …), so the frames stay increasing and every padding segment has a non-zero length: the
+    window's own frames evaluate exactly as under its :class:`BezierLayout`, and
+    :attr:`control_valid` / :attr:`frame_valid` mark what is the window's.
+
+    Attributes:
+      num_frames: the window's frames (traced, int32 scalar).
+      stride: frames between control points (static).
+      max_frames: the padded frame count (static).
+    """
+
+    num_frames: Int[ArrayLike, ""]
+    stride: int = DEFAULT_STRIDE
+    max_frames: int = 0
+
+    def __post_init__(self):
+        if not isinstance(self.max_frames, int) or self.max_frames < 2:
+            raise ValueError(f"PaddedLayout.max_frames must be an integer ≥ 2, got {self.max_frames!r}")
+        if not isinstance(self.stride, int) or self.stride < 1:
+            raise ValueError(f"PaddedLayout.stride must be an integer ≥ 1, got {self.stride!r}")
+
+    @property
+    def num_controls(self) -> int:
+        return BezierLayout(self.max_frames, self.stride).num_controls
+
+    @property
+    def last_control(self) -> Int[Array, ""]:
+        """Index of the window's last control point (its last frame)."""
+        return (self.num_frames - 2) // self.stride + 1
+
+    @property
+    def control_frames(self) -> Int[Array, "controls"]:
+        k = jnp.arange(self.num_controls, dtype=jnp.int32)
+        last, end = self.last_control, jnp.asarray(self.num_frames, jnp.int32) - 1
+        return jnp.where(k < last, k * self.stride, end + (k - last) * self.stride)
+
+    @property
+    def segment_lengths(self) -> Int[Array, "segments"]:
+        return jnp.diff(self.control_frames)
+
+    @property
+    def control_valid(self) -> Bool[Array, "controls"]:
+        return jnp.arange(self.num_controls) <= self.last_control
+
+    @property
+    def frame_valid(self) -> Bool[Array, "frames"]:
+        return jnp.arange(self.max_frames) < self.num_frames
+
+    def frames(self) -> Float[Array, "frames"]:
+        return jnp.arange(self.max_frames, dtype=jnp.float32)
 
 
 def bernstein(t: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch 4"]:
@@ -364,6 +439,32 @@ def fit_curves(
         result=result,
         num_steps=num_steps,
     )
+
+
+@functools.partial(jax.jit, static_argnums=0)
+def _fit_operator_parts(layout: BezierLayout):
+    """``(basis, finite-difference tangents (controls, frames))`` of ``layout``, compiled
+    once per layout (op by op they take ten times as long)."""
+    fd = finite_difference_tangents(layout, jnp.eye(layout.num_frames, dtype=jnp.float32)[:, :, None])
+    return basis(layout), fd[..., 0].T
+
+
+def fit_operator(layout: BezierLayout) -> np.ndarray:
+    """The pinned-position fit (:func:`fit_curves`) as one linear map: ``(controls, frames)``
+    float64 ``M`` with ``ctrl_tangent = M @ points`` for any ``(frames, dim)`` points (the
+    positions are ``points[layout.control_frames]``).
+
+    The fit is linear in the data, and this is its closed form: the finite-difference
+    tangents ``D x`` plus the minimum-norm least-squares correction of the residual they
+    leave, ``D + W_tan⁺ (I − W_pos S − W_tan D)`` with ``S`` the control-frame selection —
+    the solution :func:`fit_curves`' Gauss-Newton step lands on, in float64. Training on
+    windows of many lengths fits each drawn window with it, inside the compiled step.
+    """
+    n = layout.num_frames
+    (w_pos, w_tan), fd = (jax.tree.map(lambda a: np.asarray(a, np.float64), part) for part in _fit_operator_parts(layout))
+    select = np.eye(n)[layout.control_frames]  # (controls, frames)
+    residual = np.eye(n) - w_pos @ select - w_tan @ fd
+    return fd + np.linalg.pinv(w_tan) @ residual
 
 
 def interpolate_rotations(

@@ -186,7 +186,7 @@ def interpolation_through_points(
     read = conditions.valid if off_grid == "linear" else conditions.valid & on_grid
     ctrl_pos = _linear_in_frame(layout, conditions._replace(valid=read), num_joints)
     mask, _ = grid_conditions(layout, conditions, num_joints)
-    ctrl_pos, ctrl_tangent = project_off_grid(layout, ctrl_pos, _catmull_rom_tangents(ctrl_pos), mask, conditions)
+    ctrl_pos, ctrl_tangent = project_off_grid(layout, ctrl_pos, _catmull_rom_tangents(ctrl_pos, layout.last_control), mask, conditions)
     return ctrl_pos, ctrl_tangent, mask
 
 
@@ -206,8 +206,18 @@ def _linear_in_frame(layout: BezierLayout, conditions: Handles, num_joints: int)
     return (1.0 - w) * position[before] + w * position[after]
 
 
-def _catmull_rom_tangents(pos: Float[Array, "*batch controls joints 3"]) -> Float[Array, "*batch controls joints 3"]:
-    """``T_k = (P_{k+1} − P_{k−1})/6``, one-sided ``(P_1 − P_0)/3`` at the ends."""
+def _catmull_rom_tangents(pos: Float[Array, "*batch controls joints 3"], last: int | Int[Array, ""] | None = None) -> Float[Array, "*batch controls joints 3"]:
+    """``T_k = (P_{k+1} − P_{k−1})/6``, one-sided ``(P_1 − P_0)/3`` at the ends.
+
+    ``last``: the last control point when the ones after it are padding (a
+    :class:`~bezmotion.bezier.PaddedLayout`'s traced one): the padding is replaced by the
+    reflection ``2·P_last − P_{last−1}``, whose central difference at ``last`` is the
+    one-sided one, so the window's own tangents are those of its unpadded curve.
+    """
+    if last is not None and not isinstance(last, int):
+        k = jnp.arange(pos.shape[-3])[:, None, None]
+        end, before = jnp.take(pos, last, axis=-3)[..., None, :, :], jnp.take(pos, last - 1, axis=-3)[..., None, :, :]
+        pos = jnp.where(k > last, 2.0 * end - before, pos)
     inner = (pos[..., 2:, :, :] - pos[..., :-2, :, :]) / 6.0
     first = (pos[..., 1:2, :, :] - pos[..., :1, :, :]) / 3.0
     last = (pos[..., -1:, :, :] - pos[..., -2:-1, :, :]) / 3.0

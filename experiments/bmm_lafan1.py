@@ -31,6 +31,10 @@ Several processes train one model data-parallel (each its share of every batch; 
 machine or several): start the same command once per process with ``--coordinator
 HOST:PORT --num-processes N --process-id I``; process 0 evaluates and writes the results.
 
+``--spans LOW HIGH`` trains on windows of many lengths (keys LOW … HIGH frames apart, drawn
+per example; ``BMMTrainConfig.spans``); the evaluation stays on 31-frame windows
+(``experiments/gap_lengths.py`` measures the other lengths).
+
 ``--config cpu`` (default) trains in a session on a 2-core CPU; ``--config paper`` is the
 paper's 17.4 M-parameter model and runs unchanged on a GPU. Writes the JSON, a Markdown
 report beside it, and the trained model under ``<run-dir>/model``.
@@ -68,7 +72,8 @@ from bezmotion.bmm.denoiser import PREDICTIONS, BMMConfig
 from bezmotion.bmm.features import FeatureStats
 from bezmotion.bmm.sampling import BezierMotionModel, load_model, sample_curves, save_model
 from bezmotion.bmm.augmentation import rest_reflections
-from bezmotion.bmm.train import LR_SCHEDULES, CurveArrays, BMMTrainConfig, init_bmm_train_states, make_bmm_train_step
+from bezmotion.bmm.train import LR_SCHEDULES, CurveArrays, BMMTrainConfig, DenseWindows, init_bmm_train_states, make_bmm_train_step
+from bezmotion.data.corpus import motion_clips
 from bezmotion.data.characteristic import SKELETON_MAPS
 from bezmotion.pipeline.transfer import CharacterProfile, Transfer, transfer_curve_dataset
 from bezmotion._src.options import option, options, parse_options, presets
@@ -136,6 +141,9 @@ class Options(DistributedOptions):
     holdout_contents: tuple[str, ...] = option(
         (), help="held-out contents: train without the clips whose content/action matches these patterns (e.g. 'wave-*' run), evaluate on all their windows too"
     )
+    spans: tuple[int, ...] = option(
+        (), help="train on windows of many lengths: keys LOW … HIGH frames apart, drawn per example (e.g. 8 90; default: the model's 30)"
+    )
     eval_every: int = option(0, help="learning curve: evaluate every N steps into <run-dir>/learning_curve.json (0 = only at the end)")
     curve_windows: int = option(200, help="validation windows per learning-curve point")
     patience: int = option(0, help="stop when the EMA validation dense error has not improved by 1 %% over this many curve points (0 = never)")
@@ -145,8 +153,11 @@ class Options(DistributedOptions):
         super().__post_init__()
         if self.model and self.init:
             raise ValueError("--model evaluates a saved BMM, --init fine-tunes one: give one of them")
+        if self.spans and (len(self.spans) != 2 or self.bandai_namco or self.also_corpus or self.holdout_contents):
+            raise ValueError(f"--spans takes LOW HIGH (got {' '.join(map(str, self.spans))}) and trains on --corpus alone (no --bandai-namco, --also-corpus, --holdout-contents)")
         if self.run_dir is None and self.init:
-            object.__setattr__(self, "run_dir", str(runs_dir(f"bmm_{self.corpus}_finetune_{Path(self.init).name}_offgrid{self.off_grid_handles:g}")))
+            spans = f"_spans{self.spans[0]}-{self.spans[1]}" if self.spans else ""
+            object.__setattr__(self, "run_dir", str(runs_dir(f"bmm_{self.corpus}_finetune_{Path(self.init).name}_offgrid{self.off_grid_handles:g}{spans}")))
         if self.run_dir is None:
             suffix = "" if self.prediction == "x0" else f"_{self.prediction}"
             object.__setattr__(self, "run_dir", str(runs_dir(f"bmm_{self.corpus}_{self.config}{suffix}{self.lever_suffix()}")))
@@ -182,6 +193,8 @@ class Options(DistributedOptions):
             parts.append(f"also-{self.also_corpus}")
         if self.holdout_contents:
             parts.append("holdout-" + "-".join(p.replace("*", "") for p in self.holdout_contents))
+        if self.spans:
+            parts.append(f"spans{self.spans[0]}-{self.spans[1]}")
         return "".join(f"_{p}" for p in parts)
 
 
@@ -191,7 +204,7 @@ def concat_datasets(parts: list[CurveDataset]) -> CurveDataset:
 
 
 def train(
-    args, model_config: BMMConfig, train_config: BMMTrainConfig, train_set: CurveDataset, stats: FeatureStats, init=None, evaluate=None
+    args, model_config: BMMConfig, train_config: BMMTrainConfig, data: CurveArrays | DenseWindows, stats: FeatureStats, init=None, evaluate=None
 ):
     """Train (resuming from ``args.run_dir``); with ``evaluate`` and ``--eval-every``, keep a learning curve.
 
@@ -210,7 +223,6 @@ def train(
     # A constant learning rate does not depend on the run's length: --steps may grow to go on training.
     store.check_resumable(config, extendable=("train.num_steps",) if train_config.lr_schedule == "constant" else ())
     started = time.perf_counter()
-    data = CurveArrays.from_dataset(train_set)
     deadline = None if args.train_seconds is None else time.monotonic() + args.train_seconds
     kwargs = dict(store=store, checkpoint_every=args.checkpoint_every, config=config, progress=not args.no_progress, deadline=deadline)
     curve = None
@@ -433,7 +445,7 @@ def main(argv: list[str] | None = None) -> dict:
         off_grid_handles=args.off_grid_handles, lr_schedule=args.lr_schedule, warmup_steps=args.warmup_steps,
         total_steps=args.steps if args.lr_schedule != "constant" else None, yaw_augmentation=args.augment_yaw,
         mirror_augmentation=args.augment_mirror, rest_reflections=reflections, ema_decay=args.ema_decay,
-        still_augmentation=args.augment_still,
+        still_augmentation=args.augment_still, spans=tuple(args.spans) or None,
     )  # fmt: skip
     metrics_config = None
     curve = None
@@ -451,7 +463,11 @@ def main(argv: list[str] | None = None) -> dict:
         if held_set is not None:
             curve_sets["held_out"] = make_eval_set(held_set, key=jax.random.key(4321), num_windows=args.curve_windows)
         evaluate = curve_evaluator(args, model_config, stats, metrics_config, curve_sets)
-        graphdef, state, history, train_s, curve = train(args, model_config, train_config, train_set, stats, init, evaluate)
+        if args.spans:  # windows of many lengths: unfitted windows as long as the longest, fitted in the step
+            data = DenseWindows.from_clips(motion_clips(corpus, "train"), corpus.characteristic_map, frames=args.spans[1] + 1)
+        else:
+            data = CurveArrays.from_dataset(train_set)
+        graphdef, state, history, train_s, curve = train(args, model_config, train_config, data, stats, init, evaluate)
         if curve is not None:
             curve["reference"] = {
                 name: curve_metrics(metrics_config, reference_curves(e, e.handles, layout), e, e.handles) for name, e in curve_sets.items()
@@ -474,7 +490,7 @@ def main(argv: list[str] | None = None) -> dict:
             "train_windows": len(train_set), "bandai_namco": bool(args.bandai_namco), "also_corpus": args.also_corpus, "wall_s_this_run": train_s,
             "lr_schedule": args.lr_schedule, "warmup_steps": args.warmup_steps, "augment_yaw": args.augment_yaw,
             "augment_mirror": args.augment_mirror, "augment_still": args.augment_still, "rest_reflections": reflections, "holdout_contents": list(args.holdout_contents),
-            "ema_decay": args.ema_decay, "evaluated_parameters": args.parameters, "history": history, "learning_curve": curve,
+            "ema_decay": args.ema_decay, "spans": list(args.spans) or None, "evaluated_parameters": args.parameters, "history": history, "learning_curve": curve,
         },
         "eval": {"n_windows": int(eval_set.start.shape[0]), "floor_height_cm": metrics_config.floor_height, "fps": val_set.fps},
         "ground_truth": ground_truth_metrics(metrics_config, eval_set),

@@ -37,7 +37,7 @@ import math
 import jax
 import jax.numpy as jnp
 from flax import nnx
-from jaxtyping import Array, ArrayLike, Float, Int, Real
+from jaxtyping import Array, ArrayLike, Bool, Float, Int, Real
 
 from bezmotion.interpolation import OFF_GRID_REFERENCES
 from bezmotion.handles import Handles
@@ -212,6 +212,7 @@ class BMMDenoiser(nnx.Module):
         *,
         key: Array | None = None,
         control_frames: Real[ArrayLike, "controls"] | None = None,
+        control_valid: Bool[ArrayLike, "controls"] | None = None,
     ) -> tuple[Float[Array, "controls features"], Float[Array, "controls 2"]]:
         """Predict normalised x₀ and foot-contact logits.
 
@@ -225,6 +226,9 @@ class BMMDenoiser(nnx.Module):
           control_frames: ``(controls,)`` the frame of each control point, for its positional
             encoding (a window of another length: :attr:`~bezmotion.bezier.BezierLayout.control_frames`);
             default every ``stride`` frames from 0.
+          control_valid: ``(controls,)`` which control points are the window's; the others
+            (padding: :class:`~bezmotion.bezier.PaddedLayout`) are masked out of attention as
+            keys, so a window's outputs are those it gets unpadded. Default all.
         Returns:
           ``(x̂₀ (controls, features), contact logits (controls, 2))``; with
           ``prediction="residual"`` the first is x̂₀ minus the interpolation prior, and
@@ -256,7 +260,8 @@ class BMMDenoiser(nnx.Module):
         )
         cond_tokens = jnp.where(valid_cond[:, None], cond_tokens, 0.0)
         tokens = jnp.concatenate([time_token[None], frame_tokens, cond_tokens], axis=0)
-        valid = jnp.concatenate([jnp.ones(1 + controls, bool), conditions.valid])
+        frames_valid = jnp.ones(controls, bool) if control_valid is None else jnp.asarray(control_valid, bool)
+        valid = jnp.concatenate([jnp.ones(1, bool), frames_valid, conditions.valid])
         keys = [None] * cfg.num_layers if key is None else list(jax.random.split(key, cfg.num_layers))
         frames_only = slice(1, 1 + controls)
         for i, (layer, layer_key) in enumerate(zip(self.layers, keys)):
@@ -280,6 +285,7 @@ def apply_denoiser(
     *,
     key: Array | None = None,
     control_frames: Real[ArrayLike, "controls"] | None = None,
+    control_valid: Bool[ArrayLike, "controls"] | None = None,
 ) -> tuple[Float[Array, "controls features"], Float[Array, "controls 2"]]:
     """Pure call of the denoiser on one motion (see :meth:`BMMDenoiser.__call__`)."""
-    return nnx.merge(graphdef, params)(x_t, t, conditions, key=key, control_frames=control_frames)
+    return nnx.merge(graphdef, params)(x_t, t, conditions, key=key, control_frames=control_frames, control_valid=control_valid)

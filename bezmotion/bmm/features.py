@@ -96,18 +96,27 @@ def from_tokens(tokens: Float[Array, "*batch controls features"]) -> Float[Array
 
 
 def draw_intermediate_slots(
-    key: Array, num_controls: int, num_joints: int, max_handles: int, min_handles: int = 0
+    key: Array, num_controls: int, num_joints: int, max_handles: int, min_handles: int = 0, *, last_control: Int[Array, ""] | None = None
 ) -> tuple[Int[Array, "max_handles"], Int[Array, "max_handles"], Bool[Array, "max_handles"]]:
     """Random distinct intermediate (control, joint) slots: ``n ~ U{min_handles, …, max_handles}``
     of the ``(K−2)·J`` slots between the end control points, chosen uniformly (BMM §5.2).
+
+    ``last_control``: the window's last control point when the ones after it are padding (a
+    :class:`~bezmotion.bezier.PaddedLayout`'s, traced): only the slots before it are drawn,
+    and ``n`` is at most their number.
 
     Returns:
       ``(control, joint, valid)``, each ``(max_handles,)``; the first ``n`` are valid.
     """
     count_key, order_key = jax.random.split(key)
     n = jax.random.randint(count_key, (), min_handles, max_handles + 1)
+    draws = jax.random.uniform(order_key, ((num_controls - 2) * num_joints,))
+    if last_control is not None:  # the padding's slots sort after every slot of the window
+        inside = jnp.arange(draws.shape[0]) // num_joints + 1 < last_control
+        draws = jnp.where(inside, draws, 2.0)
+        n = jnp.minimum(n, jnp.sum(inside))
     # The first max_handles of a random order of all slots: distinct, uniformly chosen.
-    order = jnp.argsort(jax.random.uniform(order_key, ((num_controls - 2) * num_joints,)))[:max_handles]
+    order = jnp.argsort(draws)[:max_handles]
     control = (order // num_joints + 1).astype(jnp.int32)
     joint = (order % num_joints).astype(jnp.int32)
     return control, joint, jnp.arange(max_handles) < n
@@ -183,7 +192,7 @@ def handle_positions(
 
 
 def inbetween_conditions(
-    num_frames: int,
+    num_frames: int | Int[Array, ""],
     start: Float[Array, "joints 3"],
     end: Float[Array, "joints 3"],
     handles: Handles,
@@ -235,7 +244,7 @@ def interpolation_prior(
         layout, conditions._replace(position=target_cm), num_joints, off_grid=off_grid
     )
     feats = stats.normalize(jnp.concatenate([ctrl_pos, ctrl_tangent, jnp.broadcast_to(stats.mean[:, 6:], (num_controls, num_joints, 6))], axis=-1))
-    known = mask[0] & mask[-1]
+    known = mask[0] & mask[layout.last_control]
     return to_tokens(jnp.where(known[None, :, None], feats, 0.0))
 
 
@@ -252,13 +261,14 @@ def predict_x0(
     """x̂₀ and contact logits from a denoiser of either ``prediction`` kind (the BMM's
     transformer, or CondMDIᴳ's UNet, which predicts x₀): training and sampling both call
     this, so they cannot disagree on what the network outputs. ``layout``: a window of
-    another length than the config's (the BMM's transformer only), its control points' frames."""
+    another length than the config's (the BMM's transformer only), its control points' frames;
+    a :class:`~bezmotion.bezier.PaddedLayout` (training on many lengths) masks its padding."""
     cfg = denoiser.config
     if layout is None:
         layout = BezierLayout.from_controls(cfg.num_controls, cfg.stride)
         x0, logits = denoiser(x_t, t, conditions, key=key)
     else:
-        x0, logits = denoiser(x_t, t, conditions, key=key, control_frames=layout.control_frames)
+        x0, logits = denoiser(x_t, t, conditions, key=key, control_frames=layout.control_frames, control_valid=layout.control_valid)
     if cfg.prediction == "residual":
         x0 = x0 + interpolation_prior(stats, conditions, layout, off_grid=cfg.off_grid_prior)
     return x0, logits

@@ -69,6 +69,11 @@ def bmm_loss_terms(
       "contact", "skate"}`` scalars (:class:`LossWeights` names).
     """
     to_m = 1.0 / CM_PER_M
+    # A padded layout's padding frames and control points are no part of the window: every
+    # mean is over the window's own (all of them for a BezierLayout).
+    frames_in, controls_in = jnp.asarray(layout.frame_valid), jnp.asarray(layout.control_valid)
+    per_frame, per_control = frames_in[:, None, None], controls_in[:, None, None]
+    per_velocity = (frames_in[1:] & frames_in[:-1])[:, None, None]
     pred_dense = jnp.moveaxis(evaluate(layout, jnp.moveaxis(pred_pos, 1, 0), jnp.moveaxis(pred_tangent, 1, 0)), 0, 1)
     pred_vel = dense_velocity(pred_dense) * to_m
     contact = jax.nn.sigmoid(contact_logits)
@@ -83,15 +88,21 @@ def bmm_loss_terms(
         err = jnp.sum(((pred_dense[frame, joint] - position) * to_m) ** 2, axis=-1)
         off_err, off_count = jnp.sum(jnp.where(valid, err, 0.0)), jnp.sum(valid.astype(pred_pos.dtype))
     return {
-        "position": jnp.mean(pos_err),
-        "tangent": jnp.mean(((pred_tangent - target_tangent) * to_m) ** 2),
-        "orientation": jnp.mean((pred_rot6d - target_rot6d) ** 2),
-        "velocity": jnp.mean((pred_vel - dense_velocity(dense_target) * to_m) ** 2),
-        "dense_position": jnp.mean(((pred_dense - dense_target) * to_m) ** 2),
+        "position": _masked_mean(pos_err, per_control),
+        "tangent": _masked_mean(((pred_tangent - target_tangent) * to_m) ** 2, per_control),
+        "orientation": _masked_mean((pred_rot6d - target_rot6d) ** 2, per_control),
+        "velocity": _masked_mean((pred_vel - dense_velocity(dense_target) * to_m) ** 2, per_velocity),
+        "dense_position": _masked_mean(((pred_dense - dense_target) * to_m) ** 2, per_frame),
         "condition": (jnp.sum(cond * pos_err) + off_err) / jnp.maximum(3.0 * (jnp.sum(cond) + off_count), 1.0),
-        "contact": jnp.mean((contact - target_contacts.astype(contact.dtype)) ** 2),
-        "skate": jnp.mean((contact[..., None] * feet_vel) ** 2),
+        "contact": _masked_mean((contact - target_contacts.astype(contact.dtype)) ** 2, controls_in[:, None]),
+        "skate": _masked_mean((contact[..., None] * feet_vel) ** 2, per_control),
     }
+
+
+def _masked_mean(x: Float[Array, "rows *rest"], rows: Bool[Array, "rows *ones"]) -> Float[Array, ""]:
+    """The mean of ``x`` over the rows ``rows`` marks (broadcast over the other axes)."""
+    mask = jnp.broadcast_to(rows, x.shape)
+    return jnp.sum(jnp.where(mask, x, 0.0)) / jnp.maximum(jnp.sum(mask), 1)
 
 
 def min_snr_weight(snr: Float[Array, "*batch"], gamma: float | None) -> Float[Array, "*batch"]:

@@ -15,18 +15,23 @@ classifier-free guidance.
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optax
 from flax import nnx
 from jax.sharding import Mesh
 from jaxtyping import Array, Bool, Float
 
-from bezmotion.bezier import BezierLayout
-from bezmotion.data.curves import CurveDataset
+from bezmotion.bezier import BezierLayout, PaddedLayout, fit_operator
+from bezmotion.bmm.sampling import MAX_WINDOW_FRAMES
+from bezmotion._src.linalg import exact_einsum
+from bezmotion.data.characteristic import contact_labels
+from bezmotion.data.corpus import MotionClips
+from bezmotion.data.curves import DEFAULT_OFFSET, CurveDataset, characteristic_windows
 from bezmotion.diffusion.schedule import DiffusionSchedule, cosine_schedule
 from bezmotion.bmm.augmentation import augment
 from bezmotion.bmm.losses import LossWeights, bmm_loss_terms, min_snr_weight
@@ -49,7 +54,7 @@ from bezmotion.training.loop import shard_batch
 from bezmotion.training.optim import adamw_amsgrad_torch, warmup_then_decay
 from bezmotion.training.state import TrainState, fresh_train_state, stack_seeds
 from bezmotion.training.step import apply_gradients
-from bezmotion.handles import Handles
+from bezmotion.handles import Handles, grid_conditions
 
 
 LR_SCHEDULES = ("constant", "cosine")
@@ -73,7 +78,14 @@ class BMMTrainConfig:
       ``rest_reflections`` the six joints' rest mirrors of the skeleton
       (:func:`bezmotion.bmm.augmentation.rest_reflections`; required then);
     - ``still_augmentation``: the probability that an example is one of its poses held still
-      (:func:`bezmotion.bmm.augmentation.hold_still`), so that keys asking for no motion get none.
+      (:func:`bezmotion.bmm.augmentation.hold_still`), so that keys asking for no motion get none;
+    - ``spans=(low, high)``: windows of many lengths. Each example's keys are drawn
+      ``U{low … high}`` frames apart; its window is the first ``span + 1`` frames of a
+      ``high + 1``-frame :class:`DenseWindows` window, fitted in the step
+      (:func:`~bezmotion.bezier.fit_operator`, the cached datasets' fit) on the extended
+      control grid sampling uses at that length, padded to ``high + 1`` frames
+      (:class:`~bezmotion.bezier.PaddedLayout`: the padding is masked out of attention and
+      losses). ``None`` (default): the :class:`CurveArrays` windows of the model's length.
     """
 
     batch_size: int = 64
@@ -93,6 +105,7 @@ class BMMTrainConfig:
     mirror_augmentation: float = 0.0
     rest_reflections: tuple[tuple[float, float, float], ...] | None = None
     still_augmentation: float = 0.0
+    spans: tuple[int, int] | None = None
 
     def __post_init__(self):
         if self.batch_size < 1 or self.learning_rate <= 0 or self.weight_decay < 0:
@@ -117,6 +130,10 @@ class BMMTrainConfig:
         for r in self.rest_reflections or ():
             if sorted(abs(x) for x in r) != [1.0, 1.0, 1.0] or sum(x < 0 for x in r) != 1:
                 raise ValueError(f"rest_reflections must be six axis reflections such as (-1, 1, 1), got {self.rest_reflections}")
+        if self.spans is not None and (
+            len(self.spans) != 2 or not all(isinstance(x, int) for x in self.spans) or not 2 <= self.spans[0] <= self.spans[1] <= MAX_WINDOW_FRAMES - 1
+        ):
+            raise ValueError(f"spans must be (low, high) integers with 2 <= low <= high <= {MAX_WINDOW_FRAMES - 1}, got {self.spans!r}")
         if self.rest_reflections is not None and len(self.rest_reflections) != 6:
             raise ValueError(f"rest_reflections needs one reflection per characteristic joint (6), got {len(self.rest_reflections)}")
 
@@ -146,6 +163,42 @@ class CurveArrays(NamedTuple):
         return cls(*(jnp.asarray(getattr(dataset, f)) for f in cls._fields))
 
 
+class DenseWindows(NamedTuple):
+    """Unfitted windows of the six characteristic joints, the ``data`` of a step that trains
+    on many lengths (``BMMTrainConfig.spans``): each example is a prefix of one of them.
+
+    Attributes:
+      dense_pos: ``(windows, frames, 6, 3)`` aligned positions (cm; hips start at the origin in XZ).
+      dense_rot6d: ``(windows, frames, 6, 6)`` global 6D orientations.
+      dense_contacts: ``(windows, frames, 2)`` left/right foot contacts.
+    """
+
+    dense_pos: Float[Array, "windows frames joints 3"]
+    dense_rot6d: Float[Array, "windows frames joints 6"]
+    dense_contacts: Bool[Array, "windows frames 2"]
+
+    @classmethod
+    def from_clips(cls, clips: MotionClips, mapping: str | Mapping[str, str], *, frames: int, offset: int = DEFAULT_OFFSET) -> DenseWindows:
+        """Every ``frames``-frame window of ``clips`` (one every ``offset`` frames), aligned and
+        labelled as the curve datasets' windows are (:func:`~bezmotion.data.curves.characteristic_windows`)."""
+        pos, rot6d, _, _ = characteristic_windows(clips, mapping, window=frames, offset=offset)
+        if not len(pos):
+            raise ValueError(f"no windows of {frames} frames in {clips.num_clips} clips")
+        contacts = np.concatenate([np.asarray(contact_labels(jnp.asarray(p), clips.fps)) for p in np.array_split(pos, max(1, len(pos) // 1024))])
+        return cls(jnp.asarray(pos), jnp.asarray(rot6d), jnp.asarray(contacts))
+
+
+def span_fit_operators(stride: int, low: int, high: int) -> Float[Array, "spans controls frames"]:
+    """:func:`~bezmotion.bezier.fit_operator` of every window of ``low … high`` frames from key
+    to key, zero-padded to ``BezierLayout(high + 1, stride)``'s controls and frames (float32)."""
+    padded = BezierLayout(high + 1, stride)
+    out = np.zeros((high - low + 1, padded.num_controls, padded.num_frames), np.float32)
+    for i, span in enumerate(range(low, high + 1)):
+        op = fit_operator(BezierLayout(span + 1, stride))
+        out[i, : op.shape[0], : op.shape[1]] = op
+    return jnp.asarray(out)
+
+
 def init_bmm_train_state(
     model_config: BMMConfig, train_config: BMMTrainConfig, *, key: Array
 ) -> tuple[nnx.GraphDef, TrainState]:
@@ -172,13 +225,34 @@ def make_bmm_train_step(
 ) -> Callable[[TrainState, CurveArrays], tuple[TrainState, dict[str, Array]]]:
     """The (un-jitted) single-seed training step; see :func:`compile_train_step`."""
     schedule = cosine_schedule(model_config.num_timesteps) if schedule is None else schedule
-    layout = BezierLayout.from_controls(model_config.num_controls, model_config.stride)
     optimizer = train_config.optimizer()
     weights = train_config.weights
-    k_ctrl, k_joints = model_config.num_controls, model_config.num_joints
+    k_joints, stride = model_config.num_joints, model_config.stride
+
+    if train_config.spans is None:
+        fixed = BezierLayout.from_controls(model_config.num_controls, stride)
+
+        def window(batch_item, rng):
+            return batch_item, fixed, None
+
+    else:
+        low, high = train_config.spans
+        operators = span_fit_operators(stride, low, high)
+
+        def window(batch_item, rng):
+            # Drawn from a key folded off rng, so the other draws are those of a fixed length.
+            dense, dense_rot6d, dense_contacts = batch_item
+            if dense.shape[0] != high + 1:
+                raise ValueError(f"spans {train_config.spans} need DenseWindows of {high + 1} frames, got {dense.shape[0]}")
+            span = jax.random.randint(jax.random.fold_in(rng, 11), (), low, high + 1)
+            layout = PaddedLayout(span + 1, stride, high + 1)
+            frames = jnp.minimum(layout.control_frames, high)  # the padding's: any real frame
+            tangent = exact_einsum("kf,fjd->kjd", operators[span - low], dense)
+            return (dense[frames], tangent, dense_rot6d[frames], dense_contacts[frames], dense), layout, layout.last_control
 
     def example_loss(params, batch_item, rng):
-        pos, tangent, rot6d, contacts, dense = batch_item
+        (pos, tangent, rot6d, contacts, dense), layout, last_control = window(batch_item, rng)
+        k_ctrl = layout.num_controls
         t_key, noise_key, cond_key, drop_key, dropout_key = jax.random.split(rng, 5)
         # Augmentation draws from a key folded off rng, so without it the stream is the paper's.
         pos, tangent, rot6d, contacts, dense = augment(
@@ -189,7 +263,9 @@ def make_bmm_train_step(
         t = jax.random.randint(t_key, (), 0, schedule.num_timesteps)
         x0 = to_tokens(stats.normalize(control_features(pos, tangent, rot6d)))
         x_t = schedule.add_noise(x0, t, jax.random.normal(noise_key, x0.shape, x0.dtype))
-        control, joint, valid = draw_intermediate_slots(cond_key, k_ctrl, k_joints, train_config.max_intermediate_handles)
+        control, joint, valid = draw_intermediate_slots(
+            cond_key, k_ctrl, k_joints, train_config.max_intermediate_handles, last_control=last_control
+        )
         # Off-grid frames draw from a key folded off cond_key, so the paper's setting
         # (off_grid_handles = 0, nothing drawn) keeps its random stream.
         frame = draw_handle_frames(jax.random.fold_in(cond_key, 1), control, layout, train_config.off_grid_handles)
@@ -197,13 +273,15 @@ def make_bmm_train_step(
         conditions = inbetween_conditions(layout.num_frames, pos[0], pos[-1], Handles(joint, frame, position, valid))
         # Classifier-free guidance: drop every condition of this example at once.
         conditions = conditions._replace(valid=conditions.valid & ~jax.random.bernoulli(drop_key, train_config.condition_dropout))
-        mask, _ = conditions.to_grid(k_ctrl, k_joints, model_config.stride)
+        mask, _ = grid_conditions(layout, conditions, k_joints)
         off_grid = None
         if train_config.off_grid_handles:
             n = 2 * k_joints  # the handles follow the start and end slots
-            off_grid = Handles(joint, conditions.frame[n:], position, conditions.valid[n:] & (frame % model_config.stride != 0))
+            off_grid = Handles(joint, conditions.frame[n:], position, conditions.valid[n:] & (frame % stride != 0))
         conditions = normalize_conditions(stats, conditions)
-        pred_tokens, contact_logits = predict_x0(nnx.merge(graphdef, params), stats, x_t, t, conditions, key=dropout_key)
+        pred_tokens, contact_logits = predict_x0(
+            nnx.merge(graphdef, params), stats, x_t, t, conditions, key=dropout_key, layout=None if last_control is None else layout
+        )
         pred_pos, pred_tangent, pred_rot6d = split_features(stats.denormalize(from_tokens(pred_tokens)))
         terms = bmm_loss_terms(
             layout, pred_pos, pred_tangent, pred_rot6d, contact_logits, pos, tangent, rot6d, contacts, dense, mask,
@@ -216,9 +294,9 @@ def make_bmm_train_step(
         losses, terms = jax.vmap(example_loss, in_axes=(None, 0, 0))(params, batch, rngs)
         return jnp.mean(losses), jax.tree.map(jnp.mean, terms)
 
-    def step(state: TrainState, data: CurveArrays) -> tuple[TrainState, dict[str, Array]]:
+    def step(state: TrainState, data: CurveArrays | DenseWindows) -> tuple[TrainState, dict[str, Array]]:
         key, index_key, example_key = jax.random.split(state.key, 3)
-        index = jax.random.randint(index_key, (train_config.batch_size,), 0, data.ctrl_pos.shape[0])
+        index = jax.random.randint(index_key, (train_config.batch_size,), 0, data[0].shape[0])
         batch = jax.tree.map(lambda a: shard_batch(a[index], mesh), tuple(data))
         rngs = jax.random.split(example_key, train_config.batch_size)
         return apply_gradients(state, optimizer, loss_fn, batch, rngs, next_key=key, ema_decay=train_config.ema_decay)
@@ -230,6 +308,8 @@ __all__ = [
     "LR_SCHEDULES",
     "BMMTrainConfig",
     "CurveArrays",
+    "DenseWindows",
+    "span_fit_operators",
     "init_bmm_train_state",
     "init_bmm_train_states",
     "make_bmm_train_step",

@@ -6,6 +6,7 @@ import dataclasses
 import re
 from collections.abc import Sequence
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import jax.numpy as jnp
@@ -135,14 +136,14 @@ def handle_role(request: HandleRequest, recognised: RecognisedCharacter) -> str:
 
 
 def resolve_handles(
-    requests: Sequence[HandleRequest], recognised: RecognisedCharacter, keys: Sequence[Pose], bmm: BezierMotionModel
+    requests: Sequence[HandleRequest], recognised: RecognisedCharacter, keys: Sequence[Pose], bmm: BezierMotionModel, *, span: int | None = None
 ) -> tuple[Handles, list[dict[str, Any]]]:
     """``(Handles, [{"joint", "frame", "position"}])`` of the requests: offsets made positions,
     every handle checked.
 
     Args:
-      keys: the key poses, ``bmm.config.num_frames − 1`` (30) frames apart: two for one
-        window, more for a chain.
+      keys: the key poses, ``span`` frames apart: two for one window, more for a chain.
+      span: frames from one key to the next (default the BMM's window, ``bmm.config.num_frames − 1``: 30).
     Returns:
       The handles ``(slots,)`` in the in-between's frames (counted from the first key),
       padded (``valid=False``) to a multiple of :data:`HANDLE_SLOTS` so that another count
@@ -154,7 +155,8 @@ def resolve_handles(
         it was written.
     """
     character = recognised.character
-    span = bmm.config.num_frames - 1
+    span = bmm.config.num_frames - 1 if span is None else span
+    shape = SimpleNamespace(num_frames=span + 1, num_joints=bmm.config.num_joints)  # what Handles.from_frames checks against
     last = span * (len(keys) - 1)
     idx = np.asarray(character.characteristic)
     key_positions = np.stack([np.asarray(pose_fk(character, p)[1])[idx] for p in keys])  # (keys, 6, 3)
@@ -182,7 +184,7 @@ def resolve_handles(
             shown = ", ".join(f"({', '.join(f'{x:.2f}' for x in p)})" for p in (earlier[1], position))
             raise ValueError(f"{r.source}: {role} at frame {r.frame} has another handle, {earlier[0]}, at a different position: {shown} cm")
         try:  # the sampler's own rules for handle frames, reported with the handle as written
-            Handles.from_frames([role], [local], position[None], config=bmm.config)
+            Handles.from_frames([role], [local], position[None], config=shape)
         except ValueError as error:
             raise ValueError(f"{r.source}: {error}") from None
         records.append({"joint": role, "frame": r.frame, "position": position.tolist()})

@@ -129,7 +129,7 @@ def run_inbetween(args: InbetweenCommand, *, say: Callable[[str], None] | None =
     character = p.recognised.character
     n = len(p.outputs)
     windows = len(p.keys) - 1
-    frames = windows * (p.bmm.config.num_frames - 1) + 1
+    frames = windows * p.span + 1
     say(
         f"{p.label}: {character.name} ({character.num_joints} joints), BMM {p.models['bmm']}, IK {p.ik}"
         + (f" (learned IK {p.models['ik']})" if p.models["ik"] is not None else "") + f", {len(p.handle_records)} handle(s), "
@@ -151,14 +151,14 @@ def run_inbetween(args: InbetweenCommand, *, say: Callable[[str], None] | None =
         t0 = time.perf_counter()
         say(f"sample {k + 1}/{n}" + (" (compiling first, about a minute on a CPU) …" if k == 0 else " …"))
         result = inbetween(
-            model, keys, p.handles, key=sample_key(args.seed, k), options=options, key_velocity=p.key_velocity
+            model, keys, p.handles, key=sample_key(args.seed, k), options=options, key_velocity=p.key_velocity, span=p.span
         )
         curves = result.joined_curves()  # one curve through every key (C¹ there)
         seconds = time.perf_counter() - t0
         motion = pose_to_bvh(character, result.pose, **export)
         files = ResultFiles(
             character, motion, curves, p.bmm.config.stride, tuple(p.handle_records), p.reference,
-            f"{p.label}, sample {k}" if n > 1 else p.label, tuple(range(0, frames, p.bmm.config.num_frames - 1)), p.clip_frame,
+            f"{p.label}, sample {k}" if n > 1 else p.label, tuple(range(0, frames, p.span)), p.clip_frame,
             bvh_fps=p.bvh_fps,
         )  # fmt: skip
         _, pos = pose_fk(character, result.pose)
@@ -183,6 +183,7 @@ def run_inbetween(args: InbetweenCommand, *, say: Callable[[str], None] | None =
         "joints": character.num_joints,
         "frames": frames,
         "windows": windows,
+        "gap": p.span,
         "fps": p.start_motion.nominal_fps,
         "clip_fps": p.clip_fps,
         "bvh_fps": p.bvh_fps,

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from bezmotion.assets.registry import trained_for
-from bezmotion.bmm.sampling import BezierMotionModel, Handles, load_model
+from bezmotion.bmm.sampling import MAX_WINDOW_FRAMES, BezierMotionModel, Handles, load_model, window_frames
 from bezmotion.data.bvh import BvhMotion, read_bvh
 from bezmotion.data.clip_frame import CM_PER_UNIT, TYPICAL_PERSON_CM, UP_AXES, ClipFrame, cm_per_unit, detect_units, detect_up, skeleton_size
 from bezmotion.data.resample import TRAINED_FPS, resample_motion
@@ -65,19 +65,24 @@ class InbetweenCommand:
     clip: Path | None = option(None, positional=True, metavar="CLIP.bvh", help="one BVH file holding both key poses (with --frames)")
     frames: tuple[int, ...] | None = option(
         None, metavar="FRAME",
-        help="the key frames in CLIP, one second apart (the BMM's window: 30 frames at 30 fps, 120 at 120 fps): START END, or more "
-        "for a chain through every one (C¹ at the shared keys)",
+        help="the key frames in CLIP, any distance apart (2 … 900 frames at 30 fps): START END, or more, evenly spaced, for a "
+        "chain through every one (C¹ at the shared keys; the spacing a multiple of 6 frames at 30 fps)",
     )  # fmt: skip
     start: str | None = option(None, metavar="FILE.bvh@FRAME", help="the start pose (default frame 0)")
-    end: str | None = option(None, metavar="FILE.bvh@FRAME", help="the end pose (default the last frame), put 30 frames after the start")
+    end: str | None = option(None, metavar="FILE.bvh@FRAME", help="the end pose (default the last frame), put --gap frames after the start")
     key: tuple[str, ...] = option(
         (), repeat=True, metavar="FILE.bvh@FRAME",
-        help="a key pose, repeatable (two or more, instead of --start/--end): a chain through them in order, each put 30 frames after "
-        "the one before (without @FRAME: the first frame, the last key's last frame)",
+        help="a key pose, repeatable (two or more, instead of --start/--end): a chain through them in order, each put --gap frames "
+        "after the one before (without @FRAME: the first frame, the last key's last frame)",
+    )  # fmt: skip
+    gap: int | None = option(
+        None, metavar="N",
+        help="with --start/--end or --key: frames from one key to the next at 30 fps, 2 … 900 (default 30, the BMM's window; "
+        "a chain's a multiple of 6); with CLIP --frames the clip's own spacing is the gap",
     )  # fmt: skip
     handle: tuple[str, ...] = option(
         (), repeat=True, metavar="JOINT@FRAME=X,Y,Z",
-        help="a handle, repeatable: the joint's position (cm) at a frame 0…30 of the in-between (0…30·K through K + 1 keys); "
+        help="a handle, repeatable: the joint's position (cm) at a frame 0…GAP of the in-between (0…GAP·K through K + 1 keys; GAP 30 by default); "
         "a leading + (JOINT@FRAME=+X,Y,Z) offsets it from the straight line between the keys around it",
     )  # fmt: skip
     handles: Path | None = option(None, metavar="FILE", help='a JSON or TOML handles file: [{"joint", "frame", "position" or "offset"}]')
@@ -218,6 +223,7 @@ class Plan:
     out_dir: Path = Path()  # where the outputs go: the --out folder, or the --out file's
     set_name: str = ""  # their set's name there (_replacing)
     existing: ExistingOutputs = ExistingOutputs()  # what the outputs replace (ours, and theirs with --force) and remove (stale)
+    span: int = 30  # frames from one key to the next at TRAINED_FPS
 
 
 SUMMARY = "summary.json"
@@ -359,26 +365,8 @@ def plan(args: InbetweenCommand) -> Plan:
         bmm = load_model(bmm_dir, verify=args.verify)
     except (FileNotFoundError, ValueError, TypeError) as error:
         raise argument_error("--model" if args.model is not None else "the default BMM", model_name, error) from None
-    window = bmm.config.num_frames
     clip_fps = start_motion.nominal_fps
-    if args.clip is not None:
-        shown = " ".join(map(str, args.frames))
-        # The BMM's window is window − 1 frames at TRAINED_FPS: so many seconds of the clip.
-        apart = (window - 1) * clip_fps / TRAINED_FPS
-        if apart < 0.5 or abs(apart - round(apart)) > 1e-6:
-            raise ValueError(
-                f"CLIP {args.clip}: at {clip_fps:g} fps no whole number of frames spans the BMM's window of {window - 1} frames at "
-                f"{TRAINED_FPS:g} fps ({(window - 1) / TRAINED_FPS:g} s); resample the clip to {TRAINED_FPS:g} fps, or give the keys with --start/--end"
-            )
-        apart = round(apart)
-        rate = "" if apart == window - 1 else f" ({(window - 1) / TRAINED_FPS:g} s at the clip's {clip_fps:g} fps)"
-        for a, b in zip(args.frames, args.frames[1:]):
-            if b - a != apart:
-                retime = f", or --start {args.clip}@{a} --end {args.clip}@{b} to put these two poses {window - 1} frames apart" if len(args.frames) == 2 else ""
-                raise ValueError(
-                    f"--frames {shown}: the keys{'' if len(args.frames) == 2 else f' {a} and {b}'} are {b - a} frames apart; the BMM in-betweens {apart}{rate} "
-                    f"(a {window}-frame window): {_frames_advice(args.frames, apart, start_motion.num_frames)}{retime}"
-                )
+    span = _key_gap(args, bmm, clip_fps, len(keys))
     # Every clip at the BMM's frame rate from here on (its window, thresholds and velocities count those frames).
     bvh_fps = bvh_frame_rate(args.bvh_fps, clip_fps)
     keys, rate_warnings = _at_trained_rate(keys, bvh_fps)
@@ -433,24 +421,54 @@ def plan(args: InbetweenCommand) -> Plan:
         chosen = f"--ik {ik}" if args.ik != "auto" else f"{path0}: the IK chosen for this skeleton ({ik})"
         raise ValueError(f"{chosen}: {fit}{error}") from None
 
-    handles, records = resolve_handles(requests, recognised, key_poses, bmm)
+    handles, records = resolve_handles(requests, recognised, key_poses, bmm, span=span)
     reach = reach_chains(make_rig(character, recognised.rig_spec, rest_quat_local=np.asarray(key_poses[0].quat_local)))
     return Plan(
         recognised, start_motion, key_poses, reference, bmm, ik, ik_fn, ik_params, transfer, handles, records, reach, outputs, folder,
         label, key_velocity, {"bmm": model_name, "ik": None if ik_model is None else ik_model_name}, clip_frame, tuple(frame_warnings),
-        clip_fps, bvh_fps, transferred, out_dir, set_name, existing,
+        clip_fps, bvh_fps, transferred, out_dir, set_name, existing, span,
     )  # fmt: skip
 
 
-def _frames_advice(frames: Sequence[int], apart: int, num_frames: int) -> str:
-    """``use --frames …``: as many key frames as ``frames``, ``apart`` frames apart in a clip
-    of ``num_frames`` frames, from the first of ``frames`` or as near it as the clip allows;
-    or why the clip has no such frames."""
-    span = (len(frames) - 1) * apart
-    if span > num_frames - 1:
-        return f"the clip's {num_frames} frames are too few for {len(frames)} keys {apart} frames apart"
-    first = min(max(frames[0], 0), num_frames - 1 - span)
-    return "use --frames " + " ".join(str(first + i * apart) for i in range(len(frames)))
+def _key_gap(args: InbetweenCommand, bmm: BezierMotionModel, clip_fps: float, num_keys: int) -> int:
+    """Frames from one key to the next at :data:`TRAINED_FPS`: CLIP ``--frames``' own spacing
+    (the clip's frames at its rate), else ``--gap``, else the BMM's window (30); checked."""
+    if args.clip is not None:
+        shown = " ".join(map(str, args.frames))
+        if args.gap is not None:
+            raise ValueError(f"--gap {args.gap}: goes with --start/--end or --key; CLIP --frames {shown} keeps the clip's own spacing")
+        gaps = sorted({b - a for a, b in zip(args.frames, args.frames[1:])})
+        if len(gaps) > 1:
+            raise ValueError(
+                f"--frames {shown}: the keys are {' and '.join(map(str, gaps))} frames apart; a chain's keys are evenly spaced "
+                "(one window length for all): in-between each pair on its own, or give evenly spaced keys"
+            )
+        gap = gaps[0] * TRAINED_FPS / clip_fps  # the clip's gap in the frames the BMM counts
+        if abs(gap - round(gap)) > 1e-6:
+            whole_rate = abs(clip_fps - round(clip_fps)) < 1e-6  # then a whole number of the clip's frames makes whole 30 fps frames
+            advice = (
+                f"space the keys a multiple of {round(clip_fps) // np.gcd(round(clip_fps), round(TRAINED_FPS))} frames apart" if whole_rate
+                else f"resample the clip to {TRAINED_FPS:g} fps"
+            )  # fmt: skip
+            raise ValueError(
+                f"--frames {shown}: {gaps[0]} frames at the clip's {clip_fps:g} fps are {gap:.4g} frames at {TRAINED_FPS:g} fps, "
+                f"not a whole number; {advice}, or give the keys with --start/--end and --gap"
+            )
+        span, given = round(gap), f"--frames {shown}"
+    else:
+        span = bmm.config.num_frames - 1 if args.gap is None else args.gap
+        given = f"--gap {span}"
+    try:
+        window_frames(bmm.config, span + 1)
+    except ValueError:
+        raise ValueError(f"{given}: keys are 2 … {MAX_WINDOW_FRAMES - 1} frames apart at {TRAINED_FPS:g} fps, got {span}") from None
+    stride = bmm.config.stride
+    if num_keys > 2 and span % stride:
+        raise ValueError(
+            f"{given}: a chain's keys are a multiple of {stride} frames apart at {TRAINED_FPS:g} fps (its windows share the control "
+            f"points at the keys), got {span}; try {max(stride, stride * round(span / stride))}"
+        )
+    return span
 
 
 def bvh_frame_rate(choice: str, clip_fps: float) -> float:

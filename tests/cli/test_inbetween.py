@@ -19,6 +19,7 @@ import os
 import re
 import shutil
 
+import jax.numpy as jnp
 import numpy as np
 import pytest
 
@@ -296,12 +297,43 @@ def test_a_clip_at_120_fps_is_in_betweened_at_the_models_30_over_one_second(tmp_
     np.testing.assert_allclose(fk_positions(written), at_30, atol=1e-3)
     assert runs["30"][0]["clip_fps"] == 30.0 and runs["30"][0]["bvh_fps"] == 30.0 and not runs["30"][0]["input_warnings"]
     code, _, stderr = run_cli(clip, "--frames", "0", "30", *FAST)
-    assert code == 2 and "--frames 0 30: the keys are 30 frames apart; the BMM in-betweens 120 (1 s at the clip's 120 fps)" in stderr, stderr
-    assert "use --frames 0 120" in stderr
+    assert code == 2 and (
+        "--frames 0 30: 30 frames at the clip's 120 fps are 7.5 frames at 30 fps, not a whole number; space the keys a multiple of 4 frames apart"
+    ) in stderr, stderr
     ntsc = tmp_path / "ntsc.bvh"
     write_bvh(ntsc, dataclasses.replace(read_bvh(DEMO_CLIP), frame_time=1.0 / 29.97))
     code, _, stderr = run_cli(ntsc, "--frames", "0", "30", *FAST)
-    assert code == 2 and f"CLIP {ntsc}: at 29.97 fps no whole number of frames spans the BMM's window of 30 frames at 30 fps (1 s)" in stderr, stderr
+    assert code == 2 and "--frames 0 30: 30 frames at the clip's 29.97 fps are 30.03 frames at 30 fps, not a whole number; resample the clip to 30 fps" in stderr, stderr
+
+
+def test_keys_any_distance_apart_keep_the_clips_timing(tmp_path):
+    """CLIP ``--frames 5 25``: keys 20 frames apart in-between 21 frames, not retimed to 30;
+    ``--start/--end --gap 45``: two poses put 45 frames apart. Keys, handles and the glTF
+    file's curves (the last segment shorter) as at 30 frames."""
+    from bezmotion.bezier import BezierLayout, evaluate
+    from bezmotion.pipeline.gltf import read_glb
+
+    clip = read_bvh(DEMO_CLIP)
+    cases = {
+        "clip": ([DEMO_CLIP, "--frames", "5", "25", "--handle", "right_hand@8=+0,20,0"], 20, (5, 25)),
+        "gap": (["--start", f"{DEMO_CLIP}@0", "--end", f"{DEMO_CLIP}@39", "--gap", "45", "--handle", "left_hand@31=+0,10,0"], 45, (0, 39)),
+    }
+    for name, (argv, gap, keys) in cases.items():
+        out = tmp_path / name
+        code, _, stderr = run_cli(*argv, "--out", out, *FAST)
+        assert code == 0, stderr
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["gap"] == gap and summary["frames"] == gap + 1
+        written = read_bvh(out / "inbetween.bvh")
+        assert written.num_frames == gap + 1
+        pos, given = fk_positions(written), fk_positions(clip)
+        np.testing.assert_allclose(pos[[0, -1]], given[list(keys)], atol=1e-3)
+        assert max(summary["samples"][0]["handle_errors_cm"]) < 1e-3 and summary["samples"][0]["bvh_fk_error_cm"] < 1e-3
+        glb = read_glb(out / "inbetween.glb")
+        assert glb.layout == BezierLayout(gap + 1) and glb.key_frames == [0, gap]
+        (handle,) = summary["handles"]
+        dense = np.asarray(evaluate(glb.layout, *(jnp.asarray(a.swapaxes(0, 1), jnp.float32) for a in (glb.ctrl_pos, glb.ctrl_tangent))))  # (6, frames, 3)
+        np.testing.assert_allclose(dense[glb.joints.index(handle["joint"]), handle["frame"]], handle["position"], atol=1e-3)
 
 
 def test_a_clip_in_no_named_unit_is_taken_for_a_typical_adult_and_said(tmp_path):
@@ -603,11 +635,9 @@ def _cases(tmp):
         "a clip without frames": ([f"{tmp}/frameless.bvh", "--frames", "0", "30"], "--frames 0 30: frame 0 is out of range; the file has no frames"),
         "end frame out of the clip": (["--start", f"{clip}@0", "--end", f"{clip}@40"], f"--end {clip}@40: frame 40 is out of range"),
         "handle frame out of the in-between": ([*keys, "--handle", "head@31=+0,1,0"], "--handle head@31=+0,1,0: frame 31 is outside the in-between, frames 0…30"),
-        "keys not 30 frames apart": ([clip, "--frames", "0", "20"], "--frames 0 20: the keys are 20 frames apart; the BMM in-betweens 30"),
-        "keys apart near the clip's end": (
-            [clip, "--frames", "20", "35"], "--frames 20 35: the keys are 15 frames apart; the BMM in-betweens 30 (a 31-frame window): use --frames 9 39,"
-        ),
-        "keys on one frame": ([clip, "--frames", "4", "4"], "the keys are 0 frames apart; the BMM in-betweens 30 (a 31-frame window): use --frames 4 34,"),
+        "keys on one frame": ([clip, "--frames", "4", "4"], "--frames 4 4: keys are 2 … 900 frames apart at 30 fps, got 0"),
+        "keys one frame apart": (["--start", f"{clip}@0", "--end", f"{clip}@9", "--gap", "1"], "--gap 1: keys are 2 … 900 frames apart at 30 fps, got 1"),
+        "a gap beside the clip's frames": ([*keys, "--gap", "45"], "--gap 45: goes with --start/--end or --key; CLIP --frames 0 30 keeps the clip's own spacing"),
         "not a BVH file": ([f"{tmp}/notes.bvh", "--frames", "0", "30"], f"CLIP {tmp}/notes.bvh: "),
         "missing clip": ([f"{tmp}/missing.bvh", "--frames", "0", "30"], f"CLIP {tmp}/missing.bvh: no such file"),
         "missing end file": (["--start", f"{clip}@0", "--end", f"{tmp}/nope.bvh@30"], f"--end {tmp}/nope.bvh@30: no such file"),
@@ -656,10 +686,12 @@ def _cases(tmp):
         "one --key": (["--key", f"{clip}@3"], f"--key {clip}@3: needs at least two --key poses"),
         "keys given two ways": ([*keys, "--key", f"{clip}@3", "--key", f"{clip}@9"], f"CLIP {clip}: give the keys one way"),
         "a --key frame out of its file": (["--key", f"{clip}@3", "--key", f"{clip}@40"], f"--key {clip}@40: frame 40 is out of range"),
-        "chain keys not 30 frames apart": (
-            [clip, "--frames", "0", "30", "35"],
-            "--frames 0 30 35: the keys 30 and 35 are 5 frames apart; the BMM in-betweens 30 (a 31-frame window): the clip's 40 frames "
-            "are too few for 3 keys 30 frames apart",
+        "chain keys unevenly spaced": (
+            [clip, "--frames", "0", "30", "35"], "--frames 0 30 35: the keys are 5 and 30 frames apart; a chain's keys are evenly spaced"
+        ),
+        "chain keys off the control grid": (
+            [clip, "--frames", "0", "10", "20"],
+            "--frames 0 10 20: a chain's keys are a multiple of 6 frames apart at 30 fps (its windows share the control points at the keys), got 10; try 12",
         ),
         "key velocity before the clip": ([*keys, "--key-velocities"], f"--key-velocities: the start key {clip} is the first frame of its file; its velocity needs the frame before it"),
         "key velocity after the clip": (
