@@ -10,8 +10,13 @@ target frame, n = 5 / 15 / 30 / 45 missing frames; L2Q, L2P and NPSS. Rows:
 - ``delta``: the Δ-interpolator trained by ``experiments/delta_lafan1.py``, restored from
   its run folder (``--delta-run``; the newest checkpoint, every seed in it, metrics averaged
   over seeds), with the steps and epochs it had trained;
-- ``bmm``: the keys are ``n + 1`` frames apart, and the BMMs here learned 31-frame windows
-  only, so the row is absent and ``missing`` says why.
+- ``bmm``: a saved BMM (``--bmm``, e.g. one trained with ``experiments/bmm_lafan1.py --corpus
+  lafan1 --spans 6 60``) in-betweens the last past frame and the target frame, ``n + 1``
+  frames apart, through its curves and the exact IK from the analytic rig (``exact_rig``:
+  LaFAN1's learned IK is not trained here); keys' positions and orientations only (the
+  past frames' velocity is not given to it). One sample (``bmm``), and the mean of
+  ``--bmm-samples`` samples' curves put through the IK once (``bmm_mean``: what sampling
+  costs on a deterministic metric). Without ``--bmm`` the row is absent and ``missing`` says why.
 
 ``published`` holds the records on the full LaFAN1 test set (2,232 windows;
 ``../shared/REFERENCE.md`` §1 and §6), which our subset's windows are not: compare the
@@ -27,6 +32,7 @@ import time
 from pathlib import Path
 
 import jax
+import jax.numpy as jnp
 import numpy as np
 
 from _common import runs_dir
@@ -36,11 +42,21 @@ from bezmotion.data.lafan1 import JOINT_NAMES, PARENTS
 from bezmotion.data.sources import default_source
 from bezmotion.delta.model import DeltaConfig, delta_inbetweener
 from bezmotion.delta.train import DeltaTrainConfig, init_delta_train_states
-from bezmotion.evaluation.lafan1 import TRANSITION_LENGTHS, evaluate_baselines, evaluate_transitions, lafan1_benchmark
+from bezmotion.bmm.sampling import load_model
+from bezmotion.data.sources import load_corpus
+from bezmotion.evaluation.lafan1 import N_PAST, TRANSITION_LENGTHS, evaluate_baselines, evaluate_transitions, lafan1_benchmark
+from bezmotion.handles import Handles
+from bezmotion.ik.frames import corpus_character
+from bezmotion.ik.protocol import Pose
+from bezmotion.pipeline.authoring import RecognisedCharacter, derive_rig_spec, make_ik
+from bezmotion.pipeline.inbetweening import InbetweenOptions, curves_traced, result_from_curves
+from bezmotion.pipeline.model import Inbetweener
+from bezmotion.pipeline.transfer import Transfer
 from bezmotion.geometry import Skeleton
 from bezmotion.training.checkpoint import CheckpointStore
 
 METRICS = ("l2q", "l2p", "npss")
+ROWS = ("zerov", "interp", "delta", "bmm", "bmm_mean")
 LENGTHS = tuple(str(n) for n in TRANSITION_LENGTHS)
 
 
@@ -65,8 +81,8 @@ PUBLISHED_NAMES = {
 }  # fmt: skip
 
 BMM_MISSING = (
-    "the benchmark's keys are n + 1 frames apart (6, 16, 31, 46); the BMM samples windows of any length, but the "
-    "BMMs here learned 31-frame windows (and none of LaFAN1 is trained locally): the row waits for a LaFAN1 BMM trained on windows of those lengths"
+    "no --bmm given: the benchmark's keys are n + 1 frames apart (6, 16, 31, 46), so the row wants a LaFAN1 BMM trained on windows "
+    "of those lengths (experiments/bmm_lafan1.py --corpus lafan1 --spans 6 60)"
 )
 
 
@@ -79,6 +95,9 @@ class Options:
         help="the Δ-interpolator's checkpoint folder (experiments/delta_lafan1.py's <run-dir>/last-interpolation/checkpoints)",
     )
     eval_batch: int = option(256, help="test windows per vectorised chunk")
+    bmm: str | None = option(None, help="a saved BMM's folder (bmm_lafan1.py's <run-dir>/model) for the bmm rows; default: none")
+    bmm_samples: int = option(8, help="samples whose mean curves make the bmm_mean row")
+    bmm_batch: int = option(16, help="test windows per vectorised BMM chunk")
     no_cache: bool = option(False, help="re-parse the corpus instead of using the cache")
 
 
@@ -97,6 +116,53 @@ def restore_delta(folder: Path):
         store.close()
     seeds = len(config["train"]["seeds"])
     return graphdef, [jax.tree.map(lambda x, i=i: x[i], state.params) for i in range(seeds)], config, int(np.asarray(state.step).ravel()[0])
+
+
+def bmm_model(bmm_dir: str, data: str, no_cache: bool) -> Inbetweener:
+    """The saved BMM with the exact IK from the analytic rig, on LaFAN1's character."""
+    character = corpus_character(load_corpus("lafan1", source=data, use_cache=not no_cache))
+    recognised = RecognisedCharacter(character, "lafan1", derive_rig_spec(character))
+    rest = np.tile(np.asarray([1.0, 0.0, 0.0, 0.0], np.float32), (character.num_joints, 1))
+    ik_fn, ik_params = make_ik("exact_rig", recognised, rest_quat_local=rest)
+    return Inbetweener(load_model(bmm_dir), ik_fn, ik_params, character)
+
+
+def bmm_transitions(bench, model: Inbetweener, n: int, *, samples: int, batch: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """``(quat (W, n, 22, 4), root (W, n, 3))``: each test window's in-between of its last past
+    frame and its target frame (``n + 1`` frames apart); ``samples > 1``: the mean of that many
+    samples' curves, through the IK once."""
+    w = bench.windows
+    ends = np.asarray([N_PAST - 1, N_PAST + n])
+    keys = Pose(root_pos=np.asarray(w.root_pos[:, ends], np.float32), quat_local=np.asarray(w.quat_local[:, ends], np.float32))
+    none = Handles(jnp.zeros((1, 1), jnp.int32), jnp.zeros((1, 1), jnp.int32), jnp.zeros((1, 1, 3)), jnp.zeros((1, 1), bool))
+    options, transfer = InbetweenOptions(), Transfer.identity()
+
+    def one(keys: Pose, key):
+        draws = jax.vmap(lambda k: curves_traced(model.bmm, model.character, keys, none, transfer, k, options, checked=False, span=n + 1))(
+            jax.random.split(key, samples)
+        )  # fmt: skip
+        windows = jax.tree.map(lambda a: jnp.mean(a, axis=0), draws)
+        pose = result_from_curves(model, windows, keys, none, options).pose
+        return pose.quat_local[1:-1], pose.root_pos[1:-1]
+
+    run = jax.jit(jax.vmap(one))
+    quat, root = [], []
+    for lo in range(0, w.num_windows, batch):
+        part = jax.tree.map(lambda a: a[lo : lo + batch], keys)
+        count = part.root_pos.shape[0]
+        padded = jax.tree.map(lambda a: np.concatenate([a, np.repeat(a[:1], batch - count, axis=0)]), part)  # one compiled shape
+        keys_per_window = jax.random.split(jax.random.fold_in(jax.random.key(seed), lo), batch)
+        q, r = run(padded, keys_per_window)
+        quat.append(np.asarray(q)[:count])
+        root.append(np.asarray(r)[:count])
+    return np.concatenate(quat), np.concatenate(root)
+
+
+def evaluate_bmm(bench, model: Inbetweener, samples: int, batch: int) -> dict:
+    """Official metrics of the BMM's in-betweens (precomputed per length outside the
+    evaluator's float64 mode, then scored by it)."""
+    predicted = {n: bmm_transitions(bench, model, n, samples=samples, batch=batch) for n in TRANSITION_LENGTHS}
+    return evaluate_transitions(bench, lambda pq, pr, tq, tr, n: tuple(jnp.asarray(a, jnp.float64) for a in predicted[n]), TRANSITION_LENGTHS)
 
 
 def ratios(rows: dict, denominator: dict) -> dict:
@@ -120,8 +186,11 @@ def table(rows: dict, names: dict, fmt: str = "{:.3f}") -> str:
 
 
 def report(results: dict) -> str:
-    ours = {k: results[k] for k in ("zerov", "interp", "delta") if k in results}
-    names = {"zerov": "zero-velocity", "interp": "interpolation", "delta": f"Δ-interpolator here ({results['delta_training']['steps']} steps)"}
+    ours = {k: results[k] for k in ROWS if k in results}
+    names = {
+        "zerov": "zero-velocity", "interp": "interpolation", "delta": f"Δ-interpolator here ({results['delta_training']['steps']} steps)",
+        "bmm": "BMM here, one sample", "bmm_mean": f"BMM here, mean of {results.get('bmm_model', {}).get('samples')} samples",
+    }  # fmt: skip
     return "\n\n".join([
         f"# LaFAN1 benchmark, {results['n_windows']} test windows of the subset (official metrics)",
         table(ours, names, "{:.4f}"),
@@ -131,7 +200,7 @@ def report(results: dict) -> str:
         table(results["versus_delta"], names),
         "Published, the full LaFAN1 test set (not our subset):",
         table(PUBLISHED, PUBLISHED_NAMES),
-        f"BMM: {results['missing']['bmm']}",
+        *([f"BMM: {results['missing']['bmm']}"] if "bmm" in results.get("missing", {}) else [f"BMM: {results['bmm_model']}"]),
     ])  # fmt: skip
 
 
@@ -151,8 +220,15 @@ def main(argv: list[str] | None = None) -> dict:
         "run": str(args.delta_run), "steps": step, "schedule_steps": schedule_steps, "finished": step >= schedule_steps,
         "seeds": config["train"]["seeds"], "model": config["model"] | {"parents": None},
     }  # fmt: skip
-    results["missing"] = {"bmm": BMM_MISSING}
-    ours = {k: results[k] for k in ("zerov", "interp", "delta")}
+    if args.bmm:
+        model = bmm_model(args.bmm, args.data, args.no_cache)
+        t0 = time.perf_counter()
+        results["bmm"] = evaluate_bmm(bench, model, 1, args.bmm_batch)
+        results["bmm_mean"] = evaluate_bmm(bench, model, args.bmm_samples, args.bmm_batch)
+        results["bmm_model"] = {"folder": args.bmm, "ik": "exact_rig", "samples": args.bmm_samples, "steps": 10, "wall_s": time.perf_counter() - t0}
+    else:
+        results["missing"] = {"bmm": BMM_MISSING}
+    ours = {k: results[k] for k in ROWS if k in results}
     results["ratio_to_interp"] = {
         **ratios(ours, results["interp"]),
         **{f"published_{k}": v for k, v in ratios(PUBLISHED, PUBLISHED["interp"]).items()},

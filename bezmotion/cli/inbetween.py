@@ -7,25 +7,24 @@
 
 **Keys.** One file and two frames (``CLIP.bvh --frames F G``), or a file and a frame each
 (``--start A.bvh@F --end B.bvh@G``; without ``@`` the start is frame 0 and the end the
-last frame). The BMM in-betweens a fixed window of ``bmm.config.num_frames`` frames (31:
-the keys are 30 frames apart at 30 fps, the rate every model here was trained at). With
-``--frames`` the keys must be that far apart in the clip, one second (120 frames at 120
-fps: a clip at another rate is resampled to 30 fps through its keys first,
+last frame). The keys may be any distance apart, 2 … 900 frames at 30 fps (the rate every
+model here was trained at): with ``--frames`` the clip's own distance, so the in-between
+keeps its timing (a clip at another rate is resampled to 30 fps through its keys first,
 :func:`~bezmotion.data.resample.resample_motion`, and the in-between's BVH file written at
-the clip's rate where that is a whole multiple of 30 fps, ``--bvh-fps``) —
-the command refuses another distance rather than silently retiming the clip;
-``--start``/``--end`` take any two poses (also of one file) and put them 30 frames apart.
-More than two ``--frames`` (``CLIP.bvh --frames 0 30 60 90``, each 30 after the one before)
+the clip's rate where that is a whole multiple of 30 fps, ``--bvh-fps``; a distance that is
+no whole number of 30 fps frames is refused); ``--start``/``--end`` put two poses ``--gap``
+frames apart (default 30, the BMM's window). More than two ``--frames``
+(``CLIP.bvh --frames 0 30 60 90``, evenly spaced, a multiple of 6 frames apart)
 in-between a chain through every one of them: one window per pair of consecutive keys, all
 sampled in one call and joined C¹ at the shared keys
 (:func:`~bezmotion.pipeline.inbetween`), then one IK over the whole motion.
 ``--key FILE.bvh@FRAME``, repeated, makes such a chain through any poses of any files, in
-the order given, each put 30 frames after the one before.
+the order given, each put ``--gap`` frames after the one before.
 Every key file must have the same joints; the output rigs like the first one (its OFFSETs
 and End Sites).
 
-**Handles** (any number; frames count from the first key, 0, to the last, 30 — or 30·K
-through K + 1 keys; a frame between two keys, not on one):
+**Handles** (any number; frames count from the first key, 0, to the last, the gap G (30 by
+default) — or G·K through K + 1 keys; a frame between two keys, not on one):
 
 - ``--handle JOINT@FRAME=X,Y,Z``: the joint at that frame is at ``(X, Y, Z)`` in the
   clip's world frame (cm for LaFAN1 and Bandai-Namco, +Y up);
