@@ -214,44 +214,54 @@ def init_bmm_train_states(
     return stack_seeds(lambda key: init_bmm_train_state(model_config, train_config, key=key), seeds)
 
 
-def make_bmm_train_step(
+def make_training_window(
+    model_config: BMMConfig, train_config: BMMTrainConfig
+) -> Callable[[tuple[Array, ...], Array], tuple[tuple[Array, ...], BezierLayout]]:
+    """``window(batch_item, rng) -> ((pos, tangent, rot6d, contacts, dense), layout)``: one
+    training example's curves and their layout. Fixed windows (``spans=None``): the
+    :class:`CurveArrays` item as it is, on the model's layout. ``spans``: a length drawn
+    from ``rng`` (a key folded off it, so the other draws are those of a fixed length), the
+    :class:`DenseWindows` item's first ``span + 1`` frames fitted on its grid, padded
+    (:class:`~bezmotion.bezier.PaddedLayout`; the padding's control points hold real frames
+    past the window, which nothing of the window reads)."""
+    stride = model_config.stride
+    if train_config.spans is None:
+        fixed = BezierLayout.from_controls(model_config.num_controls, stride)
+        return lambda batch_item, rng: (tuple(batch_item), fixed)
+    low, high = train_config.spans
+    operators = span_fit_operators(stride, low, high)
+
+    def window(batch_item, rng):
+        dense, dense_rot6d, dense_contacts = batch_item
+        if dense.shape[0] != high + 1:
+            raise ValueError(f"spans {train_config.spans} need DenseWindows of {high + 1} frames, got {dense.shape[0]}")
+        span = jax.random.randint(jax.random.fold_in(rng, 11), (), low, high + 1)
+        layout = PaddedLayout(span + 1, stride, high + 1)
+        frames = jnp.minimum(layout.control_frames, high)
+        tangent = exact_einsum("kf,fjd->kjd", operators[span - low], dense)
+        return (dense[frames], tangent, dense_rot6d[frames], dense_contacts[frames], dense), layout
+
+    return window
+
+
+def make_bmm_example_loss(
     graphdef: nnx.GraphDef,
     model_config: BMMConfig,
     train_config: BMMTrainConfig,
     stats: FeatureStats,
     *,
     schedule: DiffusionSchedule | None = None,
-    mesh: Mesh | None = None,
-) -> Callable[[TrainState, CurveArrays], tuple[TrainState, dict[str, Array]]]:
-    """The (un-jitted) single-seed training step; see :func:`compile_train_step`."""
+) -> Callable[[nnx.State, tuple[Array, ...], Array], tuple[Array, dict[str, Array]]]:
+    """``example_loss(params, batch_item, rng) -> (weighted loss, terms)`` of one example
+    (``batch_item``: one window of the step's ``data``), as the step computes it."""
     schedule = cosine_schedule(model_config.num_timesteps) if schedule is None else schedule
-    optimizer = train_config.optimizer()
     weights = train_config.weights
     k_joints, stride = model_config.num_joints, model_config.stride
-
-    if train_config.spans is None:
-        fixed = BezierLayout.from_controls(model_config.num_controls, stride)
-
-        def window(batch_item, rng):
-            return batch_item, fixed, None
-
-    else:
-        low, high = train_config.spans
-        operators = span_fit_operators(stride, low, high)
-
-        def window(batch_item, rng):
-            # Drawn from a key folded off rng, so the other draws are those of a fixed length.
-            dense, dense_rot6d, dense_contacts = batch_item
-            if dense.shape[0] != high + 1:
-                raise ValueError(f"spans {train_config.spans} need DenseWindows of {high + 1} frames, got {dense.shape[0]}")
-            span = jax.random.randint(jax.random.fold_in(rng, 11), (), low, high + 1)
-            layout = PaddedLayout(span + 1, stride, high + 1)
-            frames = jnp.minimum(layout.control_frames, high)  # the padding's: any real frame
-            tangent = exact_einsum("kf,fjd->kjd", operators[span - low], dense)
-            return (dense[frames], tangent, dense_rot6d[frames], dense_contacts[frames], dense), layout, layout.last_control
+    window = make_training_window(model_config, train_config)
 
     def example_loss(params, batch_item, rng):
-        (pos, tangent, rot6d, contacts, dense), layout, last_control = window(batch_item, rng)
+        (pos, tangent, rot6d, contacts, dense), layout = window(batch_item, rng)
+        last_control = None if train_config.spans is None else layout.last_control
         k_ctrl = layout.num_controls
         t_key, noise_key, cond_key, drop_key, dropout_key = jax.random.split(rng, 5)
         # Augmentation draws from a key folded off rng, so without it the stream is the paper's.
@@ -270,7 +280,7 @@ def make_bmm_train_step(
         # (off_grid_handles = 0, nothing drawn) keeps its random stream.
         frame = draw_handle_frames(jax.random.fold_in(cond_key, 1), control, layout, train_config.off_grid_handles)
         position = handle_positions(layout, pos, tangent, joint, frame) if train_config.off_grid_handles else pos[control, joint]
-        conditions = inbetween_conditions(layout.num_frames, pos[0], pos[-1], Handles(joint, frame, position, valid))
+        conditions = inbetween_conditions(layout.num_frames, pos[0], pos[layout.last_control], Handles(joint, frame, position, valid))
         # Classifier-free guidance: drop every condition of this example at once.
         conditions = conditions._replace(valid=conditions.valid & ~jax.random.bernoulli(drop_key, train_config.condition_dropout))
         mask, _ = grid_conditions(layout, conditions, k_joints)
@@ -289,6 +299,22 @@ def make_bmm_train_step(
         )  # fmt: skip
         weight = min_snr_weight(schedule.snr(t), train_config.min_snr_gamma)
         return weight * weights.total(terms), terms
+
+    return example_loss
+
+
+def make_bmm_train_step(
+    graphdef: nnx.GraphDef,
+    model_config: BMMConfig,
+    train_config: BMMTrainConfig,
+    stats: FeatureStats,
+    *,
+    schedule: DiffusionSchedule | None = None,
+    mesh: Mesh | None = None,
+) -> Callable[[TrainState, CurveArrays], tuple[TrainState, dict[str, Array]]]:
+    """The (un-jitted) single-seed training step; see :func:`compile_train_step`."""
+    optimizer = train_config.optimizer()
+    example_loss = make_bmm_example_loss(graphdef, model_config, train_config, stats, schedule=schedule)
 
     def loss_fn(params, batch, rngs):
         losses, terms = jax.vmap(example_loss, in_axes=(None, 0, 0))(params, batch, rngs)
@@ -312,5 +338,7 @@ __all__ = [
     "span_fit_operators",
     "init_bmm_train_state",
     "init_bmm_train_states",
+    "make_bmm_example_loss",
     "make_bmm_train_step",
+    "make_training_window",
 ]

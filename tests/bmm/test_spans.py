@@ -20,7 +20,15 @@ from bezmotion.bezier import BezierLayout, PaddedLayout, evaluate, fit_curves, f
 from bezmotion.bmm.denoiser import init_denoiser
 from bezmotion.bmm.features import draw_intermediate_slots, inbetween_conditions, normalize_conditions, predict_x0
 from bezmotion.bmm.losses import bmm_loss_terms
-from bezmotion.bmm.train import BMMTrainConfig, DenseWindows, init_bmm_train_state, make_bmm_train_step, span_fit_operators
+from bezmotion.bmm.train import (
+    BMMTrainConfig,
+    DenseWindows,
+    init_bmm_train_state,
+    make_bmm_example_loss,
+    make_bmm_train_step,
+    make_training_window,
+    span_fit_operators,
+)
 from bezmotion.data.bvh import read_bvh
 from bezmotion.data.corpus import MotionClips
 from bezmotion.handles import Handles, grid_conditions
@@ -108,6 +116,27 @@ def test_padding_changes_nothing_the_window_predicts_or_is_scored_on(windows, st
     np.testing.assert_allclose(np.asarray(logits_pad)[:k], np.asarray(logits_own), atol=2e-4)
     for name in terms_own:
         np.testing.assert_allclose(float(terms_pad[name]), float(terms_own[name]), rtol=2e-4, err_msg=name)
+
+
+def test_frames_past_the_drawn_window_change_nothing(windows, stats):
+    """An example is the first ``span + 1`` frames of its window: whatever the frames after
+    them hold (here moved 3 m, turned and with their contacts flipped), its loss is the same,
+    end key condition and all."""
+    train = BMMTrainConfig(spans=(6, MAX_SPAN), off_grid_handles=0.5)
+    graphdef, params = init_denoiser(RESIDUAL, key=jax.random.key(2))
+    example_loss = jax.jit(make_bmm_example_loss(graphdef, RESIDUAL, train, stats))
+    window = make_training_window(RESIDUAL, train)
+    item = tuple(a[1] for a in windows)
+    spans = set()
+    for seed in range(12):
+        rng = jax.random.key(seed)
+        span = int(window(item, rng)[1].num_frames) - 1
+        spans.add(span)
+        after = (jnp.arange(MAX_SPAN + 1) > span)[:, None, None]
+        moved = (item[0] + jnp.where(after, 300.0, 0.0), jnp.where(after, item[1][..., ::-1], item[1]), jnp.where(after[..., 0], ~item[2], item[2]))
+        (loss, terms), (loss_moved, terms_moved) = example_loss(params, item, rng), example_loss(params, moved, rng)
+        np.testing.assert_allclose(float(loss_moved), float(loss), rtol=1e-5, err_msg=f"span {span}")
+    assert len(spans) > 4  # the lengths drawn vary
 
 
 def test_a_step_on_many_lengths_trains(windows, stats):
