@@ -93,7 +93,7 @@ def measure_span(bmm, corpus, span: int, args: Options) -> dict:
 
 def report(results: dict) -> str:
     lines = [
-        f"# The BMM at keys any distance apart: {results['model']['name']}, {results['model']['trained_frames']}-frame windows learned, "
+        f"# The BMM at keys any distance apart: {results['model']['name']}, its config's window {results['model']['window_frames']} frames apart, "
         f"{results['steps']} DDIM steps",
         "",
         "| bucket (frames apart) | windows | BMM dense (cm) | interpolation dense (cm) | ratio | handles error max (cm) |",
@@ -117,7 +117,7 @@ def main(argv: list[str] | None = None) -> dict:
     corpus = load_corpus("bandai_namco", source=default_source("bandai_namco"), progress=not args.no_progress)
     spans = {str(span): measure_span(bmm, corpus, span, args) for span in args.spans}
     results: dict = {
-        "model": {"name": args.model, "folder": str(folder), "trained_frames": bmm.config.num_frames - 1},
+        "model": {"name": args.model, "folder": str(folder), "window_frames": bmm.config.num_frames - 1},
         "steps": args.steps, "seed": args.seed, "spans": spans,
     }  # fmt: skip
     for name in BUCKETS:
