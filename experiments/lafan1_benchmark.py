@@ -45,6 +45,7 @@ from bezmotion.delta.train import DeltaTrainConfig, init_delta_train_states
 from bezmotion.bmm.sampling import load_model
 from bezmotion.data.sources import load_corpus
 from bezmotion.evaluation.lafan1 import N_PAST, TRANSITION_LENGTHS, evaluate_baselines, evaluate_transitions, lafan1_benchmark
+from bezmotion.geometry.rotations import quat_fix_continuity
 from bezmotion.handles import Handles
 from bezmotion.ik.frames import corpus_character
 from bezmotion.ik.protocol import Pose
@@ -153,6 +154,9 @@ def bmm_transitions(bench, model: Inbetweener, n: int, *, samples: int, batch: i
         padded = jax.tree.map(lambda a: np.concatenate([a, np.repeat(a[:1], batch - count, axis=0)]), part)  # one compiled shape
         keys_per_window = jax.random.split(jax.random.fold_in(jax.random.key(seed), lo), batch)
         q, r = run(padded, keys_per_window)
+        # q and −q are one rotation, but L2Q and NPSS compare components: each joint's sign is
+        # made continuous from the last past frame on, as the data's own are.
+        q = quat_fix_continuity(jnp.concatenate([padded.quat_local[:, :1], q], axis=1), axis=1)[:, 1:]
         quat.append(np.asarray(q)[:count])
         root.append(np.asarray(r)[:count])
     return np.concatenate(quat), np.concatenate(root)
