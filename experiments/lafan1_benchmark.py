@@ -13,8 +13,9 @@ target frame, n = 5 / 15 / 30 / 45 missing frames; L2Q, L2P and NPSS. Rows:
 - ``bmm``: a saved BMM (``--bmm``, e.g. one trained with ``experiments/bmm_lafan1.py --corpus
   lafan1 --spans 6 60``) in-betweens the last past frame and the target frame, ``n + 1``
   frames apart, through its curves and the exact IK from the analytic rig (``exact_rig``:
-  LaFAN1's learned IK is not trained here); keys' positions and orientations only (the
-  past frames' velocity is not given to it). One sample (``bmm``), and the mean of
+  LaFAN1's learned IK is not trained here); the keys' poses and the first key's velocity,
+  the six joints' from the last two past frames (the target's is not known: NaN,
+  ``--bmm-no-velocity`` gives neither). One sample (``bmm``), and the mean of
   ``--bmm-samples`` samples' curves put through the IK once (``bmm_mean``: what sampling
   costs on a deterministic metric). Without ``--bmm`` the row is absent and ``missing`` says why.
 
@@ -48,7 +49,7 @@ from bezmotion.evaluation.lafan1 import N_PAST, TRANSITION_LENGTHS, evaluate_bas
 from bezmotion.geometry.rotations import quat_fix_continuity
 from bezmotion.handles import Handles
 from bezmotion.ik.frames import corpus_character
-from bezmotion.ik.protocol import Pose
+from bezmotion.ik.protocol import Pose, targets_from_pose
 from bezmotion.pipeline.authoring import RecognisedCharacter, derive_rig_spec, make_ik
 from bezmotion.pipeline.inbetweening import InbetweenOptions, curves_traced, result_from_curves
 from bezmotion.pipeline.model import Inbetweener
@@ -99,6 +100,7 @@ class Options:
     bmm: str | None = option(None, help="a saved BMM's folder (bmm_lafan1.py's <run-dir>/model) for the bmm rows; default: none")
     bmm_samples: int = option(8, help="samples whose mean curves make the bmm_mean row")
     bmm_batch: int = option(16, help="test windows per vectorised BMM chunk")
+    bmm_no_velocity: bool = option(False, help="give the BMM the keys' poses alone, not the first key's velocity from the past frames")
     no_cache: bool = option(False, help="re-parse the corpus instead of using the cache")
 
 
@@ -128,18 +130,25 @@ def bmm_model(bmm_dir: str, data: str, no_cache: bool) -> Inbetweener:
     return Inbetweener(load_model(bmm_dir), ik_fn, ik_params, character)
 
 
-def bmm_transitions(bench, model: Inbetweener, n: int, *, samples: int, batch: int, seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def bmm_transitions(
+    bench, model: Inbetweener, n: int, *, samples: int, batch: int, velocity: bool = True, seed: int = 0
+) -> tuple[np.ndarray, np.ndarray]:
     """``(quat (W, n, 22, 4), root (W, n, 3))``: each test window's in-between of its last past
     frame and its target frame (``n + 1`` frames apart); ``samples > 1``: the mean of that many
-    samples' curves, through the IK once."""
+    samples' curves, through the IK once. ``velocity``: the first key's six-joint velocity
+    from the last two past frames is a condition (the target's is not known: NaN)."""
     w = bench.windows
     ends = np.asarray([N_PAST - 1, N_PAST + n])
-    keys = Pose(root_pos=np.asarray(w.root_pos[:, ends], np.float32), quat_local=np.asarray(w.quat_local[:, ends], np.float32))
+    pose = lambda frames: Pose(root_pos=np.asarray(w.root_pos[:, frames], np.float32), quat_local=np.asarray(w.quat_local[:, frames], np.float32))  # noqa: E731
+    keys = pose(ends)
+    past = np.asarray(targets_from_pose(model.character, pose(np.asarray([N_PAST - 2, N_PAST - 1]))).position)  # (W, 2, 6, 3)
+    key_velocity = np.stack([past[:, 1] - past[:, 0], np.full_like(past[:, 0], np.nan)], axis=1)  # (W, 2, 6, 3) cm/frame
     none = Handles(jnp.zeros((1, 1), jnp.int32), jnp.zeros((1, 1), jnp.int32), jnp.zeros((1, 1, 3)), jnp.zeros((1, 1), bool))
     options, transfer = InbetweenOptions(), Transfer.identity()
 
-    def one(keys: Pose, key):
-        draws = jax.vmap(lambda k: curves_traced(model.bmm, model.character, keys, none, transfer, k, options, checked=False, span=n + 1))(
+    def one(keys: Pose, key_velocity, key):
+        kv = key_velocity if velocity else None
+        draws = jax.vmap(lambda k: curves_traced(model.bmm, model.character, keys, none, transfer, k, options, kv, checked=False, span=n + 1))(
             jax.random.split(key, samples)
         )  # fmt: skip
         windows = jax.tree.map(lambda a: jnp.mean(a, axis=0), draws)
@@ -149,23 +158,23 @@ def bmm_transitions(bench, model: Inbetweener, n: int, *, samples: int, batch: i
     run = jax.jit(jax.vmap(one))
     quat, root = [], []
     for lo in range(0, w.num_windows, batch):
-        part = jax.tree.map(lambda a: a[lo : lo + batch], keys)
-        count = part.root_pos.shape[0]
+        part = jax.tree.map(lambda a: a[lo : lo + batch], (keys, key_velocity))
+        count = part[1].shape[0]
         padded = jax.tree.map(lambda a: np.concatenate([a, np.repeat(a[:1], batch - count, axis=0)]), part)  # one compiled shape
         keys_per_window = jax.random.split(jax.random.fold_in(jax.random.key(seed), lo), batch)
-        q, r = run(padded, keys_per_window)
+        q, r = run(*padded, keys_per_window)
         # q and −q are one rotation, but L2Q and NPSS compare components: each joint's sign is
         # made continuous from the last past frame on, as the data's own are.
-        q = quat_fix_continuity(jnp.concatenate([padded.quat_local[:, :1], q], axis=1), axis=1)[:, 1:]
+        q = quat_fix_continuity(jnp.concatenate([padded[0].quat_local[:, :1], q], axis=1), axis=1)[:, 1:]
         quat.append(np.asarray(q)[:count])
         root.append(np.asarray(r)[:count])
     return np.concatenate(quat), np.concatenate(root)
 
 
-def evaluate_bmm(bench, model: Inbetweener, samples: int, batch: int) -> dict:
+def evaluate_bmm(bench, model: Inbetweener, samples: int, batch: int, velocity: bool) -> dict:
     """Official metrics of the BMM's in-betweens (precomputed per length outside the
     evaluator's float64 mode, then scored by it)."""
-    predicted = {n: bmm_transitions(bench, model, n, samples=samples, batch=batch) for n in TRANSITION_LENGTHS}
+    predicted = {n: bmm_transitions(bench, model, n, samples=samples, batch=batch, velocity=velocity) for n in TRANSITION_LENGTHS}
     return evaluate_transitions(bench, lambda pq, pr, tq, tr, n: tuple(jnp.asarray(a, jnp.float64) for a in predicted[n]), TRANSITION_LENGTHS)
 
 
@@ -227,9 +236,13 @@ def main(argv: list[str] | None = None) -> dict:
     if args.bmm:
         model = bmm_model(args.bmm, args.data, args.no_cache)
         t0 = time.perf_counter()
-        results["bmm"] = evaluate_bmm(bench, model, 1, args.bmm_batch)
-        results["bmm_mean"] = evaluate_bmm(bench, model, args.bmm_samples, args.bmm_batch)
-        results["bmm_model"] = {"folder": args.bmm, "ik": "exact_rig", "samples": args.bmm_samples, "steps": 10, "wall_s": time.perf_counter() - t0}
+        velocity = not args.bmm_no_velocity
+        results["bmm"] = evaluate_bmm(bench, model, 1, args.bmm_batch, velocity)
+        results["bmm_mean"] = evaluate_bmm(bench, model, args.bmm_samples, args.bmm_batch, velocity)
+        results["bmm_model"] = {
+            "folder": args.bmm, "ik": "exact_rig", "samples": args.bmm_samples, "steps": 10, "first_key_velocity": velocity,
+            "wall_s": time.perf_counter() - t0,
+        }  # fmt: skip
     else:
         results["missing"] = {"bmm": BMM_MISSING}
     ours = {k: results[k] for k in ROWS if k in results}

@@ -225,6 +225,11 @@ def held_key_tangents(
     return jnp.zeros((num_controls, num_joints), bool).at[jnp.asarray([0, num_controls - 1])].set(~released)
 
 
+def known_tangents(key_tangent: Float[Array, "*keys 6 3"]) -> Bool[Array, "*keys 6"]:
+    """Which given key tangents are known: NaN means "not known", the model's to choose."""
+    return ~jnp.isnan(key_tangent).any(axis=-1)
+
+
 def handles_next_to_keys(
     handles: Handles, num_controls: int, num_joints: int, stride: int, *, num_frames: int | None = None
 ) -> Bool[Array, "2 joints"]:
@@ -300,6 +305,7 @@ def _sample_one(
     if key_tangent is not None:
         held = held_key_tangents(world, controls, cfg.num_joints, cfg.stride, num_frames=layout.num_frames)
         held = held if chain is None else held | _shared_keys(chain, controls, cfg.num_joints)
+        held = held.at[ends].set(held[ends] & known_tangents(key_tangent))
     couple = (lambda x: x) if chain is None else functools.partial(_couple, chain=chain)
     # A chain's joints with a handle next to a shared key are met over the whole chain, each
     # shared tangent one variable (_projector); the others window by window. In x̂₀'s
@@ -465,7 +471,9 @@ def sample_chained_curves(
         :func:`~bezmotion.bezier.tangent_from_velocity`), conditions like ``key_rot6d``: the
         curves leave and reach each key at its own velocity. A joint's handle within a
         stride of a key takes precedence (:func:`held_key_tangents`); both windows of a
-        shared key take its tangent, so a coupled chain keeps it.
+        shared key take its tangent, so a coupled chain keeps it. A NaN tangent (a key whose
+        velocity is not known, e.g. a target pose alone) leaves that joint's tangent at that
+        key to the model, as without ``key_tangent``.
       checked: check the handles' values in the computation (:func:`window_handle_problems`,
         ``eqx.error_if``); ``False`` when the caller checked them already, which leaves the
         program free of host callbacks (XLA's persistent cache then stores it).

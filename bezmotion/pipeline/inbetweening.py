@@ -34,6 +34,7 @@ from bezmotion.bmm.sampling import (
     Handles,
     SampledCurves,
     held_key_tangents,
+    known_tangents,
     sample_chained_curves,
     shared_key_mask,
     window_handle_problems,
@@ -198,6 +199,7 @@ def _window_in_target(
     if key_tangent is not None:  # exactly, undoing the scale round trip's rounding
         # Where a handle next to a key moved that key's tangent in the sampler, the moved one.
         held = _kept_tangents(cfg, layout, handles, shared, keyed=True)
+        held = held.at[ends].set(held[ends] & known_tangents(key_tangent))  # NaN: not known, the sampler's
         keyed = curves.ctrl_tangent.at[ends].set(key_tangent)
         curves = curves._replace(ctrl_tangent=jnp.where(held[..., None], keyed, curves.ctrl_tangent))
         shared = held
@@ -499,8 +501,8 @@ def _value_problems(keys: Pose, handles: Handles, key_velocity, span: int) -> li
              f"not on the keys' frames {list(range(0, last + 1, span))}"],
         ),  # fmt: skip
     ]
-    if key_velocity is not None:
-        problems.append(Problem(~jnp.isfinite(key_velocity).all(keepdims=True), ["key_velocity contains non-finite values"]))
+    if key_velocity is not None:  # NaN is allowed: a velocity not known
+        problems.append(Problem(jnp.isinf(key_velocity).any(keepdims=True), ["key_velocity contains infinite values (NaN marks one not known)"]))
     return problems
 
 
@@ -553,7 +555,8 @@ def inbetween(
       options: :class:`InbetweenOptions`.
       key_velocity: optionally ``(K, 6, 3)`` the six joints' velocities at every key
         (cm/frame, e.g. :func:`chain_key_velocities` of a clip around the keys): the curves
-        pass every key at that velocity, which keeps limbs from popping next to the keys.
+        pass every key at that velocity, which keeps limbs from popping next to the keys;
+        NaN for a joint at a key whose velocity is not known (the model chooses it there).
       span: frames from one key to the next, 2 … 900 (default the model's window,
         ``bmm.config.num_frames − 1``: 30). Another span samples the model over a window of
         that length (its control grid extended, :func:`window_layout`): handles are met

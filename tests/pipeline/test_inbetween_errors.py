@@ -97,8 +97,14 @@ def test_key_velocities_are_met_exactly_and_bad_ones_raise(case):
     # The type checks of the test session may catch this one first (as for sample_curves).
     with pytest.raises((ValueError, TypeError), match="key_velocity"):
         run_with(velocity[0])
-    with pytest.raises(ValueError, match="key_velocity contains non-finite values"):
-        run_with(velocity.at[1, 2, 0].set(jnp.nan))
+    with pytest.raises(ValueError, match="key_velocity contains infinite values"):
+        run_with(velocity.at[1, 2, 0].set(jnp.inf))
+    # NaN: a velocity not known (the end key's here): the start key's is kept, the model picks the end's.
+    unknown = run_with(velocity.at[1].set(jnp.nan))
+    tangent = unknown.joined_curves().ctrl_tangent
+    assert np.isfinite(np.asarray(unknown.pose.quat_local)).all() and np.isfinite(np.asarray(tangent)).all()
+    np.testing.assert_array_equal(tangent[0], tangent_from_velocity(layout, velocity)[0])
+    assert not np.allclose(tangent[-1], tangent_from_velocity(layout, velocity)[1])
 
 
 def test_checked_on_the_host_the_inbetweens_program_holds_no_host_callback(case):
