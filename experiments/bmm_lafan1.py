@@ -155,9 +155,9 @@ class Options(DistributedOptions):
             raise ValueError("--model evaluates a saved BMM, --init fine-tunes one: give one of them")
         if self.spans and (len(self.spans) != 2 or self.bandai_namco or self.also_corpus or self.holdout_contents):
             raise ValueError(f"--spans takes LOW HIGH (got {' '.join(map(str, self.spans))}) and trains on --corpus alone (no --bandai-namco, --also-corpus, --holdout-contents)")
-        if self.run_dir is None and self.init:
-            spans = f"_spans{self.spans[0]}-{self.spans[1]}" if self.spans else ""
-            object.__setattr__(self, "run_dir", str(runs_dir(f"bmm_{self.corpus}_finetune_{Path(self.init).name}_offgrid{self.off_grid_handles:g}{spans}")))
+        if self.run_dir is None and self.init:  # named after every lever, as a run from scratch is
+            name = f"bmm_{self.corpus}_finetune_{Path(self.init).name}_offgrid{self.off_grid_handles:g}{self.lever_suffix()}"
+            object.__setattr__(self, "run_dir", str(runs_dir(name)))
         if self.run_dir is None:
             suffix = "" if self.prediction == "x0" else f"_{self.prediction}"
             object.__setattr__(self, "run_dir", str(runs_dir(f"bmm_{self.corpus}_{self.config}{suffix}{self.lever_suffix()}")))
