@@ -96,14 +96,15 @@ def from_tokens(tokens: Float[Array, "*batch controls features"]) -> Float[Array
 
 
 def draw_intermediate_slots(
-    key: Array, num_controls: int, num_joints: int, max_handles: int, min_handles: int = 0, *, last_control: Int[Array, ""] | None = None
+    key: Array, num_controls: int, num_joints: int, max_handles: int, min_handles: int = 0, *, last_control: int | Int[Array, ""] | None = None
 ) -> tuple[Int[Array, "max_handles"], Int[Array, "max_handles"], Bool[Array, "max_handles"]]:
     """Random distinct intermediate (control, joint) slots: ``n ~ U{min_handles, …, max_handles}``
     of the ``(K−2)·J`` slots between the end control points, chosen uniformly (BMM §5.2).
 
-    ``last_control``: the window's last control point when the ones after it are padding (a
-    :class:`~bezmotion.bezier.PaddedLayout`'s, traced): only the slots before it are drawn,
-    and ``n`` is at most their number.
+    ``last_control``: the window's last control point (a layout's ``last_control``; traced
+    for a :class:`~bezmotion.bezier.PaddedLayout`, whose later ones are padding): only the
+    slots before it are drawn, and ``n`` is at most their number. ``K − 1`` (or ``None``)
+    draws exactly what the paper's draw does.
 
     Returns:
       ``(control, joint, valid)``, each ``(max_handles,)``; the first ``n`` are valid.

@@ -225,9 +225,11 @@ def held_key_tangents(
     return jnp.zeros((num_controls, num_joints), bool).at[jnp.asarray([0, num_controls - 1])].set(~released)
 
 
-def known_tangents(key_tangent: Float[Array, "*keys 6 3"]) -> Bool[Array, "*keys 6"]:
-    """Which given key tangents are known: NaN means "not known", the model's to choose."""
-    return ~jnp.isnan(key_tangent).any(axis=-1)
+def release_unknown_tangents(held: Bool[Array, "controls joints"], key_tangent: Float[Array, "2 joints 3"]) -> Bool[Array, "controls joints"]:
+    """``held`` key tangents (rows 0 and −1: the window's two keys) less those given as NaN:
+    a velocity not known, the model's to choose as without ``key_tangent``."""
+    ends = jnp.asarray([0, held.shape[0] - 1])
+    return held.at[ends].set(held[ends] & ~jnp.isnan(key_tangent).any(axis=-1))
 
 
 def handles_next_to_keys(
@@ -305,7 +307,7 @@ def _sample_one(
     if key_tangent is not None:
         held = held_key_tangents(world, controls, cfg.num_joints, cfg.stride, num_frames=layout.num_frames)
         held = held if chain is None else held | _shared_keys(chain, controls, cfg.num_joints)
-        held = held.at[ends].set(held[ends] & known_tangents(key_tangent))
+        held = release_unknown_tangents(held, key_tangent)
     couple = (lambda x: x) if chain is None else functools.partial(_couple, chain=chain)
     # A chain's joints with a handle next to a shared key are met over the whole chain, each
     # shared tangent one variable (_projector); the others window by window. In x̂₀'s

@@ -261,7 +261,6 @@ def make_bmm_example_loss(
 
     def example_loss(params, batch_item, rng):
         (pos, tangent, rot6d, contacts, dense), layout = window(batch_item, rng)
-        last_control = None if train_config.spans is None else layout.last_control
         k_ctrl = layout.num_controls
         t_key, noise_key, cond_key, drop_key, dropout_key = jax.random.split(rng, 5)
         # Augmentation draws from a key folded off rng, so without it the stream is the paper's.
@@ -274,7 +273,7 @@ def make_bmm_example_loss(
         x0 = to_tokens(stats.normalize(control_features(pos, tangent, rot6d)))
         x_t = schedule.add_noise(x0, t, jax.random.normal(noise_key, x0.shape, x0.dtype))
         control, joint, valid = draw_intermediate_slots(
-            cond_key, k_ctrl, k_joints, train_config.max_intermediate_handles, last_control=last_control
+            cond_key, k_ctrl, k_joints, train_config.max_intermediate_handles, last_control=layout.last_control
         )
         # Off-grid frames draw from a key folded off cond_key, so the paper's setting
         # (off_grid_handles = 0, nothing drawn) keeps its random stream.
@@ -290,7 +289,7 @@ def make_bmm_example_loss(
             off_grid = Handles(joint, conditions.frame[n:], position, conditions.valid[n:] & (frame % stride != 0))
         conditions = normalize_conditions(stats, conditions)
         pred_tokens, contact_logits = predict_x0(
-            nnx.merge(graphdef, params), stats, x_t, t, conditions, key=dropout_key, layout=None if last_control is None else layout
+            nnx.merge(graphdef, params), stats, x_t, t, conditions, key=dropout_key, layout=layout
         )
         pred_pos, pred_tangent, pred_rot6d = split_features(stats.denormalize(from_tokens(pred_tokens)))
         terms = bmm_loss_terms(

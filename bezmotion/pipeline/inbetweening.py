@@ -34,7 +34,7 @@ from bezmotion.bmm.sampling import (
     Handles,
     SampledCurves,
     held_key_tangents,
-    known_tangents,
+    release_unknown_tangents,
     sample_chained_curves,
     shared_key_mask,
     window_handle_problems,
@@ -199,7 +199,7 @@ def _window_in_target(
     if key_tangent is not None:  # exactly, undoing the scale round trip's rounding
         # Where a handle next to a key moved that key's tangent in the sampler, the moved one.
         held = _kept_tangents(cfg, layout, handles, shared, keyed=True)
-        held = held.at[ends].set(held[ends] & known_tangents(key_tangent))  # NaN: not known, the sampler's
+        held = release_unknown_tangents(held, key_tangent)  # as the sampler did
         keyed = curves.ctrl_tangent.at[ends].set(key_tangent)
         curves = curves._replace(ctrl_tangent=jnp.where(held[..., None], keyed, curves.ctrl_tangent))
         shared = held
