@@ -7,6 +7,7 @@
     keys = model.poses(clip, [0, 30])                              # two keys: one window
     handles = model.handles({"right_hand": (12, (0, 25, 0))}, relative_to=keys)  # frame, cm
     result = model.inbetween(keys, handles, key=jax.random.key(0)) # = bm.inbetween(model, …)
+    # keys any distance apart: model.inbetween_at(model.poses(clip, [0, 20, 65]), [0, 20, 65], …)
     bm.write_bvh("out.bvh", model.to_bvh(result, template=clip))
 
 Everything else lives in its subpackage (:mod:`bezmotion.geometry`, :mod:`bezmotion.bezier`,
@@ -19,6 +20,7 @@ never from here, so this file can re-export anything without an import cycle.
 # The model object and the one entry point.
 from bezmotion.pipeline.model import Inbetweener, pretrained
 from bezmotion.pipeline.inbetweening import InbetweenOptions, InbetweenResult, inbetween
+from bezmotion.pipeline.key_times import TimedInbetween, inbetween_at
 
 # What they take and give.
 from bezmotion.bmm.sampling import BezierMotionModel, Handles, SampledCurves, load_model, sample_curves, save_model
@@ -48,9 +50,11 @@ __all__ = [
     "Inbetweener",
     "Pose",
     "SampledCurves",
+    "TimedInbetween",
     "Transfer",
     "__version__",
     "inbetween",
+    "inbetween_at",
     "load_model",
     "pretrained",
     "read_bvh",

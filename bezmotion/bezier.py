@@ -101,6 +101,10 @@ class BezierLayout:
         """``(num_frames,)`` the integer frame times ``0 … num_frames − 1`` as float64."""
         return np.arange(self.num_frames, dtype=np.float64)
 
+    def segment_of(self, frames: Float[Array, "*shape"]) -> Int[Array, "*shape"]:
+        """The segment each frame time falls in (the first or last outside the window)."""
+        return jnp.clip(jnp.floor(frames / self.stride).astype(jnp.int32), 0, self.num_segments - 1)
+
     @classmethod
     def from_controls(cls, num_controls: int | np.integer, stride: int | np.integer = DEFAULT_STRIDE) -> BezierLayout:
         """The layout of ``num_controls`` control points ``stride`` frames apart."""
@@ -169,6 +173,62 @@ class PaddedLayout(BezierLayout):
         return jnp.arange(self.max_frames, dtype=jnp.float32)
 
 
+@dataclasses.dataclass(frozen=True)
+class JoinedLayout(BezierLayout):
+    """Windows of several lengths joined end to end at their keys: keys any distance apart.
+
+    Window ``i`` spans ``spans[i]`` frames, from key ``i`` to key ``i + 1``, with
+    :class:`BezierLayout`'s control points (every ``stride`` frames from its first key, its
+    last segment shorter where its span is not a multiple of ``stride``); each key is one
+    control point, the last of one window and the first of the next. Tangents keep the
+    module's convention (velocity ``3·T / stride`` at every control point), so a curve on this
+    layout is C¹ at the keys as everywhere else. With equal spans that are multiples of
+    ``stride`` it is :class:`BezierLayout`'s grid.
+
+    Attributes:
+      num_frames: ``sum(spans) + 1`` (:meth:`of` computes it).
+      stride: frames between control points within a window.
+      spans: frames from each key to the next (each ≥ 1).
+    """
+
+    spans: tuple[int, ...] = ()
+
+    def __post_init__(self):
+        super().__post_init__()
+        spans = tuple(self.spans)
+        if not spans or any(isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 1 for s in spans):
+            raise ValueError(f"JoinedLayout.spans must be one or more integers ≥ 1, got {self.spans!r}")
+        object.__setattr__(self, "spans", tuple(int(s) for s in spans))
+        if self.num_frames != sum(self.spans) + 1:
+            raise ValueError(f"JoinedLayout.num_frames must be sum(spans) + 1 = {sum(self.spans) + 1}, got {self.num_frames}")
+
+    @classmethod
+    def of(cls, spans, stride: int | np.integer = DEFAULT_STRIDE) -> JoinedLayout:
+        """The layout of windows ``spans`` frames long (keys ``spans[i]`` frames apart), joined."""
+        spans = tuple(spans)
+        return cls(sum(int(s) for s in spans) + 1, stride, spans)
+
+    @property
+    def key_frames(self) -> np.ndarray:
+        """``(windows + 1,)`` the keys' frames: 0, then each window's last."""
+        return np.concatenate([[0], np.cumsum(self.spans)])
+
+    @property
+    def key_controls(self) -> np.ndarray:
+        """``(windows + 1,)`` the index of each key's control point."""
+        return np.searchsorted(self.control_frames, self.key_frames)
+
+    @property
+    def control_frames(self) -> np.ndarray:
+        starts = self.key_frames[:-1]
+        inner = [start + BezierLayout(span + 1, self.stride).control_frames[:-1] for start, span in zip(starts, self.spans)]
+        return np.concatenate([*inner, [self.num_frames - 1]])
+
+    def segment_of(self, frames: Float[Array, "*shape"]) -> Int[Array, "*shape"]:
+        inner = jnp.asarray(self.control_frames[1:-1], frames.dtype)
+        return jnp.clip(jnp.searchsorted(inner, frames, side="right").astype(jnp.int32), 0, self.num_segments - 1)
+
+
 def bernstein(t: Float[ArrayLike, "*batch"]) -> Float[Array, "*batch 4"]:
     """The four cubic Bernstein polynomials ``C(3,i)·(1−t)^(3−i)·t^i`` at ``t`` (Eq. 3)."""
     t = jnp.asarray(t)
@@ -187,7 +247,7 @@ def locate(
     frames = jnp.asarray(frames)
     if not jnp.issubdtype(frames.dtype, jnp.floating):
         frames = frames.astype(jnp.result_type(float))
-    segment = jnp.clip(jnp.floor(frames / layout.stride).astype(jnp.int32), 0, layout.num_segments - 1)
+    segment = layout.segment_of(frames)
     starts = jnp.asarray(layout.control_frames[:-1], frames.dtype)
     lengths = jnp.asarray(layout.segment_lengths, frames.dtype)
     t = (frames - starts[segment]) / lengths[segment]
@@ -303,6 +363,12 @@ def tangent_from_velocity(layout: BezierLayout, velocity: Float[ArrayLike, "*sha
     """The control tangent ``T = v·s/3`` whose curve moves at ``velocity`` (units per frame)
     through its control point (the velocity there is ``3T/s`` on both sides)."""
     return jnp.asarray(velocity) * (layout.stride / 3.0)
+
+
+def velocity_from_tangent(layout: BezierLayout, tangent: Float[ArrayLike, "*shape"]) -> Float[Array, "*shape"]:
+    """The velocity ``3T/s`` (units per frame) of a curve through a control point of tangent
+    ``tangent``: the inverse of :func:`tangent_from_velocity`."""
+    return jnp.asarray(tangent) * (3.0 / layout.stride)
 
 
 def finite_difference_tangents(

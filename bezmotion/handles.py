@@ -197,12 +197,13 @@ def straight_line(start: Float[Array, "*batch joints 3"], end: Float[Array, "*ba
     return (1.0 - t) * at(start) + t * at(end)
 
 
-def line_between_keys(key_positions: np.ndarray, joint: int, frame: int, span: int) -> np.ndarray:
+def line_between_keys(key_positions: np.ndarray, joint: int, frame: int, key_frames: Sequence[int]) -> np.ndarray:
     """``(3,)`` where ``joint`` is at ``frame`` on the straight line between its positions at
-    the keys around that frame (``key_positions`` ``(K, joints, 3)``, keys ``span`` frames
-    apart): the reference a relative handle is an offset from."""
-    window = min(frame // span, len(key_positions) - 2)
-    t = (frame - span * window) / span
+    the keys around that frame (``key_positions`` ``(K, joints, 3)``, the keys at
+    ``key_frames`` ``(K,)``, increasing): the reference a relative handle is an offset from."""
+    key_frames = np.asarray(key_frames)
+    window = int(np.clip(np.searchsorted(key_frames, frame, side="right") - 1, 0, len(key_positions) - 2))
+    t = (frame - key_frames[window]) / (key_frames[window + 1] - key_frames[window])
     return (1.0 - t) * key_positions[window, joint] + t * key_positions[window + 1, joint]
 
 

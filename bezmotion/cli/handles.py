@@ -170,7 +170,7 @@ def resolve_handles(
             raise ValueError(f"{r.source}: frame {r.frame} is a key of the chain (keys at {listed(range(0, last + 1, span))}); handles go between them")
         window = min(r.frame // span, len(keys) - 2)
         local = r.frame - span * window  # the frame in its window (0 and 30 are the window's keys)
-        line = line_between_keys(key_positions, CHARACTERISTIC_JOINTS.index(role), r.frame, span)
+        line = line_between_keys(key_positions, CHARACTERISTIC_JOINTS.index(role), r.frame, key_frames)
         position = np.asarray(r.value, np.float64) + (line if r.relative else 0.0)
         dx, dy, dz = position - line
         away = float(np.hypot(np.hypot(dx, dy), dz))  # hypot: 1e200 cm squared would overflow

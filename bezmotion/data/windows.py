@@ -7,6 +7,8 @@ are in centimetres with +Y up.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Bool, Float, Shaped
@@ -96,6 +98,12 @@ def join_windows(x: Shaped[Array, "windows window_frames ..."]) -> Shaped[Array,
     """Per-window frames of a chain → the chain's frames, each shared key once (window
     ``i``'s last frame is window ``i + 1``'s first; the earlier window's is kept)."""
     return jnp.concatenate([x[:, :-1].reshape(-1, *x.shape[2:]), x[-1, -1:]])
+
+
+def join_unequal_windows(parts: Sequence[Shaped[Array, "_ ..."]]) -> Shaped[Array, "frames ..."]:
+    """:func:`join_windows` of windows of different lengths, given one by one: each shared
+    key once (the earlier window's)."""
+    return jnp.concatenate([parts[0], *(part[1:] for part in parts[1:])])
 
 
 def split_windows(x: Float[Array, "frames ..."], windows: int) -> Float[Array, "windows window_frames ..."]:

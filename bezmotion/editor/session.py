@@ -709,7 +709,7 @@ class EditSession:
         return records
 
     def _near_line(self, keys: tuple[int, ...], handle: EditHandle) -> bool:
-        line = line_between_keys(self._keys(keys)[1], CHARACTERISTIC_JOINTS.index(handle.joint), handle.frame, self._span)
+        line = line_between_keys(self._keys(keys)[1], CHARACTERISTIC_JOINTS.index(handle.joint), handle.frame, self.key_frames)
         return float(np.linalg.norm(np.asarray(handle.position) - line)) <= HANDLE_FARTHEST_CM
 
     def _padded(self, records: Sequence[dict[str, Any]]) -> Handles:

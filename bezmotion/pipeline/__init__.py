@@ -5,7 +5,7 @@
 
 :mod:`~bezmotion.pipeline.model` (the model object, :class:`Inbetweener`),
 :mod:`~bezmotion.pipeline.inbetweening` (the jit-compiled :func:`inbetween` through any
-number of keys),
+number of keys), :mod:`~bezmotion.pipeline.key_times` (:func:`inbetween_at`: keys at any frames),
 :mod:`~bezmotion.pipeline.transfer` (driving one skeleton with another's BMM),
 :mod:`~bezmotion.pipeline.export` (BVH), :mod:`~bezmotion.pipeline.gltf` (glTF: skeleton
 and curves), :mod:`~bezmotion.pipeline.preview` (animated GIF). Measuring the pipeline on a
@@ -29,6 +29,7 @@ from bezmotion.pipeline.inbetweening import (
     pose_from_curves,
     window_handles,
 )
+from bezmotion.pipeline.key_times import TimedInbetween, inbetween_at
 from bezmotion.pipeline.model import Inbetweener, pretrained
 from bezmotion.pipeline.transfer import (
     CharacterProfile,
@@ -61,7 +62,9 @@ __all__ = [
     "default_channels",
     "facing_yaw",
     "floor_anchor",
+    "TimedInbetween",
     "inbetween",
+    "inbetween_at",
     "inbetween_traced",
     "join_chain_curves",
     "join_windows",

@@ -23,7 +23,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Bool, Float
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from bezmotion._src.problems import Problem, raise_first, raised_in_program
 from bezmotion._src.xla_options import inference_jit, traced
@@ -292,10 +292,18 @@ def pinned_frames(handles: Handles, num_frames: int) -> Bool[Array, "frames 6"]:
 
 def window_handles(handles: Handles, windows: int, span: int) -> Handles:
     """Handles in the in-between's frames ``(slots,)`` → each window's ``(windows, slots)``,
-    in that window's own frames: every window sees every slot, valid where the handle lies
-    strictly inside it (window ``i`` spans frames ``span·i … span·(i + 1)``)."""
-    local = handles.frame[None, :] - span * jnp.arange(windows, dtype=handles.frame.dtype)[:, None]
-    inside = (local > 0) & (local < span)
+    in that window's own frames, for keys ``span`` frames apart (:func:`handles_per_window`)."""
+    return handles_per_window(handles, span * np.arange(windows + 1))
+
+
+def handles_per_window(handles: Handles, key_frames: Int[ArrayLike, "keys"]) -> Handles:
+    """Handles in the in-between's frames ``(slots,)`` → each window's ``(keys − 1, slots)``,
+    in that window's own frames, the keys at ``key_frames`` (increasing): every window sees
+    every slot, valid where the handle lies strictly inside it (window ``i`` spans frames
+    ``key_frames[i] … key_frames[i + 1]``)."""
+    key_frames = jnp.asarray(key_frames, handles.frame.dtype)
+    local = handles.frame[None, :] - key_frames[:-1, None]
+    inside = (local > 0) & (local < jnp.diff(key_frames)[:, None])
     return Handles(
         joint=jnp.broadcast_to(handles.joint, local.shape),
         frame=jnp.where(inside, local, 0),

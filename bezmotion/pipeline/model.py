@@ -45,6 +45,7 @@ from bezmotion.pipeline.authoring import (
 )
 from bezmotion.pipeline.export import pose_to_bvh
 from bezmotion.pipeline.inbetweening import InbetweenOptions, InbetweenResult, inbetween, window_layout
+from bezmotion.pipeline.key_times import TimedInbetween, checked_key_times, inbetween_at
 from bezmotion.pipeline.transfer import Transfer
 
 HANDLE_SLOTS = 4
@@ -178,21 +179,39 @@ class Inbetweener:
         return motion_poses(self.clip_frame.to_ours(clip), self.character, frames)
 
     def handles(
-        self, where: Mapping[str, tuple[int, Any] | Sequence[tuple[int, Any]]], *, relative_to: Pose | None = None, span: int | None = None
+        self,
+        where: Mapping[str, tuple[int, Any] | Sequence[tuple[int, Any]]],
+        *,
+        relative_to: Pose | None = None,
+        span: int | None = None,
+        times: Sequence[int] | None = None,
     ) -> Handles:
         """Handles from joint roles: ``{"right_hand": (12, (x, y, z)), "left_foot": [(8, …), (20, …)]}``.
 
-        Frames count from the first key (key ``k`` at frame ``span·k``; ``span`` as
-        :meth:`inbetween`'s, default :attr:`span`: 30); positions are in cm,
-        Y up, in the model's world frame (the clip's, converted to cm). With
-        ``relative_to`` (the keys), a position is an offset from the straight line between
-        the joint's positions at the keys around its frame.
+        Frames count as the keys' do: with ``times`` (:meth:`inbetween_at`'s), in the same
+        count; else from the first key, key ``k`` at frame ``span·k`` (``span`` as
+        :meth:`inbetween`'s, default :attr:`span`: 30). Positions are in cm, Y up, in the
+        model's world frame (the clip's, converted to cm). With ``relative_to`` (the keys), a
+        position is an offset from the straight line between the joint's positions at the keys
+        around its frame.
 
         Raises:
           ValueError: an unknown role, a frame on a key or outside the keys (when
-            ``relative_to`` tells how many there are), or a position that is not 3 finite numbers.
+            ``relative_to`` or ``times`` tells how many there are), a position that is not 3
+            finite numbers, or both ``span`` and ``times``.
         """
-        span = window_layout(self.bmm.config, span).num_frames - 1
+        if times is not None and span is not None:
+            raise ValueError(f"give the keys' frames as times or their spacing as span, not both (span={span!r}, times={times!r})")
+        if times is None:
+            span = window_layout(self.bmm.config, span).num_frames - 1
+            count = None if relative_to is None else relative_to.root_pos.shape[0]
+            key_frames = None if count is None else np.arange(count) * span
+            on_key = lambda frame: frame <= 0 or frame % span == 0  # noqa: E731
+            keys_named = f"frames 0, {span}, … are keys"
+        else:
+            key_frames = np.asarray(checked_key_times(times, len(times) if relative_to is None else relative_to.root_pos.shape[0]))
+            on_key = lambda frame: frame <= key_frames[0] or frame >= key_frames[-1] or frame in key_frames  # noqa: E731
+            keys_named = f"the keys are at frames {key_frames.tolist()}"
         roles, frames, positions = [], [], []
         for role, entries in where.items():
             if role not in CHARACTERISTIC_JOINTS:
@@ -201,13 +220,13 @@ class Inbetweener:
                 position = np.asarray(position, np.float64)
                 if position.shape != (3,) or not np.isfinite(position).all():
                     raise ValueError(f"{role} at frame {frame}: a position is 3 finite numbers (cm), got {np.asarray(position).tolist()}")
-                if isinstance(frame, bool) or not isinstance(frame, int | np.integer) or frame <= 0 or frame % span == 0:
-                    raise ValueError(f"{role} at frame {frame!r}: handles go on integer frames between the keys (frames 0, {span}, … are keys)")
+                if isinstance(frame, bool) or not isinstance(frame, int | np.integer) or on_key(frame):
+                    raise ValueError(f"{role} at frame {frame!r}: handles go on integer frames between the keys ({keys_named})")
                 roles.append(CHARACTERISTIC_JOINTS.index(role))
                 frames.append(int(frame))
                 positions.append(position)
         if relative_to is not None:
-            positions = self._offsets_to_positions(relative_to, roles, frames, positions, span)
+            positions = self._offsets_to_positions(relative_to, roles, frames, positions, key_frames)
         slots = HANDLE_SLOTS * max(1, -(-len(roles) // HANDLE_SLOTS))
         pad = slots - len(roles)
         return Handles(
@@ -217,14 +236,15 @@ class Inbetweener:
             valid=jnp.asarray([True] * len(roles) + [False] * pad, bool),
         )
 
-    def _offsets_to_positions(self, keys: Pose, roles: list[int], frames: list[int], offsets: list[np.ndarray], span: int) -> list[np.ndarray]:
+    def _offsets_to_positions(self, keys: Pose, roles: list[int], frames: list[int], offsets: list[np.ndarray], key_frames: np.ndarray) -> list[np.ndarray]:
         key_positions = np.asarray(targets_from_pose(self.character, keys).position, np.float64)  # (K, 6, 3)
-        last = span * (key_positions.shape[0] - 1)
         out = []
         for role, frame, offset in zip(roles, frames, offsets):
-            if frame >= last:
-                raise ValueError(f"{CHARACTERISTIC_JOINTS[role]} at frame {frame}: outside the in-between, frames 0 … {last} (the keys' last)")
-            out.append(offset + line_between_keys(key_positions, role, frame, span))
+            if frame >= key_frames[-1]:
+                raise ValueError(
+                    f"{CHARACTERISTIC_JOINTS[role]} at frame {frame}: outside the in-between, frames {key_frames[0]} … {key_frames[-1]} (the keys' last)"
+                )
+            out.append(offset + line_between_keys(key_positions, role, frame, key_frames))
         return out
 
     def inbetween(
@@ -241,11 +261,25 @@ class Inbetweener:
         from one key to the next, default the model's window, 30)."""
         return inbetween(self, keys, handles, key=key, options=options, key_velocity=key_velocity, span=span)
 
-    def to_bvh(self, result: InbetweenResult | Pose, *, template: BvhMotion | None = None, fps: float = 30.0) -> BvhMotion:
+    def inbetween_at(
+        self,
+        keys: Pose,
+        times: Sequence[int],
+        handles: Handles | None = None,
+        *,
+        key: Array,
+        options: InbetweenOptions = InbetweenOptions(),
+        key_velocity: Float[Array, "keys 6 3"] | None = None,
+    ) -> TimedInbetween:
+        """:func:`~bezmotion.pipeline.key_times.inbetween_at` of this model: keys at the frames
+        ``times`` (any distance apart, e.g. ``[0, 20, 65, 90]``)."""
+        return inbetween_at(self, keys, times, handles, key=key, options=options, key_velocity=key_velocity)
+
+    def to_bvh(self, result: InbetweenResult | TimedInbetween | Pose, *, template: BvhMotion | None = None, fps: float = 30.0) -> BvhMotion:
         """The motion as a BVH (:func:`~bezmotion.data.bvh.write_bvh` writes it), in the
         clips' units and up axis; ``template``: a clip whose OFFSETs, End Sites and channels
         the file keeps, so it rigs like the clip."""
-        pose = result.pose if isinstance(result, InbetweenResult) else result
+        pose = result.pose if isinstance(result, InbetweenResult | TimedInbetween) else result
         template = None if template is None else self.clip_frame.to_ours(template)
         channels = None if template is None else template.channels
         motion = pose_to_bvh(self.character, pose, fps=fps, template=template, channels=channels)
