@@ -197,7 +197,7 @@ def straight_line(start: Float[Array, "*batch joints 3"], end: Float[Array, "*ba
     return (1.0 - t) * at(start) + t * at(end)
 
 
-def line_between_keys(key_positions: np.ndarray, joint: int, frame: int, key_frames: Sequence[int]) -> np.ndarray:
+def line_between_keys(key_positions: np.ndarray, joint: int, frame: int, key_frames: Sequence[int] | np.ndarray) -> np.ndarray:
     """``(3,)`` where ``joint`` is at ``frame`` on the straight line between its positions at
     the keys around that frame (``key_positions`` ``(K, joints, 3)``, the keys at
     ``key_frames`` ``(K,)``, increasing): the reference a relative handle is an offset from."""

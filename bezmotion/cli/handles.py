@@ -136,14 +136,19 @@ def handle_role(request: HandleRequest, recognised: RecognisedCharacter) -> str:
 
 
 def resolve_handles(
-    requests: Sequence[HandleRequest], recognised: RecognisedCharacter, keys: Sequence[Pose], bmm: BezierMotionModel, *, span: int | None = None
+    requests: Sequence[HandleRequest],
+    recognised: RecognisedCharacter,
+    keys: Sequence[Pose],
+    bmm: BezierMotionModel,
+    *,
+    key_frames: Sequence[int] | None = None,
 ) -> tuple[Handles, list[dict[str, Any]]]:
     """``(Handles, [{"joint", "frame", "position"}])`` of the requests: offsets made positions,
     every handle checked.
 
     Args:
-      keys: the key poses, ``span`` frames apart: two for one window, more for a chain.
-      span: frames from one key to the next (default the BMM's window, ``bmm.config.num_frames − 1``: 30).
+      keys: the key poses: two for one window, more for a chain.
+      key_frames: their frames, the first 0 (default every BMM window, ``bmm.config.num_frames − 1``: 30, apart).
     Returns:
       The handles ``(slots,)`` in the in-between's frames (counted from the first key),
       padded (``valid=False``) to a multiple of :data:`HANDLE_SLOTS` so that another count
@@ -155,9 +160,8 @@ def resolve_handles(
         it was written.
     """
     character = recognised.character
-    span = bmm.config.num_frames - 1 if span is None else span
-    shape = SimpleNamespace(num_frames=span + 1, num_joints=bmm.config.num_joints)  # what Handles.from_frames checks against
-    last = span * (len(keys) - 1)
+    key_frames = np.arange(len(keys)) * (bmm.config.num_frames - 1) if key_frames is None else np.asarray(key_frames)
+    last = int(key_frames[-1])
     idx = np.asarray(character.characteristic)
     key_positions = np.stack([np.asarray(pose_fk(character, p)[1])[idx] for p in keys])  # (keys, 6, 3)
     records = []
@@ -166,10 +170,11 @@ def resolve_handles(
         role = handle_role(r, recognised)
         if not 0 <= r.frame <= last:
             raise ValueError(one_line(f"{r.source}: frame {r.frame} is outside the in-between, frames 0…{last} (0 and {last} are the keys)"))
-        if 0 < r.frame < last and r.frame % span == 0:
-            raise ValueError(f"{r.source}: frame {r.frame} is a key of the chain (keys at {listed(range(0, last + 1, span))}); handles go between them")
-        window = min(r.frame // span, len(keys) - 2)
-        local = r.frame - span * window  # the frame in its window (0 and 30 are the window's keys)
+        if 0 < r.frame < last and r.frame in key_frames:
+            raise ValueError(f"{r.source}: frame {r.frame} is a key of the chain (keys at {listed(key_frames.tolist())}); handles go between them")
+        window = min(int(np.searchsorted(key_frames, r.frame, side="right")) - 1, len(keys) - 2)
+        local = r.frame - int(key_frames[window])  # the frame in its window (0 and its span are the window's keys)
+        shape = SimpleNamespace(num_frames=int(key_frames[window + 1] - key_frames[window]) + 1, num_joints=bmm.config.num_joints)  # what Handles.from_frames checks against
         line = line_between_keys(key_positions, CHARACTERISTIC_JOINTS.index(role), r.frame, key_frames)
         position = np.asarray(r.value, np.float64) + (line if r.relative else 0.0)
         dx, dy, dz = position - line

@@ -14,17 +14,18 @@ keeps its timing (a clip at another rate is resampled to 30 fps through its keys
 the clip's rate where that is a whole multiple of 30 fps, ``--bvh-fps``; a distance that is
 no whole number of 30 fps frames is refused); ``--start``/``--end`` put two poses ``--gap``
 frames apart (default 30, the BMM's window). More than two ``--frames``
-(``CLIP.bvh --frames 0 30 60 90``, evenly spaced, a multiple of 6 frames apart)
-in-between a chain through every one of them: one window per pair of consecutive keys, all
-sampled in one call and joined C¹ at the shared keys
-(:func:`~bezmotion.pipeline.inbetween`), then one IK over the whole motion.
+(``CLIP.bvh --frames 0 20 65 90``, any distances apart) in-between a chain through every
+one of them, joined C¹ at the shared keys: one window per pair of consecutive keys
+(:func:`~bezmotion.pipeline.inbetween_at`; keys evenly spaced a multiple of 6 frames apart
+are sampled in one call, others one window after another).
 ``--key FILE.bvh@FRAME``, repeated, makes such a chain through any poses of any files, in
 the order given, each put ``--gap`` frames after the one before.
 Every key file must have the same joints; the output rigs like the first one (its OFFSETs
 and End Sites).
 
-**Handles** (any number; frames count from the first key, 0, to the last, the gap G (30 by
-default) — or G·K through K + 1 keys; a frame between two keys, not on one):
+**Handles** (any number; frames count at 30 fps from the first key, 0, to the last (the gap
+G, 30 by default, G·K through K + 1 keys spaced by ``--gap``; with ``--frames`` the clip's
+distance from the first key frame); a frame between two keys, not on one):
 
 - ``--handle JOINT@FRAME=X,Y,Z``: the joint at that frame is at ``(X, Y, Z)`` in the
   clip's world frame (cm for LaFAN1 and Bandai-Namco, +Y up);
@@ -85,7 +86,7 @@ from bezmotion.ik.exact import exact_settings
 from bezmotion.ik.protocol import Pose, pose_fk
 from bezmotion._src.io import atomic_write_text
 from bezmotion._src.output_sets import output_set
-from bezmotion.pipeline import InbetweenOptions, Inbetweener, inbetween, pose_to_bvh
+from bezmotion.pipeline import InbetweenOptions, Inbetweener, inbetween_at, pose_to_bvh
 from bezmotion.evaluation.window_figures import (
     beyond_reach,
     conflicting_handles,
@@ -128,7 +129,7 @@ def run_inbetween(args: InbetweenCommand, *, say: Callable[[str], None] | None =
     character = p.recognised.character
     n = len(p.outputs)
     windows = len(p.keys) - 1
-    frames = windows * p.span + 1
+    frames = p.frames
     say(
         f"{p.label}: {character.name} ({character.num_joints} joints), BMM {p.models['bmm']}, IK {p.ik}"
         + (f" (learned IK {p.models['ik']})" if p.models["ik"] is not None else "") + f", {len(p.handle_records)} handle(s), "
@@ -149,16 +150,14 @@ def run_inbetween(args: InbetweenCommand, *, say: Callable[[str], None] | None =
     for k in range(n):
         t0 = time.perf_counter()
         say(f"sample {k + 1}/{n}" + (" (compiling first, about a minute on a CPU) …" if k == 0 else " …"))
-        result = inbetween(
-            model, keys, p.handles, key=sample_key(args.seed, k), options=options, key_velocity=p.key_velocity, span=p.span
-        )
-        curves = result.joined_curves()  # one curve through every key (C¹ there)
+        result = inbetween_at(model, keys, p.key_times, p.handles, key=sample_key(args.seed, k), options=options, key_velocity=p.key_velocity)
+        curves = result.curves  # one curve through every key (C¹ there)
         seconds = time.perf_counter() - t0
         motion = pose_to_bvh(character, result.pose, **export)
         files = ResultFiles(
             character, motion, curves, p.bmm.config.stride, tuple(p.handle_records), p.reference,
-            f"{p.label}, sample {k}" if n > 1 else p.label, tuple(range(0, frames, p.span)), p.clip_frame,
-            bvh_fps=p.bvh_fps,
+            f"{p.label}, sample {k}" if n > 1 else p.label, p.key_times, p.clip_frame,
+            bvh_fps=p.bvh_fps, layout=result.layout,
         )  # fmt: skip
         _, pos = pose_fk(character, result.pose)
         pos = np.asarray(pos)
@@ -182,7 +181,8 @@ def run_inbetween(args: InbetweenCommand, *, say: Callable[[str], None] | None =
         "joints": character.num_joints,
         "frames": frames,
         "windows": windows,
-        "gap": p.span,
+        "gap": p.gap,
+        "key_frames": list(p.key_times),
         "fps": p.start_motion.nominal_fps,
         "clip_fps": p.clip_fps,
         "bvh_fps": p.bvh_fps,

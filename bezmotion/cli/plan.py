@@ -65,8 +65,8 @@ class InbetweenCommand:
     clip: Path | None = option(None, positional=True, metavar="CLIP.bvh", help="one BVH file holding both key poses (with --frames)")
     frames: tuple[int, ...] | None = option(
         None, metavar="FRAME",
-        help="the key frames in CLIP, any distance apart (2 … 900 frames at 30 fps): START END, or more, evenly spaced, for a "
-        "chain through every one (C¹ at the shared keys; the spacing a multiple of 6 frames at 30 fps)",
+        help="the key frames in CLIP, increasing, any distance apart (2 … 900 frames at 30 fps): START END, or more for a "
+        "chain through every one (C¹ at the shared keys), e.g. 0 20 65 90",
     )  # fmt: skip
     start: str | None = option(None, metavar="FILE.bvh@FRAME", help="the start pose (default frame 0)")
     end: str | None = option(None, metavar="FILE.bvh@FRAME", help="the end pose (default the last frame), put --gap frames after the start")
@@ -77,8 +77,8 @@ class InbetweenCommand:
     )  # fmt: skip
     gap: int | None = option(
         None, metavar="N",
-        help="with --start/--end or --key: frames from one key to the next at 30 fps, 2 … 900 (default 30, the BMM's window; "
-        "a chain's a multiple of 6); with CLIP --frames the clip's own spacing is the gap",
+        help="with --start/--end or --key: frames from one key to the next at 30 fps, 2 … 900 (default 30, the BMM's window); "
+        "with CLIP --frames the clip's own spacing is kept",
     )  # fmt: skip
     handle: tuple[str, ...] = option(
         (), repeat=True, metavar="JOINT@FRAME=X,Y,Z",
@@ -223,7 +223,18 @@ class Plan:
     out_dir: Path = Path()  # where the outputs go: the --out folder, or the --out file's
     set_name: str = ""  # their set's name there (_replacing)
     existing: ExistingOutputs = ExistingOutputs()  # what the outputs replace (ours, and theirs with --force) and remove (stale)
-    span: int = 30  # frames from one key to the next at TRAINED_FPS
+    key_times: tuple[int, ...] = (0, 30)  # the keys' frames at TRAINED_FPS, the first 0
+
+    @property
+    def frames(self) -> int:
+        """Frames of the in-between at TRAINED_FPS."""
+        return self.key_times[-1] + 1
+
+    @property
+    def gap(self) -> int | None:
+        """Frames from one key to the next where they are evenly spaced, else None."""
+        gaps = set(np.diff(self.key_times).tolist())
+        return gaps.pop() if len(gaps) == 1 else None
 
 
 SUMMARY = "summary.json"
@@ -366,7 +377,7 @@ def plan(args: InbetweenCommand) -> Plan:
     except (FileNotFoundError, ValueError, TypeError) as error:
         raise argument_error("--model" if args.model is not None else "the default BMM", model_name, error) from None
     clip_fps = start_motion.nominal_fps
-    span = _key_gap(args, bmm, clip_fps, len(keys))
+    key_times = _key_times(args, bmm, clip_fps, len(keys))
     # Every clip at the BMM's frame rate from here on (its window, thresholds and velocities count those frames).
     bvh_fps = bvh_frame_rate(args.bvh_fps, clip_fps)
     keys, rate_warnings = _at_trained_rate(keys, bvh_fps)
@@ -421,54 +432,47 @@ def plan(args: InbetweenCommand) -> Plan:
         chosen = f"--ik {ik}" if args.ik != "auto" else f"{path0}: the IK chosen for this skeleton ({ik})"
         raise ValueError(f"{chosen}: {fit}{error}") from None
 
-    handles, records = resolve_handles(requests, recognised, key_poses, bmm, span=span)
+    handles, records = resolve_handles(requests, recognised, key_poses, bmm, key_frames=key_times)
     reach = reach_chains(make_rig(character, recognised.rig_spec, rest_quat_local=np.asarray(key_poses[0].quat_local)))
     return Plan(
         recognised, start_motion, key_poses, reference, bmm, ik, ik_fn, ik_params, transfer, handles, records, reach, outputs, folder,
         label, key_velocity, {"bmm": model_name, "ik": None if ik_model is None else ik_model_name}, clip_frame, tuple(frame_warnings),
-        clip_fps, bvh_fps, transferred, out_dir, set_name, existing, span,
+        clip_fps, bvh_fps, transferred, out_dir, set_name, existing, key_times,
     )  # fmt: skip
 
 
-def _key_gap(args: InbetweenCommand, bmm: BezierMotionModel, clip_fps: float, num_keys: int) -> int:
-    """Frames from one key to the next at :data:`TRAINED_FPS`: CLIP ``--frames``' own spacing
-    (the clip's frames at its rate), else ``--gap``, else the BMM's window (30); checked."""
+def _key_times(args: InbetweenCommand, bmm: BezierMotionModel, clip_fps: float, num_keys: int) -> tuple[int, ...]:
+    """The keys' frames at :data:`TRAINED_FPS`, the first 0: CLIP ``--frames``' own (the
+    clip's frames at its rate, any distance apart), else every ``--gap`` frames (default the
+    BMM's window, 30); checked."""
     if args.clip is not None:
         shown = " ".join(map(str, args.frames))
         if args.gap is not None:
             raise ValueError(f"--gap {args.gap}: goes with --start/--end or --key; CLIP --frames {shown} keeps the clip's own spacing")
-        gaps = sorted({b - a for a, b in zip(args.frames, args.frames[1:])})
-        if len(gaps) > 1:
-            raise ValueError(
-                f"--frames {shown}: the keys are {' and '.join(map(str, gaps))} frames apart; a chain's keys are evenly spaced "
-                "(one window length for all): in-between each pair on its own, or give evenly spaced keys"
-            )
-        gap = gaps[0] * TRAINED_FPS / clip_fps  # the clip's gap in the frames the BMM counts
-        if abs(gap - round(gap)) > 1e-6:
+        gaps = [b - a for a, b in zip(args.frames, args.frames[1:])]
+        at_trained = [gap * TRAINED_FPS / clip_fps for gap in gaps]  # the clip's gaps in the frames the BMM counts
+        off = [(gap, at) for gap, at in zip(gaps, at_trained) if abs(at - round(at)) > 1e-6]
+        if off:
+            gap, at = off[0]
             whole_rate = abs(clip_fps - round(clip_fps)) < 1e-6  # then a whole number of the clip's frames makes whole 30 fps frames
             advice = (
                 f"space the keys a multiple of {round(clip_fps) // np.gcd(round(clip_fps), round(TRAINED_FPS))} frames apart" if whole_rate
                 else f"resample the clip to {TRAINED_FPS:g} fps"
             )  # fmt: skip
             raise ValueError(
-                f"--frames {shown}: {gaps[0]} frames at the clip's {clip_fps:g} fps are {gap:.4g} frames at {TRAINED_FPS:g} fps, "
+                f"--frames {shown}: {gap} frames at the clip's {clip_fps:g} fps are {at:.4g} frames at {TRAINED_FPS:g} fps, "
                 f"not a whole number; {advice}, or give the keys with --start/--end and --gap"
             )
-        span, given = round(gap), f"--frames {shown}"
+        spans, given = [round(at) for at in at_trained], f"--frames {shown}"
     else:
         span = bmm.config.num_frames - 1 if args.gap is None else args.gap
-        given = f"--gap {span}"
-    try:
-        window_frames(bmm.config, span + 1)
-    except ValueError:
-        raise ValueError(f"{given}: keys are 2 … {MAX_WINDOW_FRAMES - 1} frames apart at {TRAINED_FPS:g} fps, got {span}") from None
-    stride = bmm.config.stride
-    if num_keys > 2 and span % stride:
-        raise ValueError(
-            f"{given}: a chain's keys are a multiple of {stride} frames apart at {TRAINED_FPS:g} fps (its windows share the control "
-            f"points at the keys), got {span}; try {max(stride, stride * round(span / stride))}"
-        )
-    return span
+        spans, given = [span] * (num_keys - 1), f"--gap {span}"
+    for span in spans:
+        try:
+            window_frames(bmm.config, span + 1)
+        except ValueError:
+            raise ValueError(f"{given}: keys are 2 … {MAX_WINDOW_FRAMES - 1} frames apart at {TRAINED_FPS:g} fps, got {span}") from None
+    return tuple(int(t) for t in np.concatenate([[0], np.cumsum(spans)]))
 
 
 def bvh_frame_rate(choice: str, clip_fps: float) -> float:

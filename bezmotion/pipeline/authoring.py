@@ -37,6 +37,7 @@ from bezmotion._src.structured_files import read_structured_file
 from bezmotion._src.messages import listed, one_line
 from bezmotion.assets import PROFILES_DIR
 from bezmotion.assets.registry import resolve_folder
+from bezmotion.bezier import BezierLayout
 from bezmotion.bmm.sampling import SampledCurves
 from bezmotion.data.bvh import BvhMotion, read_bvh, write_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, PRESET_HIERARCHIES, preset_of
@@ -441,6 +442,8 @@ class ResultFiles:
         the motion resampled (:func:`~bezmotion.data.resample.resample_motion`: its every
         frame kept, those between slerped). The glTF file and the preview keep the motion's
         frames (glTF times them in seconds).
+      layout: where the curves' control points sit (None: ``BezierLayout(frames, stride)``;
+        keys at unequal distances: ``TimedInbetween.layout``).
     """
 
     character: Character
@@ -453,11 +456,13 @@ class ResultFiles:
     key_frames: tuple[int, ...] | None = None
     clip_frame: ClipFrame = ClipFrame()
     bvh_fps: float | None = None
+    layout: BezierLayout | None = None
 
     def curve_arrays(self) -> dict[str, Any]:
         if self.curves is None:
             return {"stride": self.stride}
-        return {"ctrl_pos": np.asarray(self.curves.ctrl_pos), "ctrl_tangent": np.asarray(self.curves.ctrl_tangent), "stride": self.stride}
+        arrays = {"ctrl_pos": np.asarray(self.curves.ctrl_pos), "ctrl_tangent": np.asarray(self.curves.ctrl_tangent), "stride": self.stride}
+        return arrays if self.layout is None else {**arrays, "layout": self.layout}
 
 
 def _write_bvh(path: Path, result: ResultFiles) -> None:

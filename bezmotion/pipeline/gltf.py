@@ -55,7 +55,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from jaxtyping import ArrayLike
 
-from bezmotion.bezier import DEFAULT_STRIDE, BezierLayout, checked_controls
+from bezmotion.bezier import DEFAULT_STRIDE, BezierLayout, JoinedLayout, checked_controls
 from bezmotion.data.bvh import POSITION_CHANNELS, BvhMotion
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS
 from bezmotion.geometry.skeleton import Skeleton
@@ -187,6 +187,7 @@ def write_glb(
     handles: Sequence[Mapping[str, Any]] | None = None,
     key_frames: Sequence[int] | None = None,
     name: str = "inbetween",
+    layout: BezierLayout | None = None,
 ) -> None:
     """Write ``motion`` and the six characteristic-joint curves as a binary glTF 2.0 file (atomically).
 
@@ -211,6 +212,8 @@ def write_glb(
       key_frames: the frames that are key poses, kept in the extras (default the first and
         last; a chain's inner keys too), so that an editor does not offer them as handles.
       name: the animation's name.
+      layout: where the curves' control points sit (default ``BezierLayout(frames, stride)``;
+        keys at unequal distances: :attr:`~bezmotion.pipeline.key_times.TimedInbetween.layout`).
 
     Raises:
       ValueError: curves of the wrong shape or with non-finite values, an unknown
@@ -224,7 +227,9 @@ def write_glb(
     if frames < 2:
         raise ValueError(f"need at least 2 frames to animate, got {frames}")
     fps = 1.0 / motion.frame_time
-    layout = BezierLayout(frames, stride)
+    layout = BezierLayout(frames, stride) if layout is None else layout
+    if layout.num_frames != frames or layout.stride != stride:
+        raise ValueError(f"the curves' layout has {layout.num_frames} frames at stride {layout.stride}, the motion {frames} at stride {stride}")
     ctrl_pos, ctrl_tangent = checked_controls(ctrl_pos, ctrl_tangent, layout, len(CHARACTERISTIC_JOINTS))
     if not (np.isfinite(motion.quat_local).all() and np.isfinite(motion.pos_local).all()):
         raise ValueError("motion contains non-finite values")
@@ -383,7 +388,7 @@ def read_glb(path: str | os.PathLike) -> GlbContents:
     motion = BvhMotion(skeleton, quat, pos, channels, frame_time, tuple(end_sites))
     if curve_joints:
         stride = int(meta["stride"])
-        layout = BezierLayout(frames, stride)
+        layout = _curve_layout(path, frames, stride, meta)
         if len(curves) != len(curve_joints) or any(c.shape[0] != layout.num_controls for c in curves.values()):
             raise ValueError(f"{path}: expected {len(curve_joints)} curves of {layout.num_controls} keys")
         keys = np.stack([curves[c] for c in range(len(curve_joints))], axis=1)  # (controls, 6, 3, 3)
@@ -393,6 +398,20 @@ def read_glb(path: str | os.PathLike) -> GlbContents:
         layout, ctrl_pos, ctrl_tangent = None, np.zeros((0, 6, 3)), np.zeros((0, 6, 3))
     key_frames = [int(f) for f in meta.get("key_frames", [0, frames - 1])]  # files before key_frames: a window's two
     return GlbContents(motion, ctrl_pos, ctrl_tangent, layout, curve_joints, list(meta.get("handles", [])), key_frames)
+
+
+def _curve_layout(path: Path, frames: int, stride: int, meta: Mapping[str, Any]) -> BezierLayout:
+    """The layout of a file's curves: its control frames on the stride's grid, or each window
+    between its keys on its own grid (keys at unequal distances, :class:`~bezmotion.bezier.JoinedLayout`)."""
+    layout = BezierLayout(frames, stride)
+    control_frames = [int(f) for f in meta.get("control_frames", layout.control_frames.tolist())]
+    if control_frames == layout.control_frames.tolist():
+        return layout
+    key_frames = [int(f) for f in meta.get("key_frames", [0, frames - 1])]
+    joined = JoinedLayout.of(np.diff(key_frames).tolist(), stride)
+    if joined.num_frames != frames or joined.control_frames.tolist() != control_frames:
+        raise ValueError(f"{path}: control frames {control_frames} are neither every {stride} frames nor each window's between the keys {key_frames}")
+    return joined
 
 
 def find_gltf_validator() -> Path | None:

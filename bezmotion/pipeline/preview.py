@@ -81,6 +81,7 @@ def write_preview(
     title: str | None = None,
     dpi: float | int = 72,
     size: tuple[float, float] | None = None,
+    layout: BezierLayout | None = None,
 ) -> int:
     """Write an animated GIF of ``motion`` with its curves, one GIF frame per motion frame (atomically).
 
@@ -101,6 +102,8 @@ def write_preview(
       handles: ``[{"joint": "right_hand", "frame": 12, "position": [x, y, z]}]`` (cm), drawn as stars.
       title: a line above the panels.
       dpi, size: resolution and figure size in inches (default 4.8 × 4.2 per panel).
+      layout: where the curves' control points sit (default ``BezierLayout(frames, stride)``;
+        keys at unequal distances: :attr:`~bezmotion.pipeline.key_times.TimedInbetween.layout`).
     Returns:
       the number of GIF frames (``motion``'s frame count).
 
@@ -119,7 +122,9 @@ def write_preview(
     if tuple(names) != tuple(character.skeleton.names):
         raise ValueError(f"motion joints {list(names)} are not {character.name}'s {list(character.skeleton.names)}")
     frames = motion.quat_local.shape[0]
-    layout = BezierLayout(frames, stride)
+    layout = BezierLayout(frames, stride) if layout is None else layout
+    if layout.num_frames != frames:
+        raise ValueError(f"the curves' layout has {layout.num_frames} frames, the motion {frames}")
     ctrl_pos, ctrl_tangent = checked_controls(ctrl_pos, ctrl_tangent, layout, len(CHARACTERISTIC_JOINTS))
     if reference is not None and reference.quat_local.shape[0] != frames:
         raise ValueError(f"reference has {reference.quat_local.shape[0]} frames, the motion {frames}")
