@@ -73,13 +73,12 @@ from bezmotion.bmm.features import FeatureStats
 from bezmotion.bmm.sampling import BezierMotionModel, load_model, sample_curves, save_model
 from bezmotion.bmm.augmentation import rest_reflections
 from bezmotion.bmm.train import LR_SCHEDULES, CurveArrays, BMMTrainConfig, DenseWindows, init_bmm_train_states, make_bmm_train_step
-from bezmotion.data.corpus import motion_clips
 from bezmotion.data.characteristic import SKELETON_MAPS
 from bezmotion.pipeline.transfer import CharacterProfile, Transfer, transfer_curve_dataset
 from bezmotion._src.options import option, options, parse_options, presets
 from bezmotion.training import StoppingRule, compile_train_step, count_parameters, data_mesh, run_training, train_with_learning_curve
 from bezmotion.training.distributed import DistributedOptions, is_coordinator, leave_group
-from _common import PARAMETER_CHOICES, PARAMETERS_HELP, matches_any, runs_dir, trained_parameters, window_labels
+from _common import PARAMETER_CHOICES, PARAMETERS_HELP, clip_label, matches_any, runs_dir, trained_parameters, window_labels
 
 DEFAULT_DATA = {name: default_source(name) for name in ("lafan1", "bandai_namco")}
 STEP_COUNTS = (5, 10, 25, 50, 100)
@@ -153,8 +152,8 @@ class Options(DistributedOptions):
         super().__post_init__()
         if self.model and self.init:
             raise ValueError("--model evaluates a saved BMM, --init fine-tunes one: give one of them")
-        if self.spans and (len(self.spans) != 2 or self.bandai_namco or self.also_corpus or self.holdout_contents):
-            raise ValueError(f"--spans takes LOW HIGH (got {' '.join(map(str, self.spans))}) and trains on --corpus alone (no --bandai-namco, --also-corpus, --holdout-contents)")
+        if self.spans and (len(self.spans) != 2 or self.bandai_namco or self.also_corpus):
+            raise ValueError(f"--spans takes LOW HIGH (got {' '.join(map(str, self.spans))}) and trains on --corpus alone (no --bandai-namco, --also-corpus)")
         if self.run_dir is None and self.init:  # named after every lever, as a run from scratch is
             name = f"bmm_{self.corpus}_finetune_{Path(self.init).name}_offgrid{self.off_grid_handles:g}{self.lever_suffix()}"
             object.__setattr__(self, "run_dir", str(runs_dir(name)))
@@ -196,11 +195,6 @@ class Options(DistributedOptions):
         if self.spans:
             parts.append(f"spans{self.spans[0]}-{self.spans[1]}")
         return "".join(f"_{p}" for p in parts)
-
-
-def concat_datasets(parts: list[CurveDataset]) -> CurveDataset:
-    first = parts[0]
-    return dataclasses.replace(first, **{k: np.concatenate([getattr(p, k) for p in parts]) for k in CurveDataset._ARRAYS})
 
 
 def train(
@@ -415,7 +409,7 @@ def main(argv: list[str] | None = None) -> dict:
     train_set = curve_dataset(corpus, "train", progress=not args.no_progress)
     if args.bandai_namco:
         extra = load_corpus("bandai_namco", source=args.bandai_namco, progress=not args.no_progress)
-        train_set = concat_datasets([train_set, curve_dataset(extra, "train", progress=not args.no_progress)])
+        train_set = CurveDataset.concatenate([train_set, curve_dataset(extra, "train", progress=not args.no_progress)])
     val_set = curve_dataset(corpus, "validation", progress=not args.no_progress)
     held_set = None
     if args.holdout_contents:
@@ -424,7 +418,7 @@ def main(argv: list[str] | None = None) -> dict:
         held_val = matches_any(window_labels(corpus, val_set, "validation"), args.holdout_contents)
         if not held_train.any() and not held_val.any():
             raise ValueError(f"--holdout-contents {' '.join(args.holdout_contents)}: no clip of {args.corpus} has such a content")
-        held_set = concat_datasets([train_set.subset(held_train), val_set.subset(held_val)])
+        held_set = CurveDataset.concatenate([train_set.subset(held_train), val_set.subset(held_val)])
         train_set, val_set = train_set.subset(~held_train), val_set.subset(~held_val)
     # The floor the skating metric measures against: the corpus's own training windows, never
     # the other corpus's moved into its character (whose ankles sit at another height).
@@ -434,7 +428,7 @@ def main(argv: list[str] | None = None) -> dict:
         other = load_corpus(args.also_corpus, source=args.also_data or str(DEFAULT_DATA[args.also_corpus]), progress=not args.no_progress)
         transfer = Transfer.between(*(CharacterProfile.load(PROFILES_DIR / f"{name}.json") for name in (args.also_corpus, args.corpus)))
         also_set = transfer_curve_dataset(curve_dataset(other, "train", progress=not args.no_progress), transfer)
-        train_set = concat_datasets([train_set, also_set])
+        train_set = CurveDataset.concatenate([train_set, also_set])
     stats = FeatureStats.from_dataset(train_set)
     mapping = corpus.characteristic_map
     reflections = None
@@ -464,7 +458,11 @@ def main(argv: list[str] | None = None) -> dict:
             curve_sets["held_out"] = make_eval_set(held_set, key=jax.random.key(4321), num_windows=args.curve_windows)
         evaluate = curve_evaluator(args, model_config, stats, metrics_config, curve_sets)
         if args.spans:  # windows of many lengths: unfitted windows as long as the longest, fitted in the step
-            data = DenseWindows.from_clips(motion_clips(corpus, "train"), corpus.characteristic_map, frames=args.spans[1] + 1)
+            train_clips = corpus.split("train")
+            if args.holdout_contents:  # no clip of a held-out content is trained on
+                labels = np.asarray([clip_label(corpus.labels(int(c))) for c in train_clips])
+                train_clips = train_clips[~matches_any(labels, args.holdout_contents)]
+            data = DenseWindows.from_clips(corpus.motion(train_clips), corpus.characteristic_map, frames=args.spans[1] + 1)
         else:
             data = CurveArrays.from_dataset(train_set)
         graphdef, state, history, train_s, curve = train(args, model_config, train_config, data, stats, init, evaluate)

@@ -10,7 +10,9 @@ keys (all six joints at both ends) and 1–4 handles at any frame, drawn per win
 (:func:`~bezmotion.evaluation.curves.make_eval_set`). The BMM samples ``--steps`` DDIM steps
 over a window of that length (:func:`~bezmotion.bmm.sampling.sample_curves` with
 ``num_frames``); the reference is the interpolation through the same keys and handles
-(:func:`~bezmotion.evaluation.curves.reference_curves`). Reported per span and per bucket
+(:func:`~bezmotion.evaluation.curves.reference_curves`). With ``--holdout-contents P …``
+(a model trained without those contents) the validation windows leave them out, and
+``--held-out`` measures their windows of both splits instead. Reported per span and per bucket
 (the mean of its spans' windows):
 
 - ``bmm_dense_cm`` / ``reference_dense_cm``: the six joints' dense position error of the
@@ -35,10 +37,12 @@ from bezmotion._src.options import option, options, parse_options
 from bezmotion.pipeline.authoring import resolve_bmm
 from bezmotion.bezier import BezierLayout
 from bezmotion.bmm.sampling import load_model, sample_curves
-from bezmotion.data.curves import curve_dataset
+from bezmotion.data.corpus import SPLITS
+from bezmotion.data.curves import CurveDataset, curve_dataset
 from bezmotion.data.sources import default_source, load_corpus
 from bezmotion.evaluation.curves import dense_positions, make_eval_set, reference_curves, sample_in_chunks
 from bezmotion.evaluation.metrics import mean_position_error
+from _common import matches_any, window_labels
 
 BUCKETS = {"8-15": (8, 15), "16-30": (16, 30), "31-60": (31, 60), "61-90": (61, 90)}
 """Length buckets (frames from one key to the next), each measured at its two ends by default."""
@@ -51,7 +55,11 @@ class Options:
     spans: tuple[int, ...] = option(
         tuple(end for bounds in BUCKETS.values() for end in bounds), help="spans to measure (default each bucket's two ends)"
     )
-    windows: int = option(100, help="validation windows per span")
+    windows: int = option(100, help="windows measured per span")
+    holdout_contents: tuple[str, ...] = option(
+        (), metavar="PATTERN", help="contents a model was trained without (bmm_lafan1.py --holdout-contents): left out of the validation windows"
+    )
+    held_out: bool = option(False, help="measure the --holdout-contents' windows of both splits instead of the validation windows")
     offset: int = option(15, help="frames between the starts of consecutive windows of a clip")
     steps: int = option(10, help="DDIM steps")
     seed: int = option(0, help="the windows' handles and the sampler's key")
@@ -61,6 +69,8 @@ class Options:
         for span in self.spans:
             if not 2 <= span <= 900:
                 raise ValueError(f"--spans: a span is 2 … 900 frames, got {span}")
+        if self.held_out and not self.holdout_contents:
+            raise ValueError("--held-out measures the --holdout-contents' windows: give the patterns")
         if self.windows < 1 or self.offset < 1 or self.steps < 1:
             raise ValueError(f"--windows, --offset and --steps must be positive, got {self.windows}, {self.offset}, {self.steps}")
 
@@ -69,9 +79,21 @@ def bucket_of(span: int) -> str | None:
     return next((name for name, (low, high) in BUCKETS.items() if low <= span <= high), None)
 
 
+def measured_windows(corpus, span: int, args: Options) -> CurveDataset:
+    """The windows of ``span + 1`` frames measured: the validation clips' (less the held-out
+    contents), or with ``--held-out`` the held-out contents' of both splits."""
+    fitted = {split: curve_dataset(corpus, split, window=span + 1, offset=args.offset, progress=not args.no_progress) for split in SPLITS}
+    if not args.holdout_contents:
+        return fitted["validation"]
+    held = {split: matches_any(window_labels(corpus, data, split), args.holdout_contents) for split, data in fitted.items()}
+    if args.held_out:
+        return CurveDataset.concatenate([fitted[split].subset(held[split]) for split in SPLITS])
+    return fitted["validation"].subset(~held["validation"])
+
+
 def measure_span(bmm, corpus, span: int, args: Options) -> dict:
     """One span's windows: the BMM's and the reference's dense errors and the handles' error."""
-    dataset = curve_dataset(corpus, "validation", window=span + 1, offset=args.offset, progress=not args.no_progress)
+    dataset = measured_windows(corpus, span, args)
     layout = BezierLayout(span + 1, dataset.layout.stride)
     eval_set = make_eval_set(dataset, key=jax.random.key(args.seed), num_windows=min(args.windows, len(dataset)), handle_frames="any", per_window=True)
     sample = functools.partial(sample_curves, bmm, steps=args.steps, num_frames=span + 1)
@@ -94,7 +116,8 @@ def measure_span(bmm, corpus, span: int, args: Options) -> dict:
 def report(results: dict) -> str:
     lines = [
         f"# The BMM at keys any distance apart: {results['model']['name']}, its config's window {results['model']['window_frames']} frames apart, "
-        f"{results['steps']} DDIM steps",
+        f"{results['steps']} DDIM steps, {results['windows_of']} windows"
+        + (f" (held-out contents {' '.join(results['holdout_contents'])})" if results["holdout_contents"] else ""),
         "",
         "| bucket (frames apart) | windows | BMM dense (cm) | interpolation dense (cm) | ratio | handles error max (cm) |",
         "|---|---|---|---|---|---|",
@@ -118,6 +141,7 @@ def main(argv: list[str] | None = None) -> dict:
     spans = {str(span): measure_span(bmm, corpus, span, args) for span in args.spans}
     results: dict = {
         "model": {"name": args.model, "folder": str(folder), "window_frames": bmm.config.num_frames - 1},
+        "windows_of": "held-out contents" if args.held_out else "validation", "holdout_contents": list(args.holdout_contents),
         "steps": args.steps, "seed": args.seed, "spans": spans,
     }  # fmt: skip
     for name in BUCKETS:

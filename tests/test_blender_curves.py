@@ -29,7 +29,7 @@ from blender import find_blender, run_in_blender
 from helpers import np_forward_kinematics
 
 from bezmotion.assets import DEMO_CLIP
-from bezmotion.bezier import BezierLayout, evaluate
+from bezmotion.bezier import BezierLayout, JoinedLayout, evaluate
 from bezmotion.data.bvh import read_bvh
 from bezmotion.data.characteristic import CHARACTERISTIC_JOINTS, characteristic_indices
 from bezmotion.pipeline.gltf import read_glb, write_glb
@@ -48,14 +48,16 @@ def load_script():
 bc = load_script()
 
 
-def clip_curves(frames: int, stride: int = 6):
+def clip_curves(frames: int, stride: int = 6, spans: tuple[int, ...] | None = None):
+    """The demo clip's first ``frames`` frames and its six joints' curves (fitted by finite
+    differences) on ``BezierLayout(frames, stride)``, or with ``spans`` on keys that far apart."""
     clip = read_bvh(DEMO_CLIP)
     motion = dataclasses.replace(
         clip, quat_local=clip.quat_local[:frames], pos_local=clip.pos_local[:frames], frame_time=1.0 / clip.nominal_fps
     )  # 30 fps exactly, as the pipeline writes (not the file's truncated 0.0333333 s)
     _, pos = np_forward_kinematics(motion.skeleton.parents, motion.quat_local, motion.pos_local)
     points = pos[:, characteristic_indices(motion.skeleton.names, "bandai_namco")]
-    layout = BezierLayout(frames, stride)
+    layout = BezierLayout(frames, stride) if spans is None else JoinedLayout.of(spans, stride)
     tangent = np.gradient(points, axis=0)[layout.control_frames] * (stride / 3.0)
     return motion, layout, points[layout.control_frames], tangent
 
@@ -107,9 +109,12 @@ def _bezier_fcurve(keys, frame):
     return cubic(0.5 * (lo + hi), 1)
 
 
-@pytest.mark.parametrize("frames", [31, 29])
+@pytest.mark.parametrize("frames", [31, 29, (8, 17, 14)])
 def test_blender_keyframes_draw_our_curves_and_give_the_tangents_back(frames):
-    _, layout, ctrl_pos, ctrl_tangent = clip_curves(frames)
+    """One window of 31 or 29 frames, or keys at unequal distances (each window's own grid)."""
+    spans = frames if isinstance(frames, tuple) else None
+    frames = frames if spans is None else sum(spans) + 1
+    _, layout, ctrl_pos, ctrl_tangent = clip_curves(frames, spans=spans)
     query = np.linspace(0.0, frames - 1, 3 * frames)
     ours = our_curve(layout, ctrl_pos, ctrl_tangent, query)
     for j in range(6):

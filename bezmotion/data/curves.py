@@ -89,6 +89,12 @@ class CurveDataset:
         """The windows at ``indices`` (any NumPy index: ints or a boolean mask)."""
         return dataclasses.replace(self, **{k: getattr(self, k)[indices] for k in self._ARRAYS})
 
+    @classmethod
+    def concatenate(cls, parts: Sequence[CurveDataset]) -> CurveDataset:
+        """The windows of every part in order (the first part's layout and rate; each window's
+        ``clip_index`` stays its own split's)."""
+        return dataclasses.replace(parts[0], **{k: np.concatenate([getattr(p, k) for p in parts]) for k in cls._ARRAYS})
+
     def to_arrays(self) -> dict[str, np.ndarray]:
         arrays = {k: getattr(self, k) for k in self._ARRAYS}
         arrays.update(num_frames=np.asarray(self.layout.num_frames), stride=np.asarray(self.layout.stride))

@@ -757,7 +757,7 @@ def test_key_velocities_come_from_the_frames_around_the_keys(tmp_path):
 
 @pytest.mark.parametrize("flag, locked", [([], True), (["--no-foot-lock"], False), (["--foot-lock"], True)])
 def test_foot_lock_reaches_the_pipeline(flag, locked, tmp_path, monkeypatch):
-    """``--foot-lock`` (the default) and ``--no-foot-lock`` (the paper's curves) reach :func:`inbetween`."""
+    """``--foot-lock`` (the default) and ``--no-foot-lock`` (the paper's curves) reach :func:`inbetween_at`."""
     import bezmotion.cli.inbetween as command
 
     class Called(Exception):
@@ -766,7 +766,7 @@ def test_foot_lock_reaches_the_pipeline(flag, locked, tmp_path, monkeypatch):
     def inbetween(*args, **kwargs):
         raise Called(kwargs["options"].foot_lock)
 
-    monkeypatch.setattr(command, "inbetween", inbetween)
+    monkeypatch.setattr(command, "inbetween_at", inbetween)
     args = parse_options(InbetweenCommand, [str(DEMO_CLIP), "--frames", "0", "30", *FAST, *flag, "--out", str(tmp_path / "x.bvh")])
     with pytest.raises(Called) as called:
         command.run_inbetween(args)

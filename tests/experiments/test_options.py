@@ -220,6 +220,8 @@ README_COMMANDS = [
     ("experiments", "bezier_stride", ["--data", "../shared/data/lafan1/lafan1-subset.zip", "--out", "results/bezier_stride.json"]),
     ("benchmarks", "bezier_fit", ["--data", "../shared/data", "--out", "results/bezier_fit.json"]),
     ("experiments", "bmm_lafan1", ["--out", "results/bmm_lafan1.json"]),
+    ("experiments", "bmm_lafan1", ["--corpus", "bandai_namco", "--spans", "8", "90", "--holdout-contents", "run", "--out", "r.json"]),
+    ("experiments", "gap_lengths", ["--model", "m", "--holdout-contents", "run", "--held-out", "--out", "r.json"]),
     ("experiments", "bmm_lafan1", ["--out", "r.json", "--prediction", "residual", "--learning-rate", "5e-4", "--min-snr-gamma", "0", "--steps", "9"]),
     ("benchmarks", "bmm_inference", ["--out", "results/bmm_inference.json"]),
     ("experiments", "delta_lafan1", ["--out", "results/delta_lafan1.json", "--modes", "main"]),
