@@ -143,6 +143,7 @@ class Options(DistributedOptions):
     spans: tuple[int, ...] = option(
         (), help="train on windows of many lengths: keys LOW … HIGH frames apart, drawn per example (e.g. 8 90; default: the model's 30)"
     )
+    native_span: float = option(0.0, help="with --spans: the probability of an example's keys being the model's own window (30) apart")
     eval_every: int = option(0, help="learning curve: evaluate every N steps into <run-dir>/learning_curve.json (0 = only at the end)")
     curve_windows: int = option(200, help="validation windows per learning-curve point")
     patience: int = option(0, help="stop when the EMA validation dense error has not improved by 1 %% over this many curve points (0 = never)")
@@ -193,7 +194,7 @@ class Options(DistributedOptions):
         if self.holdout_contents:
             parts.append("holdout-" + "-".join(p.replace("*", "") for p in self.holdout_contents))
         if self.spans:
-            parts.append(f"spans{self.spans[0]}-{self.spans[1]}")
+            parts.append(f"spans{self.spans[0]}-{self.spans[1]}" + (f"native{self.native_span:g}" if self.native_span else ""))
         return "".join(f"_{p}" for p in parts)
 
 
@@ -439,7 +440,7 @@ def main(argv: list[str] | None = None) -> dict:
         off_grid_handles=args.off_grid_handles, lr_schedule=args.lr_schedule, warmup_steps=args.warmup_steps,
         total_steps=args.steps if args.lr_schedule != "constant" else None, yaw_augmentation=args.augment_yaw,
         mirror_augmentation=args.augment_mirror, rest_reflections=reflections, ema_decay=args.ema_decay,
-        still_augmentation=args.augment_still, spans=tuple(args.spans) or None,
+        still_augmentation=args.augment_still, spans=tuple(args.spans) or None, native_span_fraction=args.native_span,
     )  # fmt: skip
     metrics_config = None
     curve = None
@@ -488,7 +489,7 @@ def main(argv: list[str] | None = None) -> dict:
             "train_windows": len(train_set), "bandai_namco": bool(args.bandai_namco), "also_corpus": args.also_corpus, "wall_s_this_run": train_s,
             "lr_schedule": args.lr_schedule, "warmup_steps": args.warmup_steps, "augment_yaw": args.augment_yaw,
             "augment_mirror": args.augment_mirror, "augment_still": args.augment_still, "rest_reflections": reflections, "holdout_contents": list(args.holdout_contents),
-            "ema_decay": args.ema_decay, "spans": list(args.spans) or None, "evaluated_parameters": args.parameters, "history": history, "learning_curve": curve,
+            "ema_decay": args.ema_decay, "spans": list(args.spans) or None, "native_span": args.native_span, "evaluated_parameters": args.parameters, "history": history, "learning_curve": curve,
         },
         "eval": {"n_windows": int(eval_set.start.shape[0]), "floor_height_cm": metrics_config.floor_height, "fps": val_set.fps},
         "ground_truth": ground_truth_metrics(metrics_config, eval_set),

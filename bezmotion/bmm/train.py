@@ -86,6 +86,9 @@ class BMMTrainConfig:
       control grid sampling uses at that length, padded to ``high + 1`` frames
       (:class:`~bezmotion.bezier.PaddedLayout`: the padding is masked out of attention and
       losses). ``None`` (default): the :class:`CurveArrays` windows of the model's length.
+    - ``native_span_fraction``: with ``spans``, the probability that an example's keys are
+      the model's own window apart (``num_frames − 1``, 30) rather than a uniform draw, so
+      that a model fine-tuned on many lengths keeps the one it was trained at.
     """
 
     batch_size: int = 64
@@ -106,6 +109,7 @@ class BMMTrainConfig:
     rest_reflections: tuple[tuple[float, float, float], ...] | None = None
     still_augmentation: float = 0.0
     spans: tuple[int, int] | None = None
+    native_span_fraction: float = 0.0
 
     def __post_init__(self):
         if self.batch_size < 1 or self.learning_rate <= 0 or self.weight_decay < 0:
@@ -114,7 +118,7 @@ class BMMTrainConfig:
             raise ValueError(f"condition_dropout and ema_decay must be in [0, 1), got {self}")
         if not 0.0 <= self.off_grid_handles <= 1.0:
             raise ValueError(f"off_grid_handles must be a probability in [0, 1], got {self.off_grid_handles}")
-        for name in ("mirror_augmentation", "still_augmentation"):
+        for name in ("mirror_augmentation", "still_augmentation", "native_span_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"{name} must be a probability in [0, 1], got {getattr(self, name)}")
         if self.lr_schedule not in LR_SCHEDULES:
@@ -134,6 +138,8 @@ class BMMTrainConfig:
             len(self.spans) != 2 or not all(isinstance(x, int) for x in self.spans) or not 2 <= self.spans[0] <= self.spans[1] <= MAX_WINDOW_FRAMES - 1
         ):
             raise ValueError(f"spans must be (low, high) integers with 2 <= low <= high <= {MAX_WINDOW_FRAMES - 1}, got {self.spans!r}")
+        if self.native_span_fraction and self.spans is None:
+            raise ValueError(f"native_span_fraction={self.native_span_fraction} draws among spans: give spans too")
         if self.rest_reflections is not None and len(self.rest_reflections) != 6:
             raise ValueError(f"rest_reflections needs one reflection per characteristic joint (6), got {len(self.rest_reflections)}")
 
@@ -229,6 +235,9 @@ def make_training_window(
         fixed = BezierLayout.from_controls(model_config.num_controls, stride)
         return lambda batch_item, rng: (tuple(batch_item), fixed)
     low, high = train_config.spans
+    native = model_config.num_frames - 1
+    if train_config.native_span_fraction and not low <= native <= high:
+        raise ValueError(f"native_span_fraction draws the model's own span, {native} frames, outside spans {train_config.spans}")
     operators = span_fit_operators(stride, low, high)
 
     def window(batch_item, rng):
@@ -236,6 +245,8 @@ def make_training_window(
         if dense.shape[0] != high + 1:
             raise ValueError(f"spans {train_config.spans} need DenseWindows of {high + 1} frames, got {dense.shape[0]}")
         span = jax.random.randint(jax.random.fold_in(rng, 11), (), low, high + 1)
+        if train_config.native_span_fraction:  # (a static branch: without it the draws are as before)
+            span = jnp.where(jax.random.uniform(jax.random.fold_in(rng, 12)) < train_config.native_span_fraction, native, span)
         layout = PaddedLayout(span + 1, stride, high + 1)
         frames = jnp.minimum(layout.control_frames, high)
         tangent = exact_einsum("kf,fjd->kjd", operators[span - low], dense)

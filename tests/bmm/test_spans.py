@@ -157,3 +157,22 @@ def test_a_step_on_many_lengths_trains(windows, stats):
 def test_spans_are_checked(spans):
     with pytest.raises(ValueError, match="spans"):
         BMMTrainConfig(spans=spans)
+
+
+def test_the_native_span_fraction_draws_the_models_own_window(windows):
+    """``native_span_fraction``: that share of examples has the model's own window (the tiny
+    config's 30 frames: 31 > MAX_SPAN, so a config of 19 frames here); 0 draws as before."""
+    config = dataclasses.replace(RESIDUAL, num_controls=4)  # 19 frames
+    item = tuple(a[1] for a in windows)
+
+    def drawn(fraction):
+        window = make_training_window(config, BMMTrainConfig(spans=(6, MAX_SPAN), native_span_fraction=fraction))
+        return [int(window(item, jax.random.key(seed))[1].num_frames) - 1 for seed in range(40)]
+
+    plain, always, half = drawn(0.0), drawn(1.0), drawn(0.5)
+    assert always == [18] * 40 and 5 < half.count(18) < 35 and plain.count(18) < 8
+    assert [s for s, h in zip(plain, half) if h != 18] == [h for h in half if h != 18]  # the other draws unchanged
+    with pytest.raises(ValueError, match="draws the model's own span, 18 frames, outside spans"):
+        make_training_window(config, BMMTrainConfig(spans=(20, MAX_SPAN), native_span_fraction=0.5))
+    with pytest.raises(ValueError, match="give spans too"):
+        BMMTrainConfig(native_span_fraction=0.5)
