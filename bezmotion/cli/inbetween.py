@@ -19,7 +19,8 @@ one of them, joined C¹ at the shared keys: one window per pair of consecutive k
 (:func:`~bezmotion.pipeline.inbetween_at`; keys evenly spaced a multiple of 6 frames apart
 are sampled in one call, others one window after another).
 ``--key FILE.bvh@FRAME``, repeated, makes such a chain through any poses of any files, in
-the order given, each put ``--gap`` frames after the one before.
+the order given, each put ``--gap`` frames after the one before (one gap, or one per pair of
+keys: ``--gap 20 45 25``).
 Every key file must have the same joints; the output rigs like the first one (its OFFSETs
 and End Sites).
 

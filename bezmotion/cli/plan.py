@@ -75,10 +75,10 @@ class InbetweenCommand:
         help="a key pose, repeatable (two or more, instead of --start/--end): a chain through them in order, each put --gap frames "
         "after the one before (without @FRAME: the first frame, the last key's last frame)",
     )  # fmt: skip
-    gap: int | None = option(
+    gap: tuple[int, ...] | None = option(
         None, metavar="N",
         help="with --start/--end or --key: frames from one key to the next at 30 fps, 2 … 900 (default 30, the BMM's window); "
-        "with CLIP --frames the clip's own spacing is kept",
+        "one per pair of --key poses for a chain of unequal windows (--gap 20 45 25); with CLIP --frames the clip's own spacing is kept",
     )  # fmt: skip
     handle: tuple[str, ...] = option(
         (), repeat=True, metavar="JOINT@FRAME=X,Y,Z",
@@ -448,7 +448,7 @@ def _key_times(args: InbetweenCommand, bmm: BezierMotionModel, clip_fps: float, 
     if args.clip is not None:
         shown = " ".join(map(str, args.frames))
         if args.gap is not None:
-            raise ValueError(f"--gap {args.gap}: goes with --start/--end or --key; CLIP --frames {shown} keeps the clip's own spacing")
+            raise ValueError(f"--gap {' '.join(map(str, args.gap))}: goes with --start/--end or --key; CLIP --frames {shown} keeps the clip's own spacing")
         gaps = [b - a for a, b in zip(args.frames, args.frames[1:])]
         at_trained = [gap * TRAINED_FPS / clip_fps for gap in gaps]  # the clip's gaps in the frames the BMM counts
         off = [(gap, at) for gap, at in zip(gaps, at_trained) if abs(at - round(at)) > 1e-6]
@@ -465,8 +465,11 @@ def _key_times(args: InbetweenCommand, bmm: BezierMotionModel, clip_fps: float, 
             )
         spans, given = [round(at) for at in at_trained], f"--frames {shown}"
     else:
-        span = bmm.config.num_frames - 1 if args.gap is None else args.gap
-        spans, given = [span] * (num_keys - 1), f"--gap {span}"
+        gaps = (bmm.config.num_frames - 1,) if args.gap is None else args.gap
+        given = f"--gap {' '.join(map(str, gaps))}"
+        if len(gaps) not in (1, num_keys - 1):
+            raise ValueError(f"{given}: one gap for every pair of keys, or one per pair ({num_keys - 1} through {num_keys} keys), got {len(gaps)}")
+        spans = list(gaps) * (num_keys - 1) if len(gaps) == 1 else list(gaps)
     for span in spans:
         try:
             window_frames(bmm.config, span + 1)

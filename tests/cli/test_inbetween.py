@@ -342,6 +342,14 @@ def test_keys_any_distance_apart_keep_the_clips_timing(tmp_path):
     assert (tmp_path / "unequal" / "preview.gif").stat().st_size > 0
 
 
+def test_key_poses_of_any_files_take_a_gap_each(tmp_path):
+    """``--key`` poses with ``--gap G`` are G apart; with one gap per pair, each its own."""
+    keys = ["--key", f"{DEMO_CLIP}@0", "--key", f"{DEMO_CLIP}@9", "--key", f"{DEMO_CLIP}@20"]
+    for gaps, times in (([], (0, 30, 60)), (["20"], (0, 20, 40)), (["20", "45"], (0, 20, 65))):
+        argv = [*keys, *(["--gap", *gaps] if gaps else []), *FAST, "--out", str(tmp_path / "x.bvh")]
+        assert plan(parse_options(InbetweenCommand, argv)).key_times == times
+
+
 def test_a_clip_in_no_named_unit_is_taken_for_a_typical_adult_and_said(tmp_path):
     """A skeleton a person's size in none of cm, m and mm (raw CMU's ~5.6 cm unit; here the
     demo's actor 1000× smaller) is scaled to a typical adult, with a warning; the BVH is
@@ -643,6 +651,10 @@ def _cases(tmp):
         "handle frame out of the in-between": ([*keys, "--handle", "head@31=+0,1,0"], "--handle head@31=+0,1,0: frame 31 is outside the in-between, frames 0…30"),
         "keys on one frame": ([clip, "--frames", "4", "4"], "--frames 4 4: keys are 2 … 900 frames apart at 30 fps, got 0"),
         "keys one frame apart": (["--start", f"{clip}@0", "--end", f"{clip}@9", "--gap", "1"], "--gap 1: keys are 2 … 900 frames apart at 30 fps, got 1"),
+        "gaps not one per pair of keys": (
+            ["--key", f"{clip}@0", "--key", f"{clip}@9", "--key", f"{clip}@20", "--gap", "20", "45", "25"],
+            "--gap 20 45 25: one gap for every pair of keys, or one per pair (2 through 3 keys), got 3",
+        ),
         "a gap beside the clip's frames": ([*keys, "--gap", "45"], "--gap 45: goes with --start/--end or --key; CLIP --frames 0 30 keeps the clip's own spacing"),
         "not a BVH file": ([f"{tmp}/notes.bvh", "--frames", "0", "30"], f"CLIP {tmp}/notes.bvh: "),
         "missing clip": ([f"{tmp}/missing.bvh", "--frames", "0", "30"], f"CLIP {tmp}/missing.bvh: no such file"),
